@@ -1,0 +1,102 @@
+"""Analytic forward models in torch: exact images and exact gradients, the ground truth for tests.
+
+Optional synthetic rendering noise mimics a Monte Carlo renderer: L̃ = L + ε with
+ε ~ N(0, render_noise² · L / N^p) per pixel, N = spp, p = `render_noise_power` (1 for a path tracer),
+independent across seeds. With render_noise = 0 the image is exact for every spp and seed.
+"""
+from __future__ import annotations
+
+from abc import abstractmethod
+
+import numpy as np
+import torch
+
+from ..params import Param, ParamSpace
+from ..seeds import derive
+from .model import ForwardModel
+
+
+class AnalyticModel(ForwardModel):
+    """Base for closed-form models: subclasses give `clean(θ)` as a differentiable torch function."""
+
+    def __init__(self, name: str, params: ParamSpace, render_noise: float = 0.0,
+                 render_noise_power: float = 1.0, cache=None):
+        super().__init__(name, params, cache)
+        if render_noise < 0:
+            raise ValueError(f"render_noise must be >= 0, got {render_noise}")
+        self.render_noise = float(render_noise)
+        self.render_noise_power = float(render_noise_power)
+        self.exact = self.render_noise == 0.0
+
+    @abstractmethod
+    def clean(self, theta: torch.Tensor) -> torch.Tensor:
+        """Noise-free image (H, W, C) float64 from θ float64 (P,), differentiable in θ."""
+
+    def noise_variance(self, L: torch.Tensor, spp: int) -> torch.Tensor:
+        """Per-pixel variance of the synthetic rendering error at `spp` samples (float64)."""
+        return self.render_noise ** 2 * L.clamp_min(0) / float(spp) ** self.render_noise_power
+
+    def _noisy(self, theta: torch.Tensor, spp: int, seed: int) -> torch.Tensor:
+        L = self.clean(theta)
+        if self.exact:
+            return L
+        g = torch.Generator().manual_seed(derive(seed, "analytic-render-noise"))
+        z = torch.randn(L.shape, generator=g, dtype=torch.float64)
+        return L + z * self.noise_variance(L, spp).sqrt()
+
+    def _render(self, theta: np.ndarray, spp: int, seed: int) -> torch.Tensor:
+        with torch.no_grad():
+            return self._noisy(torch.as_tensor(theta, dtype=torch.float64), spp, seed).float()
+
+    def jvp(self, theta, index: int, spp: int = 1, seed: int = 0, **ad) -> torch.Tensor:
+        t = torch.as_tensor(self.params.validate(theta), dtype=torch.float64)
+        v = torch.zeros_like(t)
+        v[index] = 1.0
+        _, d = torch.func.jvp(lambda x: self._noisy(x, spp, seed), (t,), (v,))
+        self.stats.grad_passes += 1
+        return d.float()
+
+    def vjp(self, theta, grad_out: torch.Tensor, spp: int = 1, seed: int = 0, **ad) -> np.ndarray:
+        with torch.enable_grad():  # also when called from an autograd Function's backward
+            t = torch.as_tensor(self.params.validate(theta), dtype=torch.float64).requires_grad_(True)
+            (g,) = torch.autograd.grad(self._noisy(t, spp, seed), t, grad_out.to(torch.float64))
+        self.stats.grad_passes += 1
+        return g.numpy()
+
+    def content_key(self) -> dict:
+        return {"model": type(self).__name__, **{k: v for k, v in vars(self).items()
+                                                 if isinstance(v, (int, float, str, tuple))}}
+
+
+class Blob2D(AnalyticModel):
+    """A Gaussian spot at θ = (x, y) metres on a size×size image plane spanning [0, 1]² m, plus a
+    constant background: L(u) = background + amplitude · exp(−‖u − θ‖² / (2 width²)). One channel."""
+
+    def __init__(self, size: int = 24, width: float = 0.08, amplitude: float = 1.0,
+                 background: float = 0.1, **kw):
+        params = ParamSpace([Param("x", 0.2, 0.8, 0.5, "m", "spot centre, horizontal"),
+                             Param("y", 0.2, 0.8, 0.5, "m", "spot centre, vertical")])
+        super().__init__("blob2d", params, **kw)
+        self.size, self.width, self.amplitude, self.background = int(size), float(width), float(amplitude), float(background)
+        c = (torch.arange(self.size, dtype=torch.float64) + 0.5) / self.size
+        self._v, self._u = torch.meshgrid(c, c, indexing="ij")
+
+    def clean(self, theta: torch.Tensor) -> torch.Tensor:
+        r2 = (self._u - theta[0]) ** 2 + (self._v - theta[1]) ** 2
+        return (self.background + self.amplitude * torch.exp(-r2 / (2 * self.width ** 2)))[..., None]
+
+
+class Edge1D(AnalyticModel):
+    """A hard shadow edge at θ metres on a 1-D strip of `pixels` pixels spanning [0, 1] m: the region
+    x > θ is lit. Pixel i integrates its area: L_i = background + amplitude · coverage_i(θ), so L is
+    piecewise linear in θ with kinks where the edge crosses pixel boundaries. Image (1, pixels, 1)."""
+
+    def __init__(self, pixels: int = 64, amplitude: float = 1.0, background: float = 0.2, **kw):
+        params = ParamSpace([Param("edge", 0.1, 0.9, 0.5, "m", "shadow edge position")])
+        super().__init__("edge1d", params, **kw)
+        self.pixels, self.amplitude, self.background = int(pixels), float(amplitude), float(background)
+        self._right = torch.arange(1, self.pixels + 1, dtype=torch.float64) / self.pixels
+
+    def clean(self, theta: torch.Tensor) -> torch.Tensor:
+        coverage = ((self._right - theta[0]) * self.pixels).clamp(0.0, 1.0)
+        return (self.background + self.amplitude * coverage)[None, :, None]

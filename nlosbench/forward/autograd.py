@@ -1,0 +1,39 @@
+"""`render(model, θ, spp, seed, grad=...)`: the forward model as a differentiable torch function.
+
+The forward pass is `model.render(θ, spp, seed)`; the backward pass contracts the incoming image
+gradient with ∂L/∂θ by FD (common random numbers) or AD — see `gradients.py`. Gradient renders use
+seeds derived from `seed`, so a whole optimisation step is reproducible.
+"""
+from __future__ import annotations
+
+import torch
+
+from .gradients import GradientSettings, vjp
+from .model import ForwardModel
+
+
+class _Render(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, theta: torch.Tensor, model: ForwardModel, spp: int, seed: int, settings: GradientSettings):
+        ctx.model, ctx.spp, ctx.seed, ctx.settings = model, spp, seed, settings
+        ctx.save_for_backward(theta)
+        return model.render(theta.detach(), spp, seed)
+
+    @staticmethod
+    def backward(ctx, grad_out: torch.Tensor):
+        (theta,) = ctx.saved_tensors
+        g = vjp(ctx.model, theta.detach(), grad_out, ctx.spp, ctx.seed, ctx.settings)
+        return torch.as_tensor(g, dtype=theta.dtype), None, None, None, None
+
+
+def render(model: ForwardModel, theta, spp: int = 64, seed: int = 0, grad: str | GradientSettings = "fd",
+           **options) -> torch.Tensor:
+    """L_θ (H, W, C) float32, differentiable w.r.t. θ (a torch tensor with requires_grad).
+
+    grad: "fd" | "ad" or a GradientSettings; options (step, rounds, crn, spp, ad) build the settings
+    when grad is a string, e.g. `render(m, θ, 64, 0, grad="fd", step=0.005, rounds=4)`.
+    """
+    settings = grad if isinstance(grad, GradientSettings) else GradientSettings(method=grad, **options)
+    if not isinstance(theta, torch.Tensor):
+        theta = torch.as_tensor(theta, dtype=torch.float64)
+    return _Render.apply(theta, model, spp, seed, settings)

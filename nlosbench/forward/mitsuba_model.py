@@ -1,0 +1,201 @@
+"""MitsubaModel: a Mitsuba 3 scene, loaded once, whose parameters θ are written with
+`mi.traverse` + `params.update()` (never a reload), rendered with `mi.render`.
+
+Passes: a render of spp samples is split into passes whose spp are powers of two (at most
+`max_pass_samples` pixel-samples each, and never more than 2³² — Dr.Jit's wavefront limit), each
+with its own seed derived from (seed, pass index); the image is their spp-weighted mean. With the box
+pixel filter each sample lands in one pixel, and power-of-two passes keep Dr.Jit's parallel
+accumulation order fixed, so the same (θ, spp, seed) gives the same image bit for bit.
+"""
+from __future__ import annotations
+
+import hashlib
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import variant as _variant
+from ..params import ParamSpace
+from ..seeds import derive
+from .bindings import GEOMETRY_KINDS, Binding, SceneBinder
+from .model import ForwardModel, check_spp_seed
+
+WAVEFRONT_LIMIT = 2 ** 32
+#: AD integrators by the kind of parameter: geometry needs the visibility-aware projective ones
+AD_INTEGRATORS = ("prb", "direct_projective", "prb_projective")
+
+
+def split_spp(spp: int, pixels: int, max_pass_samples: int) -> list[int]:
+    """spp split into power-of-two passes of at most max_pass_samples pixel-samples (largest first)."""
+    limit = min(max_pass_samples, WAVEFRONT_LIMIT - 1)
+    cap = 1 << max(0, (limit // max(pixels, 1)).bit_length() - 1)
+    if pixels * cap > limit and cap > 1:
+        cap >>= 1
+    passes = [cap] * (spp // cap)
+    rest = spp % cap
+    passes += [1 << b for b in range(rest.bit_length() - 1, -1, -1) if rest >> b & 1]
+    return passes
+
+
+def _scene_hash(path: Path) -> str:
+    """SHA-256 of a scene file and the files it references (meshes, textures, includes)."""
+    h = hashlib.sha256(path.read_bytes())
+    for ref in sorted(set(re.findall(rb'value="([^"$]+\.(?:obj|ply|serialized|exr|png|jpg|xml))"', path.read_bytes()))):
+        f = path.parent / ref.decode()
+        if f.is_file():
+            h.update(f.read_bytes())
+    return h.hexdigest()
+
+
+class MitsubaModel(ForwardModel):
+    """A Mitsuba scene file plus parameter bindings (see `bindings.py`)."""
+
+    #: scene loads in this process, across all models (tests check that θ changes never reload)
+    loads = 0
+
+    def __init__(self, name: str, scene_file: str | Path, params: list[dict], variant: str | None = None,
+                 defines: dict | None = None, ad_integrator: dict | None = None,
+                 max_pass_samples: int = 1 << 24, cache=None):
+        self.variant = _variant.select(variant)
+        import mitsuba as mi
+
+        self.scene_file = Path(scene_file)
+        if not self.scene_file.is_file():
+            raise FileNotFoundError(f"scene {name!r}: scene file {self.scene_file} does not exist")
+        self.defines = {k: v for k, v in (defines or {}).items()}
+        self.scene = mi.load_file(str(self.scene_file), **self.defines)
+        MitsubaModel.loads += 1
+        self._params = mi.traverse(self.scene)
+        bindings = [Binding.from_spec(p) for p in params]
+        self.binder = SceneBinder(self._params, bindings)
+        super().__init__(name, ParamSpace([b.param for b in bindings]), cache)
+        self.max_pass_samples = int(max_pass_samples)
+        film = self.scene.sensors()[0].film()
+        self.size = tuple(int(v) for v in film.crop_size())  # (W, H)
+        # AD integrators default to the primal integrator's path depth, so AD and FD differentiate the same image
+        self.ad_defaults = dict(ad_integrator or {})
+        for opt in ("max_depth", "rr_depth"):
+            found = re.search(rf"{opt} = (-?\d+)", str(self.scene.integrator()))
+            if found:
+                self.ad_defaults.setdefault(opt, int(found.group(1)))
+        self._ad_cache: dict = {}
+        self._applied: np.ndarray | None = None
+        self._hash = _scene_hash(self.scene_file)
+
+    # -- θ → scene ----------------------------------------------------------------------------
+    def _apply(self, theta: np.ndarray) -> None:
+        if self._applied is not None and np.array_equal(self._applied, theta):
+            return
+        import mitsuba as mi
+
+        self.binder.apply(self._params, [mi.Float(float(v)) for v in theta])
+        self._applied = theta.copy()
+
+    def _passes(self, spp: int, seed: int):
+        W, H = self.size
+        return [(s, derive(seed, "pass", i)) for i, s in enumerate(split_spp(spp, W * H, self.max_pass_samples))]
+
+    def _render(self, theta: np.ndarray, spp: int, seed: int) -> torch.Tensor:
+        import mitsuba as mi
+
+        self._apply(theta)
+        passes = self._passes(spp, seed)
+        if len(passes) == 1:
+            return torch.from_numpy(np.asarray(mi.render(self.scene, spp=spp, seed=passes[0][1])))
+        acc = 0.0
+        for s, pass_seed in passes:
+            acc = acc + np.asarray(mi.render(self.scene, spp=s, seed=pass_seed), dtype=np.float64) * (s / spp)
+        return torch.from_numpy(acc.astype(np.float32))
+
+    # -- AD ------------------------------------------------------------------------------------
+    def ad_integrator(self, indices=None, **options):
+        """A (cached) Mitsuba AD integrator: `type` in prb / direct_projective / prb_projective, plus
+        its options (max_depth, sppc, sppp, sppi, guiding, ...). Without a `type`, parameters `indices`
+        (default all) that move geometry get `prb_projective` (visibility-aware), others `prb`."""
+        import mitsuba as mi
+
+        opts = {**self.ad_defaults, **options}
+        if "type" not in opts:
+            kinds = [self.binder.bindings[j].kind for j in (range(len(self.params)) if indices is None else indices)]
+            opts["type"] = "prb_projective" if any(k in GEOMETRY_KINDS for k in kinds) else "prb"
+        if opts.get("type") not in AD_INTEGRATORS:
+            raise ValueError(f"AD integrator must be one of {list(AD_INTEGRATORS)}, got {opts.get('type')!r}")
+        key = tuple(sorted(opts.items()))
+        if key not in self._ad_cache:
+            self._ad_cache[key] = mi.load_dict(opts)
+        return self._ad_cache[key]
+
+    def _ad_pass(self, theta: np.ndarray, spp: int, seed: int, pass_seed_index: int, integrator, grad_index=None):
+        """Render one AD pass with θ tracked; returns (image, θ variables)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        th = [mi.Float(float(v)) for v in theta]
+        for j, t in enumerate(th):
+            if grad_index is None or j == grad_index:
+                dr.enable_grad(t)
+        self.binder.apply(self._params, th)
+        self._applied = None  # the scene now holds tracked values; the next primal render re-applies θ
+        with _quiet_border_warning(self.scene):
+            img = mi.render(self.scene, self._params, integrator=integrator, spp=spp,
+                            seed=derive(seed, "pass", pass_seed_index), seed_grad=derive(seed, "seed_grad", pass_seed_index))
+        return img, th
+
+    def vjp(self, theta, grad_out: torch.Tensor, spp: int, seed: int, **ad) -> np.ndarray:
+        import drjit as dr
+        import mitsuba as mi
+
+        t = self.params.validate(theta)
+        spp, seed = check_spp_seed(spp, seed)
+        integ = self.ad_integrator(**ad)
+        go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=np.float32)
+        total = np.zeros(len(t))
+        for i, (s, _) in enumerate(self._passes(spp, seed)):
+            img, th = self._ad_pass(t, s, seed, i, integ)
+            dr.backward(img * mi.TensorXf(go * (s / spp)))
+            total += np.array([float(dr.grad(x)[0]) for x in th])
+            self.stats.grad_passes += 1
+        self.check_finite(torch.from_numpy(total), t, spp, seed, what="AD gradient")
+        return total
+
+    def jvp(self, theta, index: int, spp: int, seed: int, **ad) -> torch.Tensor:
+        import drjit as dr
+
+        t = self.params.validate(theta)
+        spp, seed = check_spp_seed(spp, seed)
+        integ = self.ad_integrator([index], **ad)
+        acc = None
+        for i, (s, _) in enumerate(self._passes(spp, seed)):
+            img, th = self._ad_pass(t, s, seed, i, integ, grad_index=index)
+            dr.forward(th[index])
+            d = np.asarray(dr.grad(img), dtype=np.float64) * (s / spp)
+            acc = d if acc is None else acc + d
+            self.stats.grad_passes += 1
+        out = torch.from_numpy(acc.astype(np.float32))
+        self.check_finite(out, t, spp, seed, what=f"AD derivative image d/d{self.params.names[index]}")
+        return out
+
+    def content_key(self) -> dict:
+        return {"scene": self._hash, "defines": self.defines, "variant": self.variant,
+                "params": [repr(b) for b in self.binder.bindings], "max_pass_samples": self.max_pass_samples}
+
+
+class _quiet_border_warning:
+    """Mitsuba warns on every projective AD render when the film has no sample_border; our scenes keep
+    moving objects inside the view, so the warning is lowered to Debug for that call only."""
+
+    def __init__(self, scene):
+        self.scene = scene
+
+    def __enter__(self):
+        import mitsuba as mi
+
+        self.level = mi.log_level()
+        mi.set_log_level(mi.LogLevel.Error)
+
+    def __exit__(self, *exc):
+        import mitsuba as mi
+
+        mi.set_log_level(self.level)

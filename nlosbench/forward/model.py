@@ -1,0 +1,109 @@
+"""ForwardModel: θ ↦ image L_θ (H, W, C) float32, rendered with `spp` samples per pixel and a seed.
+
+Subclasses implement `_render` (the image), `jvp` (derivative image along one parameter, by AD or
+exactly) and `vjp` (gradient of ⟨grad_out, L_θ⟩ w.r.t. θ). This base class validates inputs, counts
+renders and time, checks for NaN/Inf, and consults the optional on-disk cache.
+"""
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..params import ParamSpace
+from .cache import RenderCache, render_key
+
+
+class RenderError(RuntimeError):
+    """A render produced NaN or Inf; the message names scene, θ, spp and seed."""
+
+
+@dataclass
+class RenderStats:
+    """Work done by a model: primal renders, derivative passes, pixel samples and wall seconds."""
+
+    renders: int = 0
+    grad_passes: int = 0
+    samples: int = 0
+    seconds: float = 0.0
+
+    def snapshot(self) -> "RenderStats":
+        return RenderStats(self.renders, self.grad_passes, self.samples, self.seconds)
+
+    def since(self, before: "RenderStats") -> "RenderStats":
+        return RenderStats(self.renders - before.renders, self.grad_passes - before.grad_passes,
+                           self.samples - before.samples, self.seconds - before.seconds)
+
+
+def check_spp_seed(spp: int, seed: int) -> tuple[int, int]:
+    if isinstance(spp, bool) or int(spp) != spp or spp < 1:
+        raise ValueError(f"spp must be a positive integer, got {spp!r}")
+    if isinstance(seed, bool) or int(seed) != seed or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    return int(spp), int(seed)
+
+
+class ForwardModel(ABC):
+    """A scene with a parameter space. `render(θ, spp, seed)` gives the same image for the same
+    arguments and independent rendering noise for different seeds."""
+
+    name: str
+    params: ParamSpace
+    #: True when the image has no rendering noise (then spp and seed do not change it)
+    exact: bool = False
+
+    def __init__(self, name: str, params: ParamSpace, cache: RenderCache | str | None = None):
+        self.name = name
+        self.params = params
+        self.cache = RenderCache(cache) if isinstance(cache, (str, bytes)) or hasattr(cache, "__fspath__") else cache
+        self.stats = RenderStats()
+
+    # -- subclass contract -------------------------------------------------------------------
+    @abstractmethod
+    def _render(self, theta: np.ndarray, spp: int, seed: int) -> torch.Tensor:
+        """Image (H, W, C) float32 for a validated θ (float64 (P,))."""
+
+    @abstractmethod
+    def jvp(self, theta, index: int, spp: int, seed: int, **ad) -> torch.Tensor:
+        """∂L/∂θ_index as an image (H, W, C) float32 (forward-mode AD, or exact)."""
+
+    @abstractmethod
+    def vjp(self, theta, grad_out: torch.Tensor, spp: int, seed: int, **ad) -> np.ndarray:
+        """Σ_ω grad_out(ω) ∂L(ω)/∂θ as float64 (P,) (reverse-mode AD, or exact)."""
+
+    @abstractmethod
+    def content_key(self) -> dict:
+        """What defines this model's images besides (θ, spp, seed): scene hash, variant, settings."""
+
+    # -- shared behaviour --------------------------------------------------------------------
+    def render(self, theta, spp: int, seed: int) -> torch.Tensor:
+        """L_θ as a float32 tensor (H, W, C); θ in the units of `params` (metres for positions)."""
+        t = self.params.validate(theta)
+        spp, seed = check_spp_seed(spp, seed)
+        key = None
+        if self.cache is not None:
+            key = render_key(model=self.content_key(), theta=[repr(float(v)) for v in t], spp=spp, seed=seed)
+            hit = self.cache.get(key)
+            if hit is not None:
+                return hit
+        start = time.perf_counter()
+        img = self._render(t, spp, seed)
+        self.stats.seconds += time.perf_counter() - start
+        self.stats.renders += 1
+        self.stats.samples += spp * int(np.prod(img.shape[:2]))
+        self.check_finite(img, t, spp, seed, what="render")
+        if key is not None:
+            self.cache.put(key, img)
+        return img
+
+    def check_finite(self, img: torch.Tensor, theta, spp: int, seed: int, what: str) -> None:
+        if not bool(torch.isfinite(img).all()):
+            n = int((~torch.isfinite(img)).sum())
+            raise RenderError(f"{what} of scene {self.name!r} has {n} NaN/Inf value(s) at "
+                              f"θ={dict(zip(self.params.names, np.asarray(theta).tolist()))}, spp={spp}, seed={seed}")
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r}, {self.params!r})"

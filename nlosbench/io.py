@@ -1,0 +1,81 @@
+"""Image files: EXR for data (float32, lossless), PNG for people (matplotlib, optional log scale)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+
+def _as_hwc(array) -> np.ndarray:
+    a = np.asarray(array.detach().cpu() if hasattr(array, "detach") else array, dtype=np.float32)
+    if a.ndim == 2:
+        a = a[..., None]
+    if a.ndim != 3:
+        raise ValueError(f"expected an image (H, W) or (H, W, C), got shape {a.shape}")
+    return a
+
+
+def write_exr(path: str | Path, array) -> Path:
+    """Write an image (H, W) or (H, W, C) as float32 EXR; 1 channel → Y, 3 → RGB, else C0..Cn."""
+    import OpenEXR
+
+    a = _as_hwc(array)
+    c = a.shape[2]
+    names = {1: ["Y"], 3: ["R", "G", "B"]}.get(c, [f"C{i}" for i in range(c)])
+    channels = {n: np.ascontiguousarray(a[..., i]) for i, n in enumerate(names)}
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    with OpenEXR.File(header, channels) as f:
+        f.write(str(path))
+    return path
+
+
+def read_exr(path: str | Path) -> np.ndarray:
+    """Read an EXR written by write_exr → float32 (H, W, C)."""
+    import OpenEXR
+
+    with OpenEXR.File(str(path), separate_channels=True) as f:
+        ch = f.channels()
+        order = [n for n in ("R", "G", "B") if n in ch] or [n for n in ("Y",) if n in ch]
+        order = order or sorted(ch, key=lambda n: int(n[1:]) if n[1:].isdigit() else n)
+        return np.stack([np.asarray(ch[n].pixels, dtype=np.float32) for n in order], axis=-1)
+
+
+def write_png(path: str | Path, array, log: bool = False, title: str | None = None,
+              cbar_label: str | None = None, cmap: str = "inferno", symmetric: bool = False) -> Path:
+    """Save an image as PNG. RGB (H, W, 3) radiance is tone-mapped (sRGB, clipped); a single
+    channel gets a colour map and a colour bar, on a log10 scale when `log` (zeros masked)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    a = _as_hwc(array).astype(np.float64)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(5, 5 * a.shape[0] / max(a.shape[1], 1) + 0.6))
+    if a.shape[2] == 3 and not log:
+        srgb = np.where(a <= 0.0031308, 12.92 * a, 1.055 * np.clip(a, 0, None) ** (1 / 2.4) - 0.055)
+        ax.imshow(np.clip(srgb, 0, 1), interpolation="nearest")
+    else:
+        m = a.mean(axis=2) if a.shape[2] > 1 else a[..., 0]
+        if log:
+            pos = m[m > 0]
+            m = np.where(m > 0, np.log10(np.where(m > 0, m, 1.0)), np.nan)
+            vmin, vmax = (np.log10(pos.min()), np.log10(pos.max())) if pos.size else (0.0, 1.0)
+            cbar_label = f"log10 {cbar_label}" if cbar_label else "log10"
+        elif symmetric:
+            vmax = float(np.nanmax(np.abs(m))) or 1.0
+            vmin, cmap = -vmax, "RdBu_r"
+        else:
+            vmin, vmax = float(np.nanmin(m)), float(np.nanmax(m))
+        im = ax.imshow(m, cmap=cmap, vmin=vmin, vmax=vmax, interpolation="nearest")
+        fig.colorbar(im, ax=ax, label=cbar_label or "", fraction=0.046, pad=0.04)
+    ax.set_axis_off()
+    if title:
+        ax.set_title(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

@@ -1,0 +1,51 @@
+"""On-disk render cache: hits, corrupt entries re-rendered, concurrent writers."""
+import multiprocessing as mp
+
+import numpy as np
+import torch
+
+import nlosbench as nb
+from nlosbench.forward.cache import RenderCache
+
+
+def test_cache_hit_returns_same_image_without_rendering(tmp_path, cornell):
+    cornell.cache = RenderCache(tmp_path)
+    try:
+        a = cornell.render([0.1, 0.3, 0.8], 16, 9)
+        n = cornell.stats.renders
+        b = cornell.render([0.1, 0.3, 0.8], 16, 9)
+        assert cornell.stats.renders == n and cornell.cache.hits == 1 and torch.equal(a, b)
+        cornell.render([0.1, 0.3, 0.8], 16, 10)  # another seed is another key
+        assert cornell.stats.renders == n + 1
+    finally:
+        cornell.cache = None
+
+
+def test_corrupt_or_truncated_entry_is_rerendered(tmp_path):
+    m = nb.scenes.get("blob2d", render_noise=0.1, cache=str(tmp_path))
+    a = m.render([0.5, 0.5], 4, 1)
+    (entry,) = list(tmp_path.rglob("*.npc"))
+    raw = entry.read_bytes()
+    entry.write_bytes(raw[: len(raw) // 2])  # truncated
+    b = m.render([0.5, 0.5], 4, 1)
+    assert torch.equal(a, b) and m.cache.corrupt == 1 and m.stats.renders == 2
+    entry.write_bytes(raw[:-4] + b"\x00\x00\x00\x01")  # flipped payload bytes
+    assert torch.equal(m.render([0.5, 0.5], 4, 1), a) and m.cache.corrupt == 2
+
+
+def _writer(root, n):
+    c = RenderCache(root)
+    img = torch.arange(3 * 64 * 64, dtype=torch.float32).reshape(64, 64, 3)
+    for _ in range(n):
+        c.put("ab" * 32, img)
+
+
+def test_two_processes_writing_the_same_key(tmp_path):
+    ctx = mp.get_context("spawn")
+    procs = [ctx.Process(target=_writer, args=(str(tmp_path), 30)) for _ in range(2)]
+    [p.start() for p in procs]
+    [p.join() for p in procs]
+    assert all(p.exitcode == 0 for p in procs)
+    got = RenderCache(tmp_path).get("ab" * 32)
+    assert got is not None and np.array_equal(got.numpy().ravel(), np.arange(3 * 64 * 64))
+    assert not [f for f in tmp_path.rglob(".*") if f.is_file()]  # no temporary files left
