@@ -105,5 +105,11 @@ class ForwardModel(ABC):
             raise RenderError(f"{what} of scene {self.name!r} has {n} NaN/Inf value(s) at "
                               f"θ={dict(zip(self.params.names, np.asarray(theta).tolist()))}, spp={spp}, seed={seed}")
 
+    def restrict(self, names, fixed: dict | None = None) -> "ForwardModel":
+        """This model seen through parameters `names` only; the others held at `fixed` or their defaults."""
+        from .restrict import Restricted
+
+        return Restricted(self, names, fixed)
+
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, {self.params!r})"

@@ -1,0 +1,1 @@
+"""Experiments: config schema, run context, runner and reports."""

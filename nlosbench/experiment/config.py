@@ -1,0 +1,102 @@
+"""Experiment config: YAML → validated dict. Top level and per-study blocks (from each study's SCHEMA)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from .. import studies
+from .schema import ConfigError, Field, validate, validate_block
+
+NOISE = {"model": Field(str, help="noise model name", choices=("awgn", "poisson")),
+         "sigma": Field(float, None, "AWGN standard deviation (radiance units)", nullable=True),
+         "scale": Field(float, None, "Poisson: expected photons per unit radiance", nullable=True)}
+
+TOP = {
+    "name": Field(str, "experiment", "a short name for the run"),
+    "seed": Field(int, 0, "experiment seed; every random draw derives from it"),
+    "scene": Field({"name": Field(str, help="registered scene name or path to a scene spec .yaml"),
+                    "options": Field(dict, {}, "options for the scene (e.g. defines: {res: 32})"),
+                    "params": Field(list, None, "θ components studied (default: all)", items=str, nullable=True),
+                    "fixed": Field(dict, {}, "values of the other parameters (default: their defaults)"),
+                    "variant": Field(str, None, "Mitsuba variant (default: cuda_ad_rgb if usable, else llvm_ad_rgb)",
+                                     nullable=True)}),
+    "noise": Field(list, [{"model": "awgn", "sigma": 0.1}], "noise models", items=NOISE),
+    "executor": Field({"type": Field(str, "local", choices=("local", "serial", "dask")),
+                       "workers": Field(int, 2, "local worker processes"),
+                       "address": Field(str, None, "dask scheduler address (default: a LocalCluster)", nullable=True)}),
+    "cache": Field(str, None, "render cache folder (default: none)", nullable=True),
+    "output": Field(str, "runs", "folder under which the run directory is made"),
+    "studies": Field(list, help="studies to run, each {type: ..., ...}"),
+}
+
+
+def load(path: str | Path, overrides: list[str] = ()) -> dict:
+    """Read a YAML config, apply `key.path=value` overrides, validate; raises ConfigError."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError("", f"config file {path} does not exist")
+    try:
+        raw = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as e:
+        raise ConfigError("", f"{path} is not valid YAML: {e}") from None
+    for item in overrides:
+        apply_override(raw, item)
+    return resolve(raw)
+
+
+def apply_override(raw: dict, item: str) -> None:
+    """`a.b.c=value` (value parsed as YAML; list indices as numbers: studies.0.spp=64)."""
+    if "=" not in item:
+        raise ConfigError(item, "an override must look like key.path=value")
+    key, value = item.split("=", 1)
+    parts = key.split(".")
+    node = raw
+    for i, p in enumerate(parts[:-1]):
+        nxt = parts[i + 1]
+        if isinstance(node, list):
+            node = node[int(p)]
+        else:
+            node = node.setdefault(p, [] if nxt.isdigit() else {})
+    last = parts[-1]
+    val = yaml.safe_load(value)
+    if isinstance(node, list):
+        node[int(last)] = val
+    else:
+        node[last] = val
+
+
+def resolve(raw: dict) -> dict:
+    """Validate the top level and every study block; fill defaults."""
+    cfg = validate_block(raw, TOP)
+    for i, n in enumerate(cfg["noise"]):
+        need = {"awgn": "sigma", "poisson": "scale"}[n["model"]]
+        if n[need] is None or n[need] <= 0:
+            raise ConfigError(f"noise[{i}].{need}", f"{n['model']} needs {need} > 0, got {n[need]!r}")
+    out = []
+    for i, block in enumerate(cfg["studies"]):
+        path = f"studies[{i}]"
+        if not isinstance(block, dict) or "type" not in block:
+            raise ConfigError(path, "each study needs a `type`")
+        try:
+            mod = studies.get(block["type"])
+        except KeyError as e:
+            raise ConfigError(f"{path}.type", e.args[0]) from None
+        body = validate_block({k: v for k, v in block.items() if k != "type"}, mod.SCHEMA, path)
+        out.append({"type": block["type"], **body})
+    if not out:
+        raise ConfigError("studies", "expected at least one study")
+    cfg["studies"] = out
+    return cfg
+
+
+def grid_values(spec) -> list[float]:
+    """θ values from a list or from {start, stop, num} (inclusive, like numpy.linspace)."""
+    import numpy as np
+
+    if isinstance(spec, dict):
+        return np.linspace(spec["start"], spec["stop"], int(spec["num"])).tolist()
+    return [float(v) for v in spec]
+
+
+GRID = Field("any", help="θ values: a list, or {start, stop, num}")

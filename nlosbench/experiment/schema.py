@@ -1,0 +1,93 @@
+"""A small config schema: typed fields with defaults, choices and nested blocks, validated with
+messages that name the key path, what was expected, what was given, and a likely misspelling."""
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass
+from typing import Any
+
+REQUIRED = object()
+
+
+class ConfigError(ValueError):
+    """A config problem; `str()` is one line: `path: message`."""
+
+    def __init__(self, path: str, message: str):
+        super().__init__(f"{path or '<config>'}: {message}")
+        self.path = path
+
+
+@dataclass(frozen=True)
+class Field:
+    """type: int | float | str | bool | list | dict | "any" | a nested schema (dict of Fields);
+    `items` validates list entries (a type or a nested schema); `choices` restricts values."""
+
+    type: Any
+    default: Any = REQUIRED
+    help: str = ""
+    choices: tuple | None = None
+    items: Any = None
+    nullable: bool = False
+
+
+_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true/false", list: "a list", dict: "a mapping"}
+
+
+def _check_type(value, typ, path: str):
+    if typ == "any":
+        return value
+    if typ is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+        return float(value)
+    if typ is int and isinstance(value, float) and value.is_integer():
+        return int(value)
+    if isinstance(value, typ) and not (typ is int and isinstance(value, bool)):
+        return value
+    raise ConfigError(path, f"expected {_NAMES.get(typ, typ)}, got {type(value).__name__} {value!r}")
+
+
+def validate(value, field: Field | dict, path: str = "") -> Any:
+    """Validated copy of `value` with defaults filled in."""
+    if isinstance(field, dict):
+        field = Field(field)
+    if value is None and field.nullable:
+        return None
+    if isinstance(field.type, dict):
+        return validate_block(value, field.type, path)
+    value = _check_type(value, field.type, path)
+    if field.choices is not None and value not in field.choices:
+        close = difflib.get_close_matches(str(value), [str(c) for c in field.choices], n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ConfigError(path, f"expected one of {list(field.choices)}, got {value!r}{hint}")
+    if field.type is list and field.items is not None:
+        item = field.items if isinstance(field.items, Field) else Field(field.items)
+        value = [validate(v, item, f"{path}[{i}]") for i, v in enumerate(value)]
+    return value
+
+
+def validate_block(block, schema: dict, path: str = "") -> dict:
+    """Validate a mapping against a schema (dict of name → Field)."""
+    if block is None:
+        block = {}
+    if not isinstance(block, dict):
+        raise ConfigError(path, f"expected a mapping, got {type(block).__name__} {block!r}")
+    out = {}
+    for key in block:
+        if key not in schema:
+            close = difflib.get_close_matches(str(key), list(schema), n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else f"; known keys: {', '.join(schema)}"
+            raise ConfigError(_join(path, key), f"unknown key{hint}")
+    for key, field in schema.items():
+        p = _join(path, key)
+        if key in block:
+            out[key] = validate(block[key], field, p)
+        elif isinstance(field.type, dict) and field.default is REQUIRED:
+            out[key] = validate_block({}, field.type, p)
+        elif field.default is REQUIRED:
+            raise ConfigError(p, f"missing required key ({field.help or _NAMES.get(field.type, field.type)})")
+        else:
+            out[key] = field.default
+    return out
+
+
+def _join(path: str, key) -> str:
+    return f"{path}.{key}" if path else str(key)

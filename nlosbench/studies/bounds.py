@@ -1,0 +1,101 @@
+"""Study `bounds`: the HCR curve (and CRLB, optionally Barankin) over a 1-D grid of θ from G renders.
+
+Every grid render serves as θ* and as a test point θ*+Δ for all others (G renders, not G²). The CRLB
+at each θ* comes from an FD Jacobian with common random numbers (2 more renders per point).
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .. import bounds
+from ..experiment.config import GRID, grid_values
+from ..experiment.context import RunContext, read_csv, write_csv
+from ..experiment.schema import Field
+from ..forward.gradients import GradientSettings, fd_jacobian
+from ..io import write_exr
+from .plotting import bound_curves_plot
+
+NAME = "bounds"
+SCHEMA = {
+    "id": Field(str, None, "folder name for this study's files", nullable=True),
+    "grid": GRID,
+    "spp": Field(int, 1024, "samples per pixel of each grid render"),
+    "crlb": Field(bool, True, "also compute the CRLB from an FD Jacobian at each grid point"),
+    "fd_step": Field(float, 0.01, "FD step ξ for the CRLB (parameter units)"),
+    "barankin": Field(bool, False, "also compute the multi-point Barankin bound at each grid point"),
+    "los_until": Field(float, None, "θ where the object leaves the line of sight (marked on plots)", nullable=True),
+    "save_images": Field(bool, True, "keep every grid render as EXR"),
+}
+
+
+def crlb_log10(L, J, noise) -> tuple[np.ndarray, str]:
+    """log10 CRLB per parameter (P,) from an image and its Jacobian, and a flag. Infinite Fisher
+    information (a Poisson pixel rendered as exactly 0 whose neighbours are not) gives −inf, flagged."""
+    F = bounds.fisher_matrix(L, J, noise)
+    if not np.all(np.isfinite(F)):
+        return np.full(F.shape[0], -np.inf), "infinite Fisher information (Poisson pixel with L = 0 that changes)"
+    c = bounds.crlb(F)
+    with np.errstate(divide="ignore"):
+        return np.log10(c.component), (c.reason if c.singular else "")
+
+
+def render_grid(ctx: RunContext, thetas: list[float], spp: int, purpose: str) -> np.ndarray:
+    """Renders (G, H, W, C) float32 at each θ with independent derived seeds."""
+    imgs = [ctx.model.render([t], spp, ctx.seed_for(purpose, g))
+            for g, t in ctx.progress(enumerate(thetas), total=len(thetas), desc=f"{purpose} renders")]
+    return np.stack([i.numpy() for i in imgs])
+
+
+def run(ctx: RunContext, cfg: dict) -> dict:
+    if ctx.model.params.dim != 1:
+        raise ValueError(f"the bounds study needs one parameter; set scene.params to one of {list(ctx.model.params.names)}")
+    out = ctx.study_dir(cfg)
+    thetas = grid_values(cfg["grid"])
+    for t in (min(thetas), max(thetas)):
+        ctx.model.params.validate([t])
+    lo, hi = ctx.model.params.lower[0], ctx.model.params.upper[0]
+    renders = render_grid(ctx, thetas, cfg["spp"], "bounds-grid")
+    np.save(out / "renders.npy", renders)
+    if cfg["save_images"]:
+        for g, img in enumerate(renders):
+            write_exr(out / "images" / f"grid_{g:04d}.exr", img)
+    jac = None
+    if cfg["crlb"]:
+        settings = GradientSettings(step=cfg["fd_step"])
+        jac = [fd_jacobian(ctx.model, [t], cfg["spp"], ctx.seed_for("bounds-fd", g), settings)
+               for g, t in ctx.progress(enumerate(thetas), total=len(thetas), desc="FD Jacobians")]
+    rows, summary = [], {}
+    for k, noise in enumerate(ctx.noises):
+        curve = bounds.hcr_curve(renders, np.array(thetas), noise, lo, hi)
+        for g, t in enumerate(thetas):
+            row = {"noise": str(noise), "theta": t, "log10_hcr": curve.log10[g], "delta": curve.delta[g],
+                   "at_edge": curve.at_edge[g] or "", "unresolved": bool(curve.unresolved[g]), "reason": curve.reason[g]}
+            if jac is not None:
+                log10_crlb, row["crlb_flag"] = crlb_log10(renders[g], jac[g], noise)
+                row["log10_crlb"] = float(log10_crlb[0])
+            if cfg["barankin"]:
+                others = [j for j in range(len(thetas)) if j != g]
+                b = bounds.barankin(renders[g], renders[others], np.array(thetas)[others] - t, noise, lower=lo - t, upper=hi - t)
+                row["log10_barankin"] = b.log10
+            rows.append(row)
+        summary[str(noise)] = {"max_log10_hcr": float(np.nanmax(curve.log10)), "min_log10_hcr": float(np.nanmin(curve.log10)),
+                               "at_edge": int(sum(bool(e) for e in curve.at_edge))}
+    write_csv(out / "bounds.csv", rows)
+    bound_curves_plot(rows, out / "bounds.png", los_until=cfg["los_until"], xlabel=f"θ = {ctx.model.params.names[0]} [{ctx.model.params.units[0]}]")
+    return {"grid_points": len(thetas), "renders": len(thetas) * (3 if cfg["crlb"] else 1), "spp": cfg["spp"],
+            "los_until": cfg["los_until"], "parameter": ctx.model.params.names[0], "noise": summary}
+
+
+def report(study_dir: Path, results: dict) -> str:
+    rows = read_csv(study_dir / "bounds.csv")
+    bound_curves_plot(rows, study_dir / "bounds.png", los_until=results.get("los_until"),
+                      xlabel=f"θ = {results.get('parameter', 'θ')}")
+    lines = [f"HCR over a {results['grid_points']}-point grid at {results['spp']} spp "
+             f"({results['renders']} renders). Bounds on the variance of an unbiased estimator, log10 of units².", "",
+             f"![bounds]({study_dir.name}/bounds.png)", "",
+             "| noise | min log10 HCR | max log10 HCR | sup at Δ-grid edge |", "|---|---|---|---|"]
+    for noise, s in results["noise"].items():
+        lines.append(f"| {noise} | {s['min_log10_hcr']:.3g} | {s['max_log10_hcr']:.3g} | {s['at_edge']} points |")
+    return "\n".join(lines)
