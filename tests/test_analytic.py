@@ -1,5 +1,4 @@
 """Analytic toys: FD against exact gradients, synthetic rendering noise statistics, determinism."""
-import numpy as np
 import pytest
 import torch
 

@@ -1,0 +1,49 @@
+"""Per-pixel Fisher information images: where in the picture the information about θ_j lives."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from nlosbench.bounds.hcr import as_numpy
+from nlosbench.noise import NoiseModel, to_float64
+
+
+def fisher_maps(L, J, noise: NoiseModel, reduce: str = "sum") -> np.ndarray:
+    """Fisher information of each parameter per pixel → (P, H, W) float64, 1/(parameter units)².
+
+    L: image (H, W, C) or (H, W); J = ∂L/∂θ: (P, *L.shape) or L.shape (P = 1). The per-channel
+    information w(L)·(∂L/∂θ_j)² is summed (`reduce="sum"`: the map sums to F_jj) or averaged
+    (`"mean"`) over channels."""
+    if reduce not in ("sum", "mean"):
+        raise ValueError(f"reduce must be 'sum' or 'mean', got {reduce!r}")
+    L = to_float64(L)
+    J = to_float64(J)
+    if J.shape == L.shape:
+        J = J[None]
+    if L.ndim == 2:
+        L, J = L[..., None], J[..., None]
+    if L.ndim != 3 or J.shape[1:] != L.shape:
+        raise ValueError(f"expected L (H, W, C) and J (P, H, W, C), got {tuple(L.shape)}, {tuple(J.shape)}")
+    maps = np.stack([as_numpy(noise.fisher(L, Jp)) for Jp in J])
+    return maps.sum(axis=-1) if reduce == "sum" else maps.mean(axis=-1)
+
+
+def save_fisher_maps(maps: np.ndarray, names: Sequence[str], outdir: str | Path,
+                     prefix: str = "fisher") -> list[Path]:
+    """Write each map (P, H, W) as `{prefix}_{name}.exr` (float32 data) and a log-scale PNG;
+    returns the written paths."""
+    from nlosbench import io
+
+    maps = as_numpy(maps)
+    if maps.ndim != 3 or len(names) != maps.shape[0]:
+        raise ValueError(f"need maps (P, H, W) and P names, got {maps.shape} and {len(names)} names")
+    outdir = Path(outdir)
+    paths = []
+    for m, name in zip(maps, names):
+        paths.append(io.write_exr(outdir / f"{prefix}_{name}.exr", m))
+        paths.append(io.write_png(outdir / f"{prefix}_{name}.png", m, log=True,
+                                  title=f"Fisher information per pixel: {name}",
+                                  cbar_label=f"FI [1/({name} unit)²]"))
+    return paths

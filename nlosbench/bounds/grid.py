@@ -1,0 +1,99 @@
+"""HCR curve over a parameter grid from G renders (G renders in total, reused for every θ*).
+
+`pairwise_lambda` fills the (G, G) matrix λ[i, j] = λ(θ* = θ_i, θ_j) in blocks of renders × pixels,
+each block cast to float64 only inside the chunk, so G = 1000 renders of 256×512×3 float32 (a
+numpy memmap works) need a bounded amount of memory. λ is additive over independent pixels for any
+noise model (1 + χ² multiplies), so pixel chunks are summed.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from nlosbench.bounds.hcr import as_numpy, hcr_from_lambda
+from nlosbench.noise import NoiseModel, to_float64
+
+
+def pairwise_lambda(renders, noise: NoiseModel, chunk_bytes: int = 256 * 2**20) -> np.ndarray:
+    """λ[i, j] = noise.chi2_exponent(renders[i], renders[j]) for all pairs → (G, G) float64.
+
+    renders: (G, *S) torch tensor (any device) or numpy array / memmap, any float dtype.
+    chunk_bytes: float64 working memory per block (a block of columns and its differences).
+    Raises ValueError naming the render when one holds NaN/Inf (or is invalid for the model)."""
+    G = len(renders)
+    X = renders.reshape(G, -1)
+    N = X.shape[1]
+    n = int(min(N, max(1, chunk_bytes // 16)))
+    bj = int(min(G, max(1, chunk_bytes // (16 * n))))
+    dev = X.device if isinstance(X, torch.Tensor) else None
+    lam = torch.zeros((G, G), dtype=torch.float64, device=dev)
+    for c0 in range(0, N, n):
+        c1 = min(N, c0 + n)
+        for j0 in range(0, G, bj):
+            j1 = min(G, j0 + bj)
+            XJ = to_float64(X[j0:j1, c0:c1])
+            for r in range(j1 - j0):
+                noise.validate(XJ[r], f"renders[{j0 + r}]")
+            for i in range(G):
+                Xi = XJ[i - j0] if j0 <= i < j1 else to_float64(X[i, c0:c1])
+                lam[i, j0:j1] += noise.chi2_exponent(Xi, XJ, check=False)
+    return as_numpy(lam)
+
+
+@dataclass
+class HCRCurve:
+    """HCR bound at every grid point θ_i over Δ = θ_j − θ_i, j ≠ i (units: parameter units²).
+
+    Arrays are indexed by i: `log10`, `value` (G,); `delta` (G,) or (G, P), NaN where no Δ is usable;
+    `index` (G,) argmax render j (−1 if none); `at_edge`, `unresolved`, `reason` as in HCRResult;
+    `component_log10` (G, P); `lam` (G, G) the χ² exponents used."""
+
+    thetas: np.ndarray
+    log10: np.ndarray
+    value: np.ndarray
+    delta: np.ndarray
+    index: np.ndarray
+    at_edge: np.ndarray
+    unresolved: np.ndarray
+    reason: list[str]
+    component_log10: np.ndarray
+    lam: np.ndarray
+
+
+def hcr_curve_from_lambda(lam, thetas, lower=None, upper=None) -> HCRCurve:
+    """HCR curve from a (G, G) matrix λ[i, j] (e.g. `pairwise_lambda`, or bias-corrected λ̂).
+
+    thetas: (G,) or (G, P) grid; lower/upper: scalar or (P,) limits of the parameter space Θ —
+    θ_j outside is not used as a test point."""
+    lam = as_numpy(lam)
+    T = as_numpy(thetas)
+    G = T.shape[0]
+    if lam.shape != (G, G):
+        raise ValueError(f"lam must have shape ({G}, {G}), got {lam.shape}")
+    T2 = T.reshape(G, -1)
+    P = T2.shape[1]
+    out = HCRCurve(thetas=T, log10=np.full(G, -np.inf), value=np.zeros(G),
+                   delta=np.full(T.shape, np.nan), index=np.full(G, -1),
+                   at_edge=np.full(G, None, dtype=object), unresolved=np.zeros(G, bool),
+                   reason=[""] * G, component_log10=np.full((G, P), -np.inf), lam=lam)
+    for i in range(G):
+        others = np.flatnonzero(np.arange(G) != i)
+        d = T2[others] - T2[i]
+        r = hcr_from_lambda(lam[i, others], d[:, 0] if T.ndim == 1 else d,
+                            None if lower is None else as_numpy(lower) - T2[i],
+                            None if upper is None else as_numpy(upper) - T2[i])
+        out.log10[i], out.value[i], out.at_edge[i] = r.log10, r.value, r.at_edge
+        out.unresolved[i], out.reason[i], out.component_log10[i] = r.unresolved, r.reason, r.component_log10
+        if r.index >= 0:
+            out.index[i] = others[r.index]
+            out.delta[i] = r.delta
+    return out
+
+
+def hcr_curve(renders, thetas, noise: NoiseModel, lower=None, upper=None,
+              chunk_bytes: int = 256 * 2**20) -> HCRCurve:
+    """HCR curve from grid renders (G, *S) at thetas (G,) or (G, P): every render serves as θ* and
+    as a test point for all others (G renders, never G²)."""
+    return hcr_curve_from_lambda(pairwise_lambda(renders, noise, chunk_bytes), thetas, lower, upper)

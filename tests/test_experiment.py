@@ -1,0 +1,91 @@
+"""Config validation, the CLI and the runner end to end (real renders on cornell_ball, tiny sizes)."""
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from nlosbench.cli import main
+from nlosbench.experiment import config
+from nlosbench.experiment.schema import ConfigError
+
+CFG = Path(__file__).parent / "configs" / "cornell_bounds.yaml"
+
+
+def _write(tmp_path, mutate) -> Path:
+    raw = yaml.safe_load(CFG.read_text())
+    mutate(raw)
+    p = tmp_path / "c.yaml"
+    p.write_text(yaml.safe_dump(raw))
+    return p
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda c: c.update(sede=3), "sede: unknown key; did you mean 'seed'?"),
+    (lambda c: c.update(seed="three"), "seed: expected an integer, got str 'three'"),
+    (lambda c: c["studies"][0].update(spp="many"), "studies[0].spp: expected an integer"),
+    (lambda c: c["studies"][0].update(gird=[0.1]), "did you mean 'grid'?"),
+    (lambda c: c["studies"][0].update(type="bound"), "did you mean 'bounds'?"),
+    (lambda c: c["noise"][0].update(model="gauss"), "noise[0].model: expected one of"),
+    (lambda c: c["noise"][0].update(sigma=-1.0), "noise[0].sigma: awgn needs sigma > 0"),
+    (lambda c: c["scene"].update(name="scenes/nosuch.yaml"), "nosuch.yaml does not exist"),
+])
+def test_config_errors_are_one_clear_line_and_write_nothing(tmp_path, capsys, mutate, message):
+    out = tmp_path / "run"
+    rc = main(["run", str(_write(tmp_path, mutate)), "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and message in err and len(err.splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_overrides_and_defaults():
+    cfg = config.load(CFG, ["seed=7", "studies.0.spp=8", "noise.0.sigma=0.5"])
+    assert cfg["seed"] == 7 and cfg["studies"][0]["spp"] == 8 and cfg["noise"][0]["sigma"] == 0.5
+    assert cfg["studies"][0]["crlb"] is True  # default filled in
+    with pytest.raises(ConfigError, match="key.path=value"):
+        config.load(CFG, ["seed"])
+
+
+def test_every_shipped_config_validates():
+    root = Path(__file__).parents[1] / "configs"
+    paths = sorted(root.glob("*.yaml")) + [CFG]
+    assert paths
+    for p in paths:
+        config.load(p)
+
+
+def test_run_then_report_reproduces_tables(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", str(CFG), "--out", str(out), "--quiet"]) == 0
+    report = (out / "report.md").read_text()
+    assert "## 00-bounds" in report and "## 01-fisher-maps" in report and "| AWGN(sigma=0.1) |" in report
+    results = json.loads((out / "results.json").read_text())
+    assert results["studies"]["00-bounds"]["results"]["grid_points"] == 7
+    assert (out / "00-bounds" / "bounds.png").stat().st_size > 0
+    assert len(list((out / "00-bounds" / "images").glob("*.exr"))) == 7
+    assert yaml.safe_load((out / "config.yaml").read_text())["seed"] == 1  # resolved config kept
+    (out / "report.md").unlink()
+    (out / "00-bounds" / "bounds.png").unlink()
+    assert main(["report", str(out)]) == 0
+    assert (out / "report.md").read_text() == report and (out / "00-bounds" / "bounds.png").exists()
+    # a second run into the same folder is refused; --resume skips finished studies
+    assert main(["run", str(CFG), "--out", str(out), "--quiet"]) == 2
+    assert main(["run", str(CFG), "--out", str(out), "--quiet", "--resume"]) == 0
+    assert "done already" not in capsys.readouterr().out
+
+
+def test_same_config_same_numbers(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for d in (a, b):
+        assert main(["run", str(CFG), "--out", str(d), "--quiet"]) == 0
+    assert (a / "00-bounds" / "bounds.csv").read_text() == (b / "00-bounds" / "bounds.csv").read_text()
+
+
+def test_render_and_list_commands(tmp_path, capsys):
+    assert main(["render", "cornell_ball", "--theta", "0.1", "0.3", "0.8", "--spp", "8", "--out", str(tmp_path)]) == 0
+    assert list(tmp_path.glob("*.exr")) and list(tmp_path.glob("*.png"))
+    assert main(["list", "scenes"]) == 0
+    listed = capsys.readouterr().out.split()
+    assert {"blob2d", "edge1d", "cornell_ball"} <= set(listed)
+    assert main(["render", "cornell_ball", "--theta", "9", "0.3", "0.8", "--out", str(tmp_path)]) == 2
