@@ -2,8 +2,6 @@
 VENV ?= .venv
 PY := $(VENV)/bin/python
 CONFIG ?= configs/quick.yaml
-# -n 2 spreads the suite over both cores when pytest-xdist is present; plain pytest otherwise.
-PYTEST_ARGS ?=
 
 .PHONY: setup demo test bench clean
 
@@ -11,13 +9,15 @@ setup:
 	@bash scripts/setup.sh
 
 demo: setup
+	rm -rf runs/demo
 	$(PY) -m nlosbench.cli run $(CONFIG) --out runs/demo
+	@echo "report: runs/demo/report.md"
 
 test: setup
-	$(PY) -m pytest -q $(PYTEST_ARGS)
+	$(PY) -m pytest -q
 
 bench: setup
-	$(PY) scripts/bench.py
+	$(PY) -m nlosbench.cli bench
 
 clean:
 	rm -rf runs .pytest_cache
