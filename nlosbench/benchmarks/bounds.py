@@ -8,8 +8,6 @@ Run: `python -m nlosbench.benchmarks.bounds [--reduced]` (a table, then one JSON
 """
 from __future__ import annotations
 
-import argparse
-import json
 import time
 
 import numpy as np
@@ -58,23 +56,14 @@ def run(reduced: bool = False) -> list[dict]:
     _, t_pair = _timed(lambda: pairwise_lambda(R, noise))
     image_bytes = R[0].numel() * R.element_size()
     return [
-        dict(name="hcr_curve", G=G, image=list(shape), grid_s=t_grid, naive_s=t_naive,
-             speedup=t_naive / t_grid, max_abs_log10_diff=diff),
-        dict(name="pairwise_lambda", G=G, image=list(shape), seconds=t_pair,
+        dict(bench="hcr_curve", G=G, image=list(shape), grid_s=t_grid, naive_s=t_naive,
+             ratio=t_naive / t_grid, max_abs_log10_diff=diff),
+        dict(bench="pairwise_lambda", G=G, image=list(shape), seconds=t_pair,
              gb_per_s=G * G * image_bytes / t_pair / 1e9, pairs_per_s=G * G / t_pair),
     ]
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--reduced", action="store_true", help="tiny sizes (about 2 s)")
-    rows = run(reduced=ap.parse_args().reduced)
-    for row in rows:
-        print(f"{row['name']:<16} " + "  ".join(
-            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items() if k != "name"))
-    for row in rows:
-        print(json.dumps(row))
-
-
 if __name__ == "__main__":
-    main()
+    from . import main
+
+    main(__name__)
