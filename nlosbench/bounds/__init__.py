@@ -11,3 +11,9 @@ __all__ = [
     "crlb_from_hcr_limit", "fisher_maps", "fisher_matrix", "hcr", "hcr_curve",
     "hcr_curve_from_lambda", "hcr_from_lambda", "pairwise_lambda", "save_fisher_maps",
 ]
+from nlosbench.bounds.decay import DecayResult, decay_check, pixel_variances  # noqa: E402
+from nlosbench.bounds.inexact import (InexactHCR, LambdaFit, check_levels, check_spp, fit_lambda,  # noqa: E402
+                                      half_sample_lambda, inexact_hcr, render_replicates, replicate_grams)
+
+__all__ += ["DecayResult", "decay_check", "pixel_variances", "InexactHCR", "LambdaFit", "check_levels", "check_spp",
+            "fit_lambda", "half_sample_lambda", "inexact_hcr", "render_replicates", "replicate_grams"]

@@ -65,7 +65,9 @@ class MitsubaModel(ForwardModel):
         if not self.scene_file.is_file():
             raise FileNotFoundError(f"scene {name!r}: scene file {self.scene_file} does not exist")
         self.defines = {k: v for k, v in (defines or {}).items()}
-        self.scene = mi.load_file(str(self.scene_file), **self.defines)
+        # optimize=False: merging meshes orders shapes and emitters differently in each process,
+        # which breaks "same (θ, spp, seed) → same image" across worker processes
+        self.scene = mi.load_file(str(self.scene_file), optimize=False, **self.defines)
         MitsubaModel.loads += 1
         self._params = mi.traverse(self.scene)
         bindings = [Binding.from_spec(p) for p in params]
