@@ -60,4 +60,4 @@ def _executor(cfg: dict, ctx: RunContext):
         from .. import executors
     except ImportError:
         return None
-    return executors.make(cfg["executor"], ctx.model_spec)
+    return executors.create(cfg["executor"], ctx.model_spec, ctx.model)
