@@ -1,0 +1,196 @@
+"""One interface for independent work (trials, grid renders): `executor.imap_unordered(fn, items)`
+yields `fn(model, item)` for every item, in completion order, where `model` is the worker's forward
+model — built once per worker process from a picklable model spec (`experiment.context.build_model`).
+
+* `SerialExecutor`: in this process, with a model already loaded (no reload).
+* `LocalPoolExecutor` (the default): a process pool with the spawn start method (no fork of a
+  process that holds Mitsuba/Dr.Jit or torch threads); each worker loads the scene on its first task.
+* `DaskExecutor`: `dask.distributed` (the optional `dask` extra) on a scheduler address, or on a
+  LocalCluster of worker processes; each worker loads the scene once.
+
+`fn` must be a module-level function (it is pickled by reference) and `item` picklable.
+"""
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import sys
+import threading
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+from .forward.model import ForwardModel
+
+# -- the worker side -------------------------------------------------------------------------
+_MODELS: dict[str, ForwardModel] = {}
+_LOCK = threading.Lock()  # Dask runs tasks in threads; a scene holds one θ at a time
+#: models built in this process (tests check one scene load per worker)
+builds = 0
+
+
+def worker_model(spec: dict, threads: int | None = None) -> ForwardModel:
+    """The model for `spec` in this process, built on first use (and its CPU threads limited)."""
+    global builds
+    key = json.dumps(spec, sort_keys=True, default=repr)
+    if key not in _MODELS:
+        from .experiment.context import build_model
+
+        if threads:
+            import torch
+
+            torch.set_num_threads(threads)
+        _MODELS[key] = build_model(spec)
+        builds += 1
+        if threads and "drjit" in sys.modules:
+            import drjit
+
+            drjit.set_thread_count(threads)
+    return _MODELS[key]
+
+
+def _call(spec: dict, threads: int | None, fn: Callable, item):
+    with _LOCK:
+        return fn(worker_model(spec, threads), item)
+
+
+# -- executors ---------------------------------------------------------------------------------
+class Executor(ABC):
+    """Runs fn(model, item) for independent items; use as a context manager or call close()."""
+
+    workers: int = 1
+
+    @abstractmethod
+    def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
+        """Results of fn(model, item), yielded as they finish (any order)."""
+
+    def close(self) -> None:
+        """Release workers (a no-op for the serial executor)."""
+
+    def __enter__(self) -> "Executor":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class SerialExecutor(Executor):
+    """In this process, in order, with `model` (or a model built from `spec` on first use)."""
+
+    def __init__(self, model: ForwardModel | None = None, spec: dict | None = None):
+        if model is None and spec is None:
+            raise ValueError("SerialExecutor needs a model or a model spec")
+        self.model, self.spec = model, spec
+
+    def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
+        if self.model is None:
+            self.model = worker_model(self.spec)
+        for item in items:
+            yield fn(self.model, item)
+
+
+def _default_threads(workers: int) -> int:
+    return max(1, (os.cpu_count() or 1) // workers)
+
+
+class LocalPoolExecutor(Executor):
+    """A pool of `workers` spawned processes, each loading the scene once (on its first task) and
+    using `threads` CPU threads for torch and Dr.Jit (default: cores / workers). At most
+    `2 × workers` tasks are queued at a time, so a stopped run leaves little work in flight."""
+
+    def __init__(self, spec: dict, workers: int = 2, threads: int | None = None):
+        if isinstance(workers, bool) or int(workers) != workers or workers < 1:
+            raise ValueError(f"workers must be a positive integer, got {workers!r}")
+        self.spec, self.workers = spec, int(workers)
+        self.threads = threads or _default_threads(self.workers)
+        self._pool: ProcessPoolExecutor | None = None
+
+    def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
+        if self._pool is None:
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+        pending, queue = set(), iter(items)
+        try:
+            while True:
+                for item in queue:
+                    pending.add(self._pool.submit(_call, self.spec, self.threads, fn, item))
+                    if len(pending) >= 2 * self.workers:
+                        break
+                if not pending:
+                    return
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for f in done:
+                    yield f.result()
+        finally:
+            for f in pending:
+                f.cancel()
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+
+class DaskExecutor(Executor):
+    """dask.distributed: a scheduler at `address`, or a LocalCluster of `workers` processes with one
+    thread each. Every worker process loads the scene once (on its first task)."""
+
+    def __init__(self, spec: dict, address: str | None = None, workers: int = 2, threads: int | None = None):
+        try:
+            import distributed  # noqa: F401
+        except ImportError:
+            raise ImportError("the dask executor needs dask.distributed: pip install 'nlosbench[dask]'") from None
+        self.spec, self.address, self.workers = spec, address, int(workers)
+        self.threads = threads or _default_threads(self.workers)
+        self._client = None
+        self._cluster = None
+
+    def client(self):
+        """The dask Client (started on first use)."""
+        if self._client is None:
+            from distributed import Client, LocalCluster
+
+            if self.address:
+                self._client = Client(self.address)
+            else:
+                self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
+                                             dashboard_address=None)
+                self._client = Client(self._cluster)
+        return self._client
+
+    def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
+        from distributed import as_completed
+
+        items = list(items)
+        if not items:
+            return
+        client = self.client()
+        futures = [client.submit(_call, self.spec, self.threads, fn, item, pure=False) for item in items]
+        try:
+            for fut in as_completed(futures):
+                yield fut.result()
+        finally:
+            client.cancel([f for f in futures if not f.done()])
+
+    def close(self) -> None:
+        if self._client is not None:
+            self._client.close()
+            self._client = None
+        if self._cluster is not None:
+            self._cluster.close()
+            self._cluster = None
+
+
+def create(config: dict, spec: dict, model: ForwardModel | None = None) -> Executor:
+    """The executor a run config asks for: `config` is its `executor` block {type: local | serial |
+    dask, workers, address}; `spec` the model spec workers build from; `model` the already-loaded model
+    (used by the serial executor, so it loads nothing)."""
+    kind = config.get("type", "local")
+    workers = config.get("workers", 2)
+    if kind == "serial":
+        return SerialExecutor(model=model, spec=spec)
+    if kind == "local":
+        return LocalPoolExecutor(spec, workers=workers)
+    if kind == "dask":
+        return DaskExecutor(spec, address=config.get("address"), workers=workers)
+    raise ValueError(f"unknown executor type {kind!r}; expected serial, local or dask")
