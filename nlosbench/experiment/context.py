@@ -53,7 +53,7 @@ class RunContext:
                    seed=cfg["seed"], resume=resume, quiet=quiet)
 
     def study_dir(self, cfg: dict) -> Path:
-        d = self.dir / cfg.get("id", cfg["type"])
+        d = self.dir / (cfg.get("id") or cfg["type"])
         d.mkdir(parents=True, exist_ok=True)
         return d
 
