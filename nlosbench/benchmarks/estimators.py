@@ -1,0 +1,189 @@
+"""Benchmark of the estimators and the trial runner.
+
+(a) per-trial wall time, renders and AD passes of every estimator, with its RMSE, on the analytic
+    toys (blob2d, edge1d) and on cornell_ball (θ = ball_x; full mode only);
+(b) local process pool with 2 workers against 1 on the same batch of trials (full mode only: spawning
+    workers that import torch and Mitsuba takes seconds), `ratio` = speed-up;
+(c) our MLE against the paper's recipe at equal final error: the paper computes the FD gradient with
+    independent seeds for θ ± ξ and reloads the scene for every render; ours uses common random
+    numbers and one scene load. Both run Adam with the same settings from the same starts on a
+    noise-free observation (so the error is the optimiser's); `ratio` = the recipe's renders (and
+    seconds) / ours to reach the recipe's final RMS error.
+
+Run: `python -m nlosbench.benchmarks.estimators [--reduced]` (a table, then one JSON line per row).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .. import estimators
+from ..estimators import Problem
+from ..executors import LocalPoolExecutor, SerialExecutor
+from ..experiment.context import build_model
+from ..forward.gradients import GradientSettings
+from ..forward.model import ForwardModel
+from ..noise import AWGN
+from ..seeds import derive
+from ..trials import LOG_NAME, Setting, make_trials, run_trials, summarize
+
+SEED = 2024
+
+
+class Reloading(ForwardModel):
+    """The paper's way of rendering: the scene is loaded from its file again for every render."""
+
+    def __init__(self, spec: dict):
+        self.spec = spec
+        super().__init__(spec["name"], build_model(spec).params)
+
+    def _render(self, theta, spp, seed):
+        return build_model(self.spec).render(theta, spp, seed)
+
+    def jvp(self, theta, index, spp, seed, **ad):
+        raise NotImplementedError("the paper's recipe uses FD gradients only")
+
+    def vjp(self, theta, grad_out, spp, seed, **ad):
+        raise NotImplementedError("the paper's recipe uses FD gradients only")
+
+    def content_key(self) -> dict:
+        return {"reloading": self.spec}
+
+
+def _per_trial(spec: dict, label: str, theta, noise, settings: list[Setting], n: int, n_eff: int) -> list[dict]:
+    """Rows of per-trial cost and RMSE for each setting on one scene (serial, one process)."""
+    model = build_model(spec)
+    theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
+    cleans = {i: model.render(t, n_eff, derive(SEED, "bench-clean", i)) for i, t in enumerate(theta)}
+    trials = make_trials(theta, n, settings, {0: noise}, cleans, SEED)
+    with tempfile.TemporaryDirectory() as d:
+        records = run_trials(SerialExecutor(model), trials, Path(d) / LOG_NAME)
+    rows = summarize(records, model.params.names, bootstrap=0, labels=[s.label for s in settings])
+    return [dict(name="per-trial", scene=label, estimator=r["estimator"], trials=r["n"], failed=r["n_failed"],
+                 nonconverged=r["n_nonconverged"], rmse=math.sqrt(r["mse"]), seconds=r["mean_seconds"],
+                 renders=r["mean_renders"], ad_passes=r["mean_grad_passes"], iterations=r["mean_iterations"])
+            for r in rows]
+
+
+def _pool_speedup(spec: dict, theta: float, n: int) -> dict:
+    """Wall time of the same trials through a local pool of 1 and of 2 workers (spawn + scene loads included)."""
+    model = build_model(spec)
+    clean = model.render([theta], 256, derive(SEED, "bench-clean", 0))
+    settings = [Setting("mle-adam", {"lr": 0.1, "iterations": 10, "spp": 32}, gradient=GradientSettings(step=0.02))]
+    trials = make_trials(np.array([[theta]]), n, settings, {0: AWGN(0.05)}, {0: clean}, SEED)
+    secs = {}
+    for w in (1, 2):
+        with tempfile.TemporaryDirectory() as d, LocalPoolExecutor(spec, workers=w) as pool:
+            t0 = time.perf_counter()
+            run_trials(pool, trials, Path(d) / LOG_NAME)
+            secs[w] = time.perf_counter() - t0
+    return dict(name="pool-speedup", scene=spec["name"], trials=n, workers_1_s=secs[1], workers_2_s=secs[2],
+                ratio=secs[1] / secs[2])
+
+
+def _optimise(model: ForwardModel, y, starts, grad: GradientSettings, options: dict) -> list[list[dict]]:
+    """Adam traces from each start on y (same options, same render seeds)."""
+    est = estimators.get("mle-adam", **options)
+    problem = Problem(model, AWGN(0.05), grad, SEED)
+    return [est.fit(problem, y, s, np.random.default_rng(derive(SEED, "bench-fit", k))).trace
+            for k, s in enumerate(starts)]
+
+
+def _rms_by_iteration(traces: list[list[dict]], truth: np.ndarray) -> np.ndarray:
+    n = min(len(t) for t in traces)
+    err = np.array([[np.sum((np.array(t[i]["theta"]) - truth) ** 2) for i in range(n)] for t in traces])
+    return np.sqrt(err.mean(axis=0))
+
+
+def _recipe(spec: dict, truth, starts, options: dict, n_eff: int) -> dict:
+    """Cost of the paper's recipe (independent-seed FD, reload per render) and of ours (CRN FD, one
+    load) to reach the recipe's final RMS error. truth: θ* (P,); starts: (S, P)."""
+    ours_model = build_model(spec)
+    t = np.asarray(truth, dtype=np.float64)
+    s = np.asarray(starts, dtype=np.float64)
+    y = ours_model.render(t, n_eff, derive(SEED, "bench-clean", 1))
+    t0 = time.perf_counter()
+    paper = _optimise(Reloading(spec), y, s, GradientSettings(step=0.01, crn=False), options)
+    paper_s = time.perf_counter() - t0
+    ours = _optimise(ours_model, y, s, GradientSettings(step=0.01, crn=True), options)
+    target = _rms_by_iteration(paper, t)[-1]
+    rms = _rms_by_iteration(ours, t)
+    # our cost to reach the target and stay below it (the error of the last iterations, not a lucky one)
+    above = np.flatnonzero(rms > target)
+    k = int(above[-1]) + 1 if above.size else 0
+    if k >= len(rms):
+        return dict(name="paper-recipe", scene=spec["name"], paper_rmse=float(target), ours_rmse=float(rms[-1]),
+                    reached=False, ratio=math.nan)
+    paper_renders = sum(tr[-1]["renders"] for tr in paper)
+    ours_renders = sum(tr[k]["renders"] for tr in ours)
+    ours_s = sum(tr[k]["seconds"] for tr in ours)
+    return dict(name="paper-recipe", scene=spec["name"], paper_rmse=float(target), ours_rmse_at=float(rms[k]),
+                ours_final_rmse=float(rms[-1]),
+                ours_iterations=k + 1, paper_iterations=len(paper[0]), paper_renders=paper_renders,
+                ours_renders=ours_renders, paper_s=paper_s, ours_s=ours_s, reached=True,
+                renders_ratio=paper_renders / ours_renders, ratio=paper_s / ours_s)
+
+
+def _warm_up() -> None:
+    """One tiny AD fit, so torch's first-use costs do not land on the first timed estimator."""
+    model = build_model({"name": "edge1d"})
+    problem = Problem(model, AWGN(0.1), GradientSettings("ad"), SEED)
+    estimators.get("mle-adam", iterations=3).fit(problem, model.render([0.5], 1, 0), [0.4],
+                                                 np.random.default_rng(derive(SEED, "warm-up")))
+
+
+def run(reduced: bool = False) -> list[dict]:
+    """All benchmark rows (reduced: toys only, a few trials; a few seconds)."""
+    _warm_up()
+    n = 4 if reduced else 30
+    blob = {"name": "blob2d", "options": {"width": 0.15}}
+    edge = {"name": "edge1d"}
+    rows = _per_trial(blob, "blob2d", [0.45, 0.58], AWGN(0.02), [
+        Setting("mle-adam", {"iterations": 60}, "mle-adam (AD)", GradientSettings("ad")),
+        Setting("mle-adam", {"iterations": 60}, "mle-adam (FD)", GradientSettings(step=1e-3)),
+        Setting("gauss-newton", {"spp": 1}, "gauss-newton (AD)", GradientSettings("ad")),
+        Setting("grid-search", {"num": 25, "spp": 1}),
+        Setting("multi-start", {"base": "gauss-newton", "starts": 3}, "multi-start ×3 (GN, AD)", GradientSettings("ad")),
+    ], n, 1)
+    rows += _per_trial(edge, "edge1d", [0.5078125], AWGN(0.1), [
+        Setting("mle-adam", {"iterations": 60}, "mle-adam (AD)", GradientSettings("ad")),
+        Setting("grid-search", {"num": 129, "spp": 1}),
+        Setting("gauss-newton", {}, "gauss-newton (AD)", GradientSettings("ad")),
+    ], n, 1)
+    noisy_blob = {"name": "blob2d", "options": {"width": 0.15, "render_noise": 0.2}}
+    adam = {"lr": 0.05, "iterations": 40, "spp": 16}
+    starts = [[0.3, 0.7], [0.7, 0.35]] + ([] if reduced else [[0.35, 0.3], [0.65, 0.7]])
+    rows.append(_recipe(noisy_blob, [0.5, 0.5], starts, adam, 4096)
+                | {"scene": "blob2d (render_noise 0.2)"})
+    if not reduced:
+        cornell = {"name": "cornell_ball", "params": ["ball_x"]}
+        rows += _per_trial(cornell, "cornell_ball", [0.1], AWGN(0.05), [
+            Setting("mle-adam", {"lr": 0.1, "iterations": 20, "spp": 32}, "mle-adam (FD)", GradientSettings(step=0.02)),
+            Setting("gauss-newton", {"spp": 64, "iterations": 8}, "gauss-newton (FD)", GradientSettings(step=0.02)),
+            Setting("grid-search", {"num": 33, "spp": 64, "refine_evals": 15}),
+        ], 6, 1024)
+        rows.append(_pool_speedup(cornell, 0.1, 12))
+        rows.append(_recipe(cornell, [0.1], [[-0.2], [0.35]], {"lr": 0.1, "iterations": 15, "spp": [[0, 64], [0.5, 128]]},
+                            1024))
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--reduced", action="store_true", help="toys only, a few trials (a few seconds)")
+    rows = run(reduced=ap.parse_args().reduced)
+    for row in rows:
+        print(f"{row['name']:<13} " + "  ".join(
+            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items() if k != "name"))
+    for row in rows:
+        print(json.dumps(row))
+
+
+if __name__ == "__main__":
+    main()

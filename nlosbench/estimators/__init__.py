@@ -1,0 +1,90 @@
+"""Estimators of θ from one noisy image, as plug-ins: `get(name, **options)` → an object with
+`fit(problem, y, init, rng, budget) → Estimate` (see `base.py` for the contract).
+
+Built in: `mle-adam` (Adam on the NLL through the renderer), `grid-search` (profile likelihood on
+cached grid renders + local refinement), `gauss-newton` (Fisher scoring with the bounds module's
+Fisher matrix) and `multi-start` (any of them from several starts). Third-party estimators register
+through the entry-point group `nlosbench.estimators` (name → a factory, usually an Estimator
+subclass, called with the options), or at run time with `register(name, factory)`.
+"""
+from __future__ import annotations
+
+import difflib
+import importlib.metadata
+from typing import Callable
+
+from .base import Budget, Estimate, Estimator, Outcome, Problem, Tracker
+from .gauss_newton import GaussNewton
+from .grid_search import GridSearch
+from .mle_adam import AdamMLE
+from .multi_start import MultiStart
+
+ENTRY_POINT_GROUP = "nlosbench.estimators"
+
+_BUILTIN: dict[str, Callable[..., Estimator]] = {c.name: c for c in (AdamMLE, GridSearch, GaussNewton, MultiStart)}
+_REGISTERED: dict[str, Callable[..., Estimator]] = {}
+
+
+def register(name: str, factory: Callable[..., Estimator]) -> None:
+    """Add an estimator factory (called with the options given to `get`) under `name`."""
+    if not callable(factory):
+        raise TypeError(f"estimator factory for {name!r} is not callable: {factory!r}")
+    _REGISTERED[name] = factory
+
+
+def _entry_points() -> dict:
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def available() -> list[str]:
+    """Names accepted by `get`: built-ins, `register`ed factories and installed entry points."""
+    return sorted(set(_BUILTIN) | set(_REGISTERED) | set(_entry_points()))
+
+
+def factory(name: str) -> Callable[..., Estimator]:
+    """The factory registered under `name`; KeyError (with a close match) for an unknown name."""
+    if name in _REGISTERED:
+        return _REGISTERED[name]
+    if name in _BUILTIN:
+        return _BUILTIN[name]
+    eps = _entry_points()
+    if name in eps:
+        try:
+            return eps[name].load()
+        except Exception as e:  # noqa: BLE001 - any import failure of a plug-in is reported with its source
+            raise ImportError(f"estimator plug-in {name!r} ({eps[name].value}, entry-point group "
+                              f"{ENTRY_POINT_GROUP!r}) failed to load: {type(e).__name__}: {e}") from e
+    close = difflib.get_close_matches(name, available(), n=1)
+    hint = f"; did you mean {close[0]!r}?" if close else ""
+    raise KeyError(f"unknown estimator {name!r}{hint} (available: {', '.join(available())})")
+
+
+def get(name: str, **options) -> Estimator:
+    """Build the estimator `name` with its options, e.g. get("mle-adam", lr=0.05, iterations=100)."""
+    make = factory(name)
+    try:
+        est = make(**options)
+    except TypeError as e:
+        raise ValueError(f"estimator {name!r}: bad options {sorted(options)}: {e}") from None
+    if not callable(getattr(est, "fit", None)):
+        raise TypeError(f"estimator {name!r} built {type(est).__name__}, which has no fit() method")
+    return est
+
+
+def describe() -> dict[str, str]:
+    """name → one line: what it is, then when it is valid (for `nlosbench list estimators`)."""
+    out = {}
+    for name in available():
+        try:
+            cls = factory(name)
+        except ImportError as e:
+            out[name] = f"(fails to load: {e})"
+            continue
+        doc = (cls.__doc__ or "").strip().splitlines()
+        valid = getattr(cls, "valid_when", "")
+        out[name] = " ".join(filter(None, [doc[0] if doc else "", f"Valid when: {valid}" if valid else ""]))
+    return out
+
+
+__all__ = ["Budget", "Estimate", "Estimator", "Outcome", "Problem", "Tracker", "AdamMLE", "GridSearch",
+           "GaussNewton", "MultiStart", "ENTRY_POINT_GROUP", "register", "available", "factory", "get", "describe"]

@@ -1,0 +1,126 @@
+"""`mle-adam`: maximum likelihood with torch.optim.Adam on θ through the differentiable renderer.
+
+The loss is the noise model's negative log-likelihood of y at L_θ = nb.render(model, θ, ...) (L2 for
+AWGN, Poisson NLL for photon counts); its gradient comes from FD (central, common random numbers) or
+AD, as the problem's GradientSettings say. Adam works on u = (θ − lower)/(upper − lower) ∈ [0, 1]^P,
+so one learning rate suits parameters of any unit, and after each step u is clipped to the box
+(Θ's bounds are respected; FD stencils turn one-sided at the box). Every iteration renders with a
+fresh seed (stochastic gradients), the spp follows a schedule (the paper: 512 then 1024) and the
+learning rate decays (cosine or exponential) so the last iterates settle.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ..forward.autograd import render
+from ..seeds import derive
+from .base import Estimator, Outcome, Problem, Tracker, finite_or_raise, render_seed
+
+LR_SCHEDULES = ("constant", "cosine", "exponential")
+
+
+def spp_schedule(spp) -> tuple[tuple[float, int], ...]:
+    """An spp schedule as ((start fraction of the iterations, spp), ...) sorted, the first at 0.
+    `spp` is an int (constant) or pairs [[0, 512], [0.5, 1024]]."""
+    pairs = [(0.0, spp)] if isinstance(spp, (int, np.integer)) else [tuple(p) for p in spp]
+    out = []
+    for p in pairs:
+        if len(p) != 2:
+            raise ValueError(f"spp schedule entries are [fraction, spp] pairs, got {p!r}")
+        frac, n = float(p[0]), p[1]
+        if not 0.0 <= frac < 1.0 or isinstance(n, bool) or int(n) != n or n < 1:
+            raise ValueError(f"spp schedule entry {list(p)}: need 0 <= fraction < 1 and a positive integer spp")
+        out.append((frac, int(n)))
+    out.sort()
+    if not out or out[0][0] != 0.0:
+        raise ValueError(f"the spp schedule must start at fraction 0, got {spp!r}")
+    return tuple(out)
+
+
+class AdamMLE(Estimator):
+    """Maximum likelihood by Adam on θ through nb.render (FD or AD gradients of the NLL).
+
+    lr: Adam step size in units of Θ's width (0.05: about 5 % of the range per step at first);
+    iterations: maximum iterations; spp: int or schedule [[fraction, spp], ...] (paper: 512 then 1024);
+    lr_schedule: constant | cosine | exponential, decaying to lr·lr_final at the last iteration;
+    tol, patience: converged when every component of u moved less than tol (fraction of Θ's width)
+    for `patience` consecutive iterations; betas: Adam's moment decay rates. The defaults (0.5, 0.99)
+    rather than torch's (0.9, 0.999): the NLL's gradient shrinks by orders of magnitude between a far
+    start and θ̂, and a long second-moment memory then freezes the steps near θ̂ while heavy momentum
+    overshoots (on blob2d at high SNR, (0.9, 0.999) ends at ≈ 5 × CRLB after 100 iterations,
+    (0.5, 0.99) at the CRLB after ≈ 30)."""
+
+    name = "mle-adam"
+    valid_when = ("The NLL is smooth near θ̂ and the start lies in the basin of the global optimum (a "
+                  "unimodal likelihood, or a start close enough); then it is the efficient MLE at high SNR. "
+                  "Across visibility changes use FD or projective AD gradients; for multimodal likelihoods "
+                  "(hard edges, NLOS) wrap it in multi-start or use grid-search.")
+
+    def __init__(self, lr: float = 0.05, iterations: int = 200, spp=((0.0, 512), (0.5, 1024)),
+                 lr_schedule: str = "cosine", lr_final: float = 1e-3, tol: float = 1e-4, patience: int = 3,
+                 betas: tuple[float, float] = (0.5, 0.99)):
+        if not lr > 0:
+            raise ValueError(f"mle-adam: lr must be > 0, got {lr}")
+        if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
+            raise ValueError(f"mle-adam: iterations must be a positive integer, got {iterations!r}")
+        if lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"mle-adam: lr_schedule must be one of {list(LR_SCHEDULES)}, got {lr_schedule!r}")
+        if not 0 < lr_final <= 1:
+            raise ValueError(f"mle-adam: lr_final (fraction of lr at the end) must lie in (0, 1], got {lr_final}")
+        if tol < 0 or int(patience) != patience or patience < 1:
+            raise ValueError(f"mle-adam: need tol >= 0 and patience >= 1, got tol={tol}, patience={patience}")
+        self.lr, self.iterations, self.spp = float(lr), int(iterations), spp_schedule(spp)
+        self.lr_schedule, self.lr_final, self.tol, self.patience = lr_schedule, float(lr_final), float(tol), int(patience)
+        self.betas = (float(betas[0]), float(betas[1]))
+
+    def lr_factor(self, k: int, n: int) -> float:
+        """Learning-rate multiplier at iteration k of n (1 at the start, lr_final at the end)."""
+        x = k / max(n - 1, 1)
+        if self.lr_schedule == "constant":
+            return 1.0
+        if self.lr_schedule == "cosine":
+            return self.lr_final + (1.0 - self.lr_final) * 0.5 * (1.0 + math.cos(math.pi * x))
+        return self.lr_final ** x
+
+    def spp_at(self, k: int, n: int) -> int:
+        """spp of iteration k of n under the schedule."""
+        return [s for frac, s in self.spp if k >= frac * n][-1]
+
+    def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,
+             tracker: Tracker) -> Outcome:
+        n = tracker.budget.cap(self.iterations)
+        base = render_seed(rng)
+        lo, hi = torch.as_tensor(problem.params.lower), torch.as_tensor(problem.params.upper)
+        width = hi - lo
+        u = torch.tensor(problem.to_unit(theta0), dtype=torch.float64, requires_grad=True)
+        opt = torch.optim.Adam([u], lr=self.lr, betas=self.betas)
+        sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: self.lr_factor(k, n))
+        still, done, loss = 0, 0, math.nan
+        reason, converged = f"reached max iterations ({n})", False
+        while done < n:
+            stop = tracker.exhausted()
+            if stop:
+                reason = stop
+                break
+            theta = torch.clamp(lo + u * width, lo, hi)  # rounding may step past `upper`
+            L = render(problem.model, theta, self.spp_at(done, n), derive(base, "mle-adam", done), grad=problem.gradient)
+            loss_t = problem.noise.nll(y, L)
+            loss = finite_or_raise(float(loss_t.detach()), f"NLL at iteration {done}")
+            tracker.record(done, loss, theta.detach().numpy())
+            opt.zero_grad()
+            loss_t.backward()
+            before = u.detach().clone()
+            opt.step()
+            sched.step()
+            with torch.no_grad():
+                u.clamp_(0.0, 1.0)
+            done += 1
+            still = still + 1 if float((u.detach() - before).abs().max()) < self.tol else 0
+            if still >= self.patience:
+                converged = True
+                reason = f"θ moved < {self.tol:g} of Θ's width for {self.patience} iterations"
+                break
+        return Outcome(problem.from_unit(u.detach().numpy()), done, converged, reason, loss)

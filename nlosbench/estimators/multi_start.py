@@ -1,0 +1,65 @@
+"""`multi-start`: a local estimator run from several starts; the fit with the lowest NLL wins.
+
+The candidates are compared on renders at `spp` that share one seed, so rendering noise does not
+decide between two equally good fits. The render and time budgets are shared: each start gets what
+the previous ones left.
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from ..seeds import derive
+from .base import Budget, Estimator, Outcome, Problem, Tracker, nll, render_seed
+
+
+class MultiStart(Estimator):
+    """A local estimator from several starts, keeping the fit with the lowest NLL.
+
+    base, options: the estimator run from each start and its options; starts: the given start, then
+    uniform random points of Θ; spp: spp of the common render on which the candidates' NLL is compared."""
+
+    name = "multi-start"
+    valid_when = ("Multimodal likelihoods (hard edges, NLOS, weak signal far from θ*) where a local estimator "
+                  "finds the global optimum from some starts; costs `starts` times the base estimator.")
+
+    def __init__(self, base: str = "mle-adam", starts: int = 4, options: dict | None = None, spp: int = 1024):
+        from . import get
+
+        if isinstance(starts, bool) or int(starts) != starts or starts < 1:
+            raise ValueError(f"multi-start: starts must be a positive integer, got {starts!r}")
+        if isinstance(spp, bool) or int(spp) != spp or spp < 1:
+            raise ValueError(f"multi-start: spp must be a positive integer, got {spp!r}")
+        if base == self.name:
+            raise ValueError("multi-start: base must be another estimator")
+        self.base_name, self.starts, self.options, self.spp = base, int(starts), dict(options or {}), int(spp)
+        self._base = get(base, **self.options)
+
+    def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,
+             tracker: Tracker) -> Outcome:
+        seed = derive(render_seed(rng), "multi-start")
+        b = tracker.budget
+        best, iterations = None, 0
+        for s in range(self.starts):
+            stop = tracker.exhausted()
+            if stop:
+                break
+            used = tracker.used()
+            left = Budget(iterations=b.iterations,
+                          renders=None if b.renders is None else b.renders - used.renders - used.grad_passes,
+                          seconds=None if b.seconds is None else max(b.seconds - tracker.seconds(), 1e-9))
+            init = theta0 if s == 0 else problem.params.sample_uniform(rng)
+            est = self._base.fit(problem, y, init, rng, left)
+            iterations += est.iterations
+            score = nll(problem, y, problem.model.render(est.theta, self.spp, seed))
+            tracker.record(s, score, est.theta)
+            if best is None or score < best[0]:
+                best = (score, s, est)
+        if best is None:
+            raise RuntimeError(f"multi-start: the budget was used up before the first start ({stop})")
+        score, s, est = best
+        done = len(tracker.trace)
+        reason = f"best of {done} start(s) is start {s}: {est.reason}"
+        if done < self.starts:
+            reason += f"; only {done} of {self.starts} starts fitted the budget"
+        return Outcome(est.theta, iterations, est.converged and done == self.starts, reason, score)

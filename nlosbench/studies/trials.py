@@ -1,0 +1,435 @@
+"""Study `trials`: Monte Carlo trials of estimators at a list of θ*, MSE against the bounds, speed
+against error.
+
+Per θ*: the clean image at N_eff spp (rendered once, saved as EXR, reused by every trial and by the
+bounds); per noise model: HCR_Neff from renders at θ* + Δ (Δ over a grid on Θ shared by all θ*, plus
+small offsets ±ξ·2^k along each axis), the CRLB from an FD Jacobian at θ* (step ξ, common random
+numbers), optionally the Barankin bound (scalar θ) and HCR-hat (bias-corrected λ̂ from several spp
+levels, `bounds.inexact`); then n trials per θ* for every estimator setting (`trials.py`), resumable
+from trials.jsonl. Outputs: summary.csv, bounds.csv, plots/mse_vs_theta.png, plots/speed_vs_error.png.
+"""
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .. import estimators, io
+from ..bounds import barankin, crlb, fisher_matrix, hcr
+from ..estimators import Budget
+from ..executors import SerialExecutor
+from ..experiment.config import grid_values
+from ..experiment.context import read_csv, write_csv, write_json
+from ..experiment.schema import ConfigError, Field
+from ..forward.gradients import GradientSettings, fd_jacobian
+from ..trials import LOG_NAME, Setting, make_trials, run_trials, summarize
+
+NAME = "trials"
+BOUNDS = ("hcr", "crlb", "barankin", "hcr_hat")
+BOUND_NOTES = {
+    "hcr": "HCR_Neff: sup_Δ ‖Δ‖²/(exp λ − 1) on the MSE, λ from renders at N_eff (θ* and θ* + Δ: the Θ grid "
+           "plus ±ξ·2^k axis offsets); rendering noise inflates λ, so it tends to underestimate the true HCR. "
+           "For a vector θ it bounds the MSE through the worst single direction: as Δ → 0 it tends to "
+           "1/λ_min(F), up to P times below the CRLB's trace",
+    "crlb": "CRLB: trace of F⁻¹, Fisher matrix from a central-FD Jacobian (step ξ, common random numbers) at N_eff",
+    "barankin": "Barankin (McAulay–Seidman) on Var of the scalar θ from the same renders as the HCR (≥ HCR)",
+    "hcr_hat": "HCR-hat: HCR from the bias-corrected λ̂ (fit of λ̃ = λ + C/N over the spp levels); an upper "
+               "bound on the true HCR in expectation, so [HCR_Neff, HCR-hat] brackets it",
+}
+
+ESTIMATOR = {
+    "name": Field(str, help="registered estimator (nlosbench list estimators)"),
+    "options": Field(dict, {}, "keyword options of the estimator"),
+    "label": Field(str, None, "name in tables and plots (default: name); unique within the study", nullable=True),
+    "gradient": Field(dict, {}, "gradient settings of the problem: method (fd | ad), step, rounds, crn, spp, ad"),
+}
+SCHEMA = {
+    "id": Field(str, "trials", "folder of this study in the run directory"),
+    "theta": Field("any", help="θ* values: numbers (or {start, stop, num}) for a 1-D θ, else a list of lists"),
+    "n": Field(int, 30, "trials per θ* (fresh noise and fresh start each)"),
+    "n_eff": Field(int, 4096, "spp of the clean image at θ* and of the bound renders"),
+    "estimators": Field(list, help="estimator settings {name, options, label, gradient}", items=ESTIMATOR),
+    "noise": Field("any", "all", "index (or list of indices) into the run's noise models, or 'all'"),
+    "bounds": Field(list, ["hcr", "crlb"], "bounds compared with the MSE", items=Field(str, choices=BOUNDS)),
+    "hcr_grid": Field(int, 21, "HCR test points per parameter on a grid over Θ (shared by all θ*)"),
+    "hcr_offsets": Field(int, 4, "HCR test offsets ±ξ·2^k, k < hcr_offsets, along each parameter"),
+    "fd_step": Field(float, 0.01, "ξ: FD step of the CRLB Jacobian and smallest HCR offset (θ units, every parameter)"),
+    "levels": Field(list, [1024, 2048], "spp levels of the λ̂ fit for hcr_hat", items=int),
+    "budget": Field({"iterations": Field(int, None, "iterations per fit", nullable=True),
+                     "renders": Field(int, None, "renders + AD passes per fit", nullable=True),
+                     "seconds": Field(float, None, "wall seconds per fit", nullable=True)}),
+    "start_width": Field(float, None, "random starts uniform in θ* ± width·|Θ|/2 (null: uniform in Θ)",
+                         nullable=True),
+    "far_above": Field(float, 3.0, "flag MSE / bound above this factor"),
+    "bootstrap": Field(int, 1000, "bootstrap resamples for standard errors"),
+    "traces": Field(bool, False, "store each fit's loss/θ trace in trials.jsonl"),
+}
+
+
+# -- config → objects (all checked before any render) -------------------------------------------
+def parse_thetas(spec, params, where: str) -> np.ndarray:
+    """θ* values as (T, P) float64, each checked against Θ."""
+    if params.dim == 1 and (isinstance(spec, dict) or all(isinstance(v, (int, float)) for v in spec or [])):
+        try:
+            spec = [[v] for v in grid_values(spec)]
+        except (KeyError, TypeError, ValueError) as e:
+            raise ConfigError(where, f"expected a list of numbers or {{start, stop, num}}: {e}") from None
+    if not isinstance(spec, list) or not spec:
+        raise ConfigError(where, f"expected a non-empty list of θ* values, got {spec!r}")
+    out = []
+    for i, t in enumerate(spec):
+        try:
+            out.append(params.validate(t))
+        except ValueError as e:
+            raise ConfigError(f"{where}[{i}]", str(e)) from None
+    return np.array(out)
+
+
+def parse_noises(spec, noises: list, where: str) -> dict:
+    """index → noise model for `spec` = 'all', an index or a list of indices."""
+    idx = range(len(noises)) if spec == "all" else [spec] if isinstance(spec, int) else spec
+    if not isinstance(idx, (list, range)) or not all(isinstance(j, int) and 0 <= j < len(noises) for j in idx) \
+            or not len(idx):
+        raise ConfigError(where, f"expected 'all' or indices into the {len(noises)} noise model(s), got {spec!r}")
+    return {j: noises[j] for j in idx}
+
+
+def parse_settings(specs: list, where: str) -> list[Setting]:
+    """Estimator settings, each built once to check its name and options."""
+    if not specs:
+        raise ConfigError(where, "expected at least one estimator")
+    out = []
+    for k, s in enumerate(specs):
+        try:
+            estimators.get(s["name"], **s["options"])
+            grad = GradientSettings(**s["gradient"])
+        except KeyError as e:
+            raise ConfigError(f"{where}[{k}].name", e.args[0]) from None
+        except (TypeError, ValueError) as e:
+            raise ConfigError(f"{where}[{k}]", str(e)) from None
+        out.append(Setting(s["name"], s["options"], s["label"] or s["name"], grad))
+    labels = [s.label for s in out]
+    dup = sorted({x for x in labels if labels.count(x) > 1})
+    if dup:
+        raise ConfigError(where, f"labels {dup} are used twice; give each setting its own `label`")
+    return out
+
+
+# -- renders through the executor ---------------------------------------------------------------
+def _render_task(model, item):
+    tag, theta, spp, seed = item
+    return tag, model.render(theta, spp, seed)
+
+
+def _jacobian_task(model, item):
+    tag, theta, spp, seed, step = item
+    return tag, fd_jacobian(model, theta, spp, seed, GradientSettings(step=step))
+
+
+def _run(ctx, executor, fn, items: list, desc: str) -> dict:
+    return dict(ctx.progress(executor.imap_unordered(fn, items), total=len(items), desc=desc))
+
+
+def offsets(params, theta: np.ndarray, count: int, step: float) -> np.ndarray:
+    """Axis offsets θ* ± ξ·2^k e_j (k < count) inside Θ, as points (M, P)."""
+    pts = []
+    for j, k, sgn in itertools.product(range(params.dim), range(count), (-1.0, 1.0)):
+        t = theta.copy()
+        t[j] += sgn * step * 2.0 ** k
+        if params.contains(t):
+            pts.append(t)
+    return np.array(pts).reshape(-1, params.dim)
+
+
+def clean_images(ctx, executor, thetas: np.ndarray, n_eff: int, folder: Path) -> dict[int, torch.Tensor]:
+    """The clean image at every θ*, rendered once at n_eff and kept as images/clean_<i>.exr (a resumed
+    run reads them back: float32 EXR is lossless)."""
+    files = {i: folder / "images" / f"clean_{i:03d}.exr" for i in range(len(thetas))}
+    out = {i: torch.from_numpy(io.read_exr(f)) for i, f in files.items() if ctx.resume and f.exists()}
+    todo = [(i, thetas[i], n_eff, ctx.seed_for("clean", i)) for i in files if i not in out]
+    for i, img in _run(ctx, executor, _render_task, todo, "clean images").items():
+        io.write_exr(files[i], img)
+        out[i] = img
+    return out
+
+
+def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> list[dict]:
+    """One row per (noise j, θ* i) with every requested bound: value, log10 (units²) and diagnostics."""
+    model, params = ctx.model, ctx.model.params
+    want, n_eff, step = cfg["bounds"], cfg["n_eff"], cfg["fd_step"]
+    axes = [np.linspace(lo, hi, cfg["hcr_grid"]) for lo, hi in zip(params.lower, params.upper)]
+    grid = np.array(list(itertools.product(*axes)))
+    offs = {i: offsets(params, t, cfg["hcr_offsets"], step) for i, t in enumerate(thetas)}
+    jobs = []
+    if {"hcr", "barankin", "hcr_hat"} & set(want):
+        jobs += [(("grid", g), t, n_eff, ctx.seed_for("hcr-grid", g)) for g, t in enumerate(grid)]
+        jobs += [(("offset", i, q), t, n_eff, ctx.seed_for("hcr-offset", i, q)) for i in offs for q, t in enumerate(offs[i])]
+    renders = _run(ctx, executor, _render_task, jobs, "bound renders")
+    jac = {}
+    if "crlb" in want:
+        jac = _run(ctx, executor, _jacobian_task,
+                   [(i, t, n_eff, ctx.seed_for("crlb", i), step) for i, t in enumerate(thetas)], "CRLB Jacobians")
+    rows = []
+    for (j, noise), (i, theta) in itertools.product(noises.items(), enumerate(thetas)):
+        row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(params.names, theta)}}
+        # grid points that coincide with θ* (up to rounding) are not test points
+        near = np.flatnonzero(np.abs((grid - theta) / (params.upper - params.lower)).max(axis=1) > 1e-9)
+        pts = np.concatenate([grid[near], offs[i]])
+        alt = torch.stack([renders[("grid", g)] for g in near] + [renders[("offset", i, q)] for q in range(len(offs[i]))]) \
+            if jobs else None
+        lower, upper = params.lower - theta, params.upper - theta
+        deltas = pts - theta if params.dim > 1 else (pts - theta)[:, 0]
+        if "hcr" in want:
+            h = hcr(cleans[i], alt, deltas, noise, lower, upper)
+            delta = None if h.delta is None else np.atleast_1d(h.delta).tolist()
+            row.update(hcr=h.value, hcr_log10=h.log10, hcr_delta=json.dumps(delta), hcr_at_edge=h.at_edge or "",
+                       hcr_reason=h.reason)
+        if "crlb" in want:
+            c = crlb(fisher_matrix(cleans[i], jac[i], noise))
+            with np.errstate(divide="ignore"):
+                row.update(crlb=c.trace, crlb_log10=float(np.log10(c.trace)), crlb_reason=c.reason)
+        if "barankin" in want:
+            b = barankin(cleans[i], alt, deltas, noise, lower=lower, upper=upper)
+            row.update(barankin=b.value, barankin_log10=b.log10, barankin_points=len(b.points), barankin_reason=b.reason)
+        if "hcr_hat" in want:
+            row.update(_hcr_hat(ctx, model, theta, pts, cleans[i], alt, deltas, noise, cfg, i, lower, upper))
+        rows.append(row)
+    return rows
+
+
+def _hcr_hat(ctx, model, theta, pts, clean, alt, deltas, noise, cfg, i, lower, upper) -> dict:
+    """HCR-hat at θ* from renders at the spp levels (one replicate each), via bounds.inexact."""
+    from ..bounds.inexact import inexact_hcr, render_replicates
+
+    X = render_replicates(model, np.concatenate([theta[None], pts]), cfg["levels"], 1, ctx.seed_for("hcr-hat", i),
+                          progress=ctx.progress)
+    r = inexact_hcr(X[:, :, 0], X[:, :, 1:], deltas, cfg["levels"], noise, clean[None], alt[None],
+                    cfg["n_eff"], lower, upper)
+    return {"hcr_hat": r.hcr_hat.value, "hcr_hat_log10": r.hcr_hat.log10, "hcr_hat_reason": r.hcr_hat.reason}
+
+
+def bounds_map(rows: list[dict], want) -> dict:
+    """(noise, θ index) → {bound: {value, log10}} for `trials.summarize`."""
+    return {(r["noise"], r["theta_index"]): {b: {"value": float(r[b]), "log10": float(r[f"{b}_log10"])} for b in want}
+            for r in rows}
+
+
+# -- the study ------------------------------------------------------------------------------------
+def _plan(ctx, cfg: dict, noises: dict) -> dict:
+    """What fixes the trials and bounds (not the summary's far_above / bootstrap): a resumed run must
+    have the same plan."""
+    study = {k: v for k, v in cfg.items() if k not in ("far_above", "bootstrap")}
+    return json.loads(json.dumps({"study": study, "seed": ctx.seed, "noise": {j: repr(n) for j, n in noises.items()},
+                                  "scene": {k: v for k, v in ctx.model_spec.items() if k != "cache"}},
+                                 sort_keys=True, default=repr))
+
+
+def run(ctx, cfg: dict) -> dict:
+    """Validate the block, render clean images and bounds, run (or resume) the trials, summarise."""
+    t0 = time.perf_counter()
+    sid = cfg.get("id", NAME)
+    params = ctx.model.params
+    thetas = parse_thetas(cfg["theta"], params, f"{sid}.theta")
+    if cfg["n"] < 1:
+        raise ConfigError(f"{sid}.n", f"expected at least 1 trial per θ*, got {cfg['n']}")
+    if cfg["n_eff"] < 1:
+        raise ConfigError(f"{sid}.n_eff", f"expected a positive spp, got {cfg['n_eff']}")
+    noises = parse_noises(cfg["noise"], ctx.noises, f"{sid}.noise")
+    settings = parse_settings(cfg["estimators"], f"{sid}.estimators")
+    if "barankin" in cfg["bounds"] and params.dim > 1:
+        raise ConfigError(f"{sid}.bounds", f"barankin bounds a scalar θ; this model has {list(params.names)}")
+    try:
+        budget = Budget(**cfg["budget"])
+    except ValueError as e:
+        raise ConfigError(f"{sid}.budget", str(e)) from None
+
+    folder = ctx.study_dir(cfg)
+    plan = _plan(ctx, cfg, noises)
+    plan_file = folder / "plan.json"
+    if ctx.resume and plan_file.exists() and json.loads(plan_file.read_text()) != plan:
+        raise ConfigError(sid, f"the config differs from the one {folder} was started with; resume with the same "
+                               "config or start a new run directory")
+    write_json(plan_file, plan)
+    executor = ctx.executor or SerialExecutor(ctx.model)
+
+    cleans = clean_images(ctx, executor, thetas, cfg["n_eff"], folder)
+    bounds_file = folder / "bounds.csv"
+    if ctx.resume and bounds_file.exists():
+        bound_rows = [{k: _num(v) for k, v in r.items()} for r in read_csv(bounds_file)]
+    else:
+        bound_rows = compute_bounds(ctx, executor, thetas, cleans, noises, cfg)
+        write_csv(bounds_file, bound_rows)
+
+    trials = make_trials(thetas, cfg["n"], settings, noises, cleans, ctx.seed, budget, cfg["start_width"], cfg["traces"])
+    records = run_trials(executor, trials, folder / LOG_NAME, resume=ctx.resume, progress=ctx.progress)
+    rows = summarize(records, params.names, bounds_map(bound_rows, cfg["bounds"]), cfg["far_above"], cfg["bootstrap"],
+                     ctx.seed_for("summary"), labels=[s.label for s in settings])
+    write_csv(folder / "summary.csv", rows)
+    plots = [plot_mse(rows, bound_rows, cfg["bounds"], params, {j: repr(n) for j, n in noises.items()},
+                      folder / "plots" / "mse_vs_theta.png"),
+             plot_speed(rows, mse_units(params), folder / "plots" / "speed_vs_error.png")]
+    errors = sorted({r["error"] for r in records if r["error"]})
+    return {"id": sid, "theta": thetas.tolist(), "params": list(params.names), "units": list(params.units),
+            "n": cfg["n"], "n_eff": cfg["n_eff"], "estimators": [s.label for s in settings],
+            "noise": {str(j): repr(n) for j, n in noises.items()}, "bounds": cfg["bounds"],
+            "bound_notes": {b: BOUND_NOTES[b] for b in cfg["bounds"]}, "fd_step": cfg["fd_step"],
+            "far_above": cfg["far_above"], "trials": len(records), "seconds": time.perf_counter() - t0,
+            "summary": rows, "bound_rows": bound_rows, "errors": errors[:20],
+            "files": [str(p.relative_to(folder)) for p in [folder / LOG_NAME, folder / "summary.csv", bounds_file] + plots]}
+
+
+def _num(v: str):
+    """A CSV cell back to a number where it is one."""
+    try:
+        return int(v)
+    except ValueError:
+        pass
+    try:
+        return float(v)
+    except ValueError:
+        return v
+
+
+# -- plots ------------------------------------------------------------------------------------------
+def _pyplot():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def mse_units(params) -> str:
+    """Units of the MSE of θ: the parameters' unit squared (or a note when they differ)."""
+    return f"{params.units[0]}²" if len(set(params.units)) == 1 else "mixed units²"
+
+
+def plot_mse(rows: list[dict], bound_rows: list[dict], bounds, params, noise_names: dict, path: Path) -> Path:
+    """MSE (± SE) of every estimator and the bounds against θ*, log scale; one panel per noise model."""
+    plt = _pyplot()
+    noises = sorted({r["noise"] for r in rows})
+    fig, axes = plt.subplots(1, len(noises), figsize=(6 * len(noises), 4.2), squeeze=False)
+    xname = params.names[0] if params.dim == 1 else "θ* index"
+    xkey = f"theta_{params.names[0]}" if params.dim == 1 else "theta_index"
+    for ax, j in zip(axes[0], noises):
+        for label in dict.fromkeys(r["estimator"] for r in rows):
+            rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r["mse"] > 0]
+            ax.errorbar([r[xkey] for r in rs], [r["mse"] for r in rs], yerr=[r["mse_se"] for r in rs], marker="o",
+                        capsize=3, label=f"MSE {label}")
+        for b in bounds:
+            bs = [r for r in bound_rows if r["noise"] == j and math.isfinite(r[f"{b}_log10"])]
+            ax.plot([r[xkey] for r in bs], [10.0 ** r[f"{b}_log10"] for r in bs], "--", marker=".", label=b.upper())
+        ax.set_yscale("log")
+        ax.set_xlabel(f"θ* ({xname}{', ' + params.units[0] if params.dim == 1 else ''})")
+        ax.set_ylabel(f"MSE, bound [{mse_units(params)}]")
+        ax.set_title(f"noise {j}: {noise_names[j]}")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_speed(rows: list[dict], units: str, path: Path) -> Path:
+    """Speed against error: per estimator setting (and noise model), mean wall seconds and renders
+    (+ AD passes) per trial against the MSE averaged over θ*, log–log."""
+    plt = _pyplot()
+    from matplotlib.ticker import NullFormatter
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    several = len({r["noise"] for r in rows}) > 1
+    for (j, label) in dict.fromkeys((r["noise"], r["estimator"]) for r in rows):
+        rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r["mse"] > 0]
+        if not rs:  # every fit failed (or hit θ* exactly): nothing to place on a log axis
+            continue
+        mse = float(np.mean([r["mse"] for r in rs]))
+        secs = float(np.mean([r["mean_seconds"] for r in rs]))
+        rend = float(np.mean([r["mean_renders"] + r["mean_grad_passes"] for r in rs]))
+        for ax, x in zip(axes, (secs, rend)):
+            ax.scatter([x], [mse], s=40)
+            ax.annotate(f"{label} (noise {j})" if several else label, (x, mse), fontsize=8, xytext=(4, 4),
+                        textcoords="offset points")
+    for ax, xl in zip(axes, ("wall seconds per trial", "renders + AD passes per trial")):
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel(xl)
+        ax.set_ylabel(f"MSE averaged over θ* [{units}]")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.grid(True, which="both", alpha=0.3)
+    fig.suptitle("speed against error (one point per estimator setting)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# -- report ---------------------------------------------------------------------------------------
+def _fmt(v, digits: int = 3) -> str:
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return "–"
+    if isinstance(v, float):
+        return f"{v:.{digits}g}"
+    return str(v)
+
+
+def report(study_dir, results: dict) -> str:
+    """Markdown: what was run, the MSE/bound table per noise model, flags, failures and the plots."""
+    sid = results["id"]
+    rows, bounds = results["summary"], results["bounds"]
+    failed = sum(r["n_failed"] for r in rows)
+    nonconv = sum(r["n_nonconverged"] for r in rows)
+    lines = [f"## Trials ({sid}): estimators against the bounds", "",
+             f"{results['n']} trials per θ* at {len(results['theta'])} θ* of {results['params']} "
+             f"({', '.join(results['units'])}), estimators {results['estimators']}, noise "
+             f"{', '.join(results['noise'].values())}; clean images at N_eff = {results['n_eff']} spp. "
+             f"{results['trials']} fits recorded, {failed} failed, {nonconv} not converged; "
+             f"{results['seconds']:.1f} s.", "",
+             "Bounds (each ratio is MSE / that bound, MSE = mean ‖θ̂ − θ*‖² over the trials that did not fail; "
+             "standard errors by bootstrap over trials):", ""]
+    lines += [f"- **{b}**: {results['bound_notes'][b]}" for b in bounds]
+    head = ["θ*", "estimator", "n", "failed", "not conv.", "MSE ± SE", "Var", "‖bias‖"] + \
+           [f"MSE/{b}" for b in bounds] + ["s / trial", "renders / trial", "flag"]
+    for j in sorted({r["noise"] for r in rows}):
+        lines += ["", f"### Noise {j}: {results['noise'][str(j)]}", "", "| " + " | ".join(head) + " |",
+                  "|" + "---|" * len(head)]
+        for r in (r for r in rows if r["noise"] == j):
+            theta = ", ".join(_fmt(r[f"theta_{n}"], 4) for n in results["params"])
+            flag = "; ".join(filter(None, [f"far above {r['far_above']}" if r["far_above"] else "",
+                                           f"below {r['below']}" if r["below"] else ""]))
+            cells = [theta, r["estimator"], r["n"], r["n_failed"], r["n_nonconverged"],
+                     f"{_fmt(r['mse'])} ± {_fmt(r['mse_se'], 2)}", _fmt(r["var"]), _fmt(r["bias"])] + \
+                    [_fmt(r.get(f"mse_over_{b}")) for b in bounds] + \
+                    [_fmt(r["mean_seconds"]), _fmt(r["mean_renders"] + r["mean_grad_passes"]), flag or "ok"]
+            lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    far = [r for r in rows if r["far_above"]]
+    below = [r for r in rows if r["below"]]
+    lines += ["", f"**Far above the bound** (MSE > {results['far_above']:g} × bound): "
+              + ("; ".join(f"{r['estimator']} at θ* #{r['theta_index']} (noise {r['noise']}; {r['far_above']})"
+                           for r in far) or "none.")]
+    lines += [f"**Below the bound** (MSE + 2 SE < bound: biased, too few trials, or the bound is off): "
+              + ("; ".join(f"{r['estimator']} at θ* #{r['theta_index']} (noise {r['noise']}; {r['below']})"
+                           for r in below) or "none.")]
+    if results["errors"]:
+        lines += ["", "Failed fits (distinct errors):", ""] + [f"- `{e}`" for e in results["errors"]]
+    bhead = ["noise", "θ*"] + [f"log10 {b}" for b in bounds] + (["HCR Δ at sup"] if "hcr" in bounds else []) + ["notes"]
+    if bounds:
+        lines += ["", "Bounds at θ* (log10 of units²; a bound may underflow to 0, its log10 is exact):", "",
+                  "| " + " | ".join(bhead) + " |", "|" + "---|" * len(bhead)]
+    for r in results["bound_rows"] if bounds else []:
+        notes = "; ".join(filter(None, (str(r.get(f"{b}_reason") or "") for b in bounds)))
+        cells = [r["noise"], ", ".join(_fmt(r[f"theta_{n}"], 4) for n in results["params"])] + \
+                [_fmt(float(r[f"{b}_log10"]), 4) for b in bounds] + ([r["hcr_delta"]] if "hcr" in bounds else []) + \
+                [notes or "–"]
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    rel = Path(study_dir).name
+    lines += ["", f"![MSE and bounds against θ*]({rel}/plots/mse_vs_theta.png)",
+              f"![speed against error]({rel}/plots/speed_vs_error.png)", ""]
+    return "\n".join(lines)

@@ -1,0 +1,254 @@
+"""Monte Carlo trials of estimators and their summary against the bounds.
+
+For each noise model j, θ* (index i) and trial k: a fresh noisy image y = noise.sample(L_θ*) of the
+clean image (rendered once at N_eff and reused), a fresh start, and one fit per estimator setting —
+every setting sees the same y and start (paired comparison). Seeds derive from the experiment seed,
+the purpose and (j, i, k). Each finished trial is appended to `trials.jsonl` with flush + fsync, so a
+killed run resumes without losing or repeating a trial; the summary sorts records first, so it does
+not depend on the order in which trials finished.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from . import estimators
+from .estimators import Budget, Problem
+from .forward.gradients import GradientSettings
+from .forward.model import ForwardModel
+from .noise import NoiseModel
+from .params import ParamSpace
+from .seeds import derive
+
+LOG_NAME = "trials.jsonl"
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One estimator configuration in a comparison: registry name, options, label (unique in a run),
+    and the gradient settings its problem carries."""
+
+    name: str
+    options: dict = field(default_factory=dict)
+    label: str = ""
+    gradient: GradientSettings = field(default_factory=GradientSettings)
+
+    def __post_init__(self):
+        if not self.label:
+            object.__setattr__(self, "label", self.name)
+
+
+@dataclass(frozen=True)
+class Trial:
+    """One fit of one setting: noise j, θ* index i, trial k; `clean` is the image at θ* (H, W, C)."""
+
+    noise_index: int
+    theta_index: int
+    trial: int
+    setting: Setting
+    noise: NoiseModel
+    theta_true: tuple
+    clean: torch.Tensor
+    seed: int
+    budget: Budget = Budget()
+    start_width: float | None = None
+    keep_trace: bool = False
+
+    @property
+    def key(self) -> tuple:
+        return (self.noise_index, self.theta_index, self.trial, self.setting.label)
+
+
+def record_key(rec: dict) -> tuple:
+    return (rec["noise"], rec["theta_index"], rec["trial"], rec["estimator"])
+
+
+def make_trials(thetas: np.ndarray, n: int, settings: Sequence[Setting], noises: dict[int, NoiseModel],
+                cleans: dict[int, torch.Tensor], seed: int, budget: Budget = Budget(),
+                start_width: float | None = None, keep_trace: bool = False) -> list[Trial]:
+    """All trials, in the order noise → θ* → trial → setting. thetas: (T, P); noises: index → model."""
+    if n < 1:
+        raise ValueError(f"n (trials per θ*) must be >= 1, got {n}")
+    labels = [s.label for s in settings]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"estimator labels must be unique, got {labels}")
+    return [Trial(j, i, k, s, noise, tuple(float(v) for v in thetas[i]), cleans[i], seed, budget, start_width,
+                  keep_trace)
+            for j, noise in noises.items() for i in range(len(thetas)) for k in range(n) for s in settings]
+
+
+def draw_start(params: ParamSpace, theta_true: np.ndarray, width: float | None, rng: np.random.Generator) -> np.ndarray:
+    """A random start: uniform in Θ (width None), or uniform in θ* ± width·(upper − lower)/2 clipped to Θ."""
+    if width is None:
+        return params.sample_uniform(rng)
+    half = 0.5 * width * (params.upper - params.lower)
+    return rng.uniform(np.maximum(params.lower, theta_true - half), np.minimum(params.upper, theta_true + half))
+
+
+_ESTIMATORS: dict[str, estimators.Estimator] = {}  # per process, so grid-search's grid renders are reused
+
+
+def _estimator(setting: Setting):
+    key = json.dumps([setting.name, setting.options], sort_keys=True, default=repr)
+    if key not in _ESTIMATORS:
+        _ESTIMATORS[key] = estimators.get(setting.name, **setting.options)
+    return _ESTIMATORS[key]
+
+
+def run_trial(model: ForwardModel, trial: Trial) -> dict:
+    """Fit one trial on `model` (the worker's model); a fit that raises is recorded with its error."""
+    j, i, k = trial.noise_index, trial.theta_index, trial.trial
+    theta_true = np.array(trial.theta_true)
+    rec = {"noise": j, "theta_index": i, "trial": k, "estimator": trial.setting.label, "name": trial.setting.name,
+           "theta_true": list(trial.theta_true)}
+    y = trial.noise.sample(trial.clean, torch.Generator().manual_seed(derive(trial.seed, "trial-noise", j, i, k)))
+    init = draw_start(model.params, theta_true, trial.start_width,
+                      np.random.default_rng(derive(trial.seed, "trial-start", i, k)))
+    rec["init"] = init.tolist()
+    problem = Problem(model, trial.noise, trial.setting.gradient, derive(trial.seed, "problem"))
+    before, t0 = model.stats.snapshot(), time.perf_counter()
+    try:
+        est = _estimator(trial.setting).fit(problem, y, init, np.random.default_rng(derive(trial.seed, "trial-fit", i, k)),
+                                            trial.budget)
+    except Exception as e:  # noqa: BLE001 - a failed fit is a result: counted and shown in the summary
+        used = model.stats.since(before)
+        rec.update(theta_hat=None, error=f"{type(e).__name__}: {e}", converged=False, reason="failed",
+                   iterations=0, renders=used.renders, grad_passes=used.grad_passes, samples=used.samples,
+                   seconds=time.perf_counter() - t0, final_loss=None)
+        return rec
+    rec.update(theta_hat=est.theta.tolist(), error=None, converged=est.converged, reason=est.reason,
+               iterations=est.iterations, renders=est.renders, grad_passes=est.grad_passes, samples=est.samples,
+               seconds=est.seconds, final_loss=est.final_loss)
+    if trial.keep_trace:
+        rec["trace"] = est.trace
+    return rec
+
+
+def read_log(path: Path) -> list[dict]:
+    """Records from a trials log. A torn last line (the run was killed while writing it) is cut
+    off the file; any other unreadable line is an error naming it."""
+    path = Path(path)
+    if not path.exists():
+        return []
+    raw = path.read_bytes()
+    end = raw.rfind(b"\n") + 1
+    if end < len(raw):
+        with open(path, "r+b") as f:
+            f.truncate(end)
+            f.flush()
+            os.fsync(f.fileno())
+    out = []
+    for n, line in enumerate(raw[:end].splitlines(), 1):
+        try:
+            out.append(json.loads(line))
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}:{n}: not a trial record ({e})") from None
+    return out
+
+
+def run_trials(executor, trials: Sequence[Trial], path: Path, resume: bool = False,
+               progress: Callable | None = None) -> list[dict]:
+    """Run the trials not yet in the log at `path` (all of them unless `resume`), appending each
+    record as it finishes (flush + fsync). Returns every record of the planned trials.
+    progress(iterable, total, desc) wraps the results (e.g. RunContext.progress)."""
+    path = Path(path)
+    if not resume:
+        path.unlink(missing_ok=True)
+    planned = {t.key for t in trials}
+    records = [r for r in read_log(path) if record_key(r) in planned]
+    done = {record_key(r) for r in records}
+    todo = [t for t in trials if t.key not in done]
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a") as f:
+        results = executor.imap_unordered(run_trial, todo)
+        for rec in progress(results, total=len(todo), desc="trials") if progress else results:
+            f.write(json.dumps(rec) + "\n")
+            f.flush()
+            os.fsync(f.fileno())
+            records.append(rec)
+    return records
+
+
+# -- summary -------------------------------------------------------------------------------------
+def _stats(E: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """MSE = mean ‖e‖², variance = trace of the sample covariance (ddof 1), bias = mean e; E (n, P)."""
+    mse = float((E ** 2).sum(axis=1).mean())
+    var = float(E.var(axis=0, ddof=1).sum()) if len(E) > 1 else math.nan
+    return mse, var, E.mean(axis=0)
+
+
+def _se(values) -> float:
+    """Standard deviation of bootstrap replicates (NaN with fewer than 2)."""
+    v = np.asarray(values, dtype=np.float64)
+    return float(v.std(ddof=1)) if v.size > 1 else math.nan
+
+
+def _ratio(mse: float, bound_log10: float) -> float:
+    """MSE / bound through logs (a bound may underflow to 0 while its log10 stays exact); NaN when
+    the MSE is unknown or the bound is unavailable (log10 = ±inf)."""
+    if not (math.isfinite(bound_log10) and mse == mse):
+        return math.nan
+    if mse <= 0:
+        return 0.0
+    r = math.log10(mse) - bound_log10
+    return 10.0 ** r if r < 300 else math.inf
+
+
+def summarize(records: Sequence[dict], names: Sequence[str], bounds: dict | None = None,
+              far_above: float = 3.0, bootstrap: int = 1000, seed: int = 0,
+              labels: Sequence[str] | None = None) -> list[dict]:
+    """One row per (noise, θ*, estimator label): counts (failed / not converged shown, failures
+    excluded from the statistics, non-converged fits included), MSE, variance and bias with
+    bootstrap standard errors (`bootstrap` resamples of the trials), time and renders, and for every
+    bound b in bounds[(noise, θ index)] = {b: {"value", "log10"}} the ratio mse_over_b (units² / units²).
+
+    Flags: `far_above` lists the bounds with MSE / bound > far_above; `below` lists those with
+    MSE + 2 SE < bound (an unbiased estimator cannot do that: bias, too few trials, or a bound
+    overestimated by rendering noise). Rows follow `labels` (default: sorted estimator labels)."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in sorted(records, key=lambda r: (r["noise"], r["theta_index"], r["trial"], r["estimator"])):
+        groups.setdefault((r["noise"], r["theta_index"], r["estimator"]), []).append(r)
+    labels = list(labels or sorted({k[2] for k in groups}))
+    rows = []
+    for (j, i, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], labels.index(kv[0][2]))):
+        truth = np.array(rs[0]["theta_true"])
+        ok = [r for r in rs if r["error"] is None]
+        row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(names, truth)},
+               "estimator": label, "name": rs[0]["name"], "n": len(rs), "n_failed": len(rs) - len(ok),
+               "n_nonconverged": sum(1 for r in ok if not r["converged"])}
+        E = np.array([r["theta_hat"] for r in ok], dtype=np.float64).reshape(len(ok), len(truth)) - truth
+        if len(ok):
+            mse, var, bias = _stats(E)
+            rng = np.random.default_rng(derive(seed, "bootstrap", j, i, labels.index(label)))
+            boot = [_stats(E[rng.integers(0, len(E), len(E))]) for _ in range(bootstrap)]
+            row.update(mse=mse, mse_se=_se([b[0] for b in boot]), var=var, var_se=_se([b[1] for b in boot]),
+                       bias=float(np.linalg.norm(bias)), bias_se=_se([np.linalg.norm(b[2]) for b in boot]),
+                       **{f"bias_{n}": float(b) for n, b in zip(names, bias)})
+        else:
+            row.update(mse=math.nan, mse_se=math.nan, var=math.nan, var_se=math.nan, bias=math.nan, bias_se=math.nan,
+                       **{f"bias_{n}": math.nan for n in names})
+        secs, rend, grads = ([r[k] for r in rs] for k in ("seconds", "renders", "grad_passes"))
+        row.update(mean_seconds=float(np.mean(secs)), total_seconds=float(np.sum(secs)),
+                   mean_renders=float(np.mean(rend)), total_renders=int(np.sum(rend)),
+                   mean_grad_passes=float(np.mean(grads)), total_grad_passes=int(np.sum(grads)),
+                   mean_iterations=float(np.mean([r["iterations"] for r in rs])))
+        far, below = [], []
+        for b, v in (bounds or {}).get((j, i), {}).items():
+            row[b] = v["value"]
+            row[f"mse_over_{b}"] = ratio = _ratio(row["mse"], v["log10"])
+            if ratio > far_above:
+                far.append(b)
+            if row["mse"] + 2 * row["mse_se"] < v["value"]:
+                below.append(b)
+        row["far_above"] = ",".join(far)
+        row["below"] = ",".join(below)
+        rows.append(row)
+    return rows
