@@ -1,0 +1,261 @@
+"""Study `viewpoints`: average per-pixel Fisher information over a grid of camera positions (the paper's
+plenoptic information localisation: 31 × 31 offsets at 2.54 cm in the x–z plane).
+
+At each viewpoint the camera is moved by an offset (two world axes, `num` points each, the standard view
+in the centre) and re-aimed at a fixed `target`; the image L_θ and its FD Jacobian (central, common random
+numbers) give per-pixel Fisher maps for every parameter and noise model, whose spatial mean is one cell of
+the heat map. Output: viewpoints.csv, one heat map PNG per noise model (log10 of the mean FI), and the
+render and FD-FI maps at the centre and two opposite corners. Viewpoints are independent tasks for the
+run's executor (each worker poses its own copy of the scene); finished ones are appended to
+viewpoints.jsonl, so a resumed run skips them.
+
+The camera pose is not part of θ: it is written into the loaded scene's sensor (`mi.traverse` of the
+sensor, no reload), and the model's render cache is bypassed while a viewpoint is posed (its key does not
+know the pose).
+"""
+from __future__ import annotations
+
+import json
+import math
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from .. import bounds
+from ..executors import SerialExecutor
+from ..experiment.context import RunContext, read_csv, write_csv
+from ..experiment.schema import Field
+from ..forward.gradients import GradientSettings, fd_jacobian
+from ..forward.model import ForwardModel
+from ..io import write_exr, write_png
+from ..seeds import derive
+from .plotting import _plt
+
+NAME = "viewpoints"
+SCHEMA = {
+    "id": Field(str, None, "folder name for this study's files", nullable=True),
+    "at": Field(list, None, "θ (one value per studied parameter) at which information is computed "
+                "(default: the parameters' defaults)", items=float, nullable=True),
+    "num": Field(int, 3, "viewpoints per axis; odd, so the standard view is the centre (paper: 31)"),
+    "step": Field(float, 0.0254, "offset between neighbouring viewpoints [m] (paper: 2.54 cm)"),
+    "axes": Field(list, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], "two world directions of the offsets (x, then z)"),
+    "target": Field(list, None, "world point the camera keeps looking at (default: the surface point on the "
+                    "standard view's optical axis)", items=float, nullable=True),
+    "spp": Field(int, 256, "samples per pixel of every render"),
+    "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
+    "fd_rounds": Field(int, 1, "FD rounds averaged (independent seeds)"),
+    "reduce": Field(str, "mean", "combine the RGB channels' information by (paper: mean)", choices=("sum", "mean")),
+}
+
+
+class CameraRig:
+    """The first sensor of a Mitsuba model, moved by offsets from its pose in the scene file while looking
+    at a fixed world point `target` (default: where its optical axis meets the scene), same up vector."""
+
+    def __init__(self, model: ForwardModel, target=None):
+        import mitsuba as mi
+
+        self.model = getattr(model, "base", model)
+        if not hasattr(self.model, "scene"):
+            raise ValueError(f"the viewpoints study needs a Mitsuba scene; {model.name!r} has no camera")
+        self.sensor_params = mi.traverse(self.model.scene.sensors()[0])
+        self.rest = mi.Transform4f(self.sensor_params["to_world"])
+        m = np.array(self.rest.matrix, dtype=np.float64).reshape(4, 4)
+        self.origin, self.up = m[:3, 3].copy(), m[:3, 1].copy()
+        self.target = self._axis_hit(m[:3, 2]) if target is None else np.asarray(target, dtype=np.float64)
+        if self.target.shape != (3,):
+            raise ValueError(f"target must be a point [x, y, z], got {target!r}")
+
+    def _axis_hit(self, forward: np.ndarray) -> np.ndarray:
+        """The first surface point along the optical axis."""
+        import mitsuba as mi
+
+        si = self.model.scene.ray_intersect(mi.Ray3f(_point(self.origin), mi.Vector3f(_point(forward))))
+        t = float(np.asarray(si.t).ravel()[0])
+        if not math.isfinite(t):
+            raise ValueError("the camera's optical axis hits nothing; give the viewpoints study a `target`")
+        return self.origin + t * forward
+
+    @contextmanager
+    def at(self, offset):
+        """Within the block, renders see the camera moved by `offset` (world metres) and re-aimed."""
+        import mitsuba as mi
+
+        o = self.origin + np.asarray(offset, dtype=np.float64)
+        cache, self.model.cache = self.model.cache, None
+        self.sensor_params["to_world"] = mi.Transform4f().look_at(origin=_point(o), target=_point(self.target),
+                                                                  up=_point(self.up))
+        self.sensor_params.update()
+        try:
+            yield
+        finally:
+            self.sensor_params["to_world"] = self.rest
+            self.sensor_params.update()
+            self.model.cache = cache
+
+
+def _point(v):
+    """A mi.Point3f from a numpy 3-vector."""
+    import mitsuba as mi
+
+    return mi.Point3f(*(float(x) for x in v))
+
+
+def offset_grid(num: int, step: float, axes) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets along each axis (num,) [m], centred on 0, and the world offsets (num, num, 3): [i, j] is
+    u_i·axes[0] + u_j·axes[1] with unit axes."""
+    if num < 1 or num % 2 == 0:
+        raise ValueError(f"num must be a positive odd number (the standard view in the centre), got {num}")
+    if not step > 0:
+        raise ValueError(f"step must be > 0, got {step}")
+    a = np.asarray(axes, dtype=np.float64)
+    if a.shape != (2, 3) or np.any(np.linalg.norm(a, axis=1) == 0):
+        raise ValueError(f"axes must be two non-zero 3-vectors, got {axes!r}")
+    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    u = (np.arange(num) - (num - 1) / 2) * step
+    return u, u[:, None, None] * a[0] + u[None, :, None] * a[1]
+
+
+def viewpoint_information(model: ForwardModel, theta, spp: int, seed: int, settings: GradientSettings, noises,
+                          reduce: str = "mean"):
+    """Render, FD Jacobian and per-pixel Fisher maps at the current camera pose: (L (H, W, C),
+    J (P, H, W, C), [maps (P, H, W) float64 per noise model])."""
+    L = model.render(theta, spp, derive(seed, "render"))
+    J = fd_jacobian(model, theta, spp, derive(seed, "fd"), settings)
+    return L, J, [bounds.fisher_maps(L, J, n, reduce) for n in noises]
+
+
+def _saved_views(num: int) -> dict[tuple[int, int], str]:
+    """Viewpoints whose images are kept: the centre and the (−, +) and (+, −) corners (paper's figure)."""
+    c = (num - 1) // 2
+    return {(0, num - 1): "corner_minus_plus", (num - 1, 0): "corner_plus_minus", (c, c): "center"}
+
+
+def _viewpoint_task(model: ForwardModel, item: dict) -> dict:
+    """Executor task (module level, picklable): one viewpoint → its record; with the render and the
+    Fisher maps under "images" when item["keep"]."""
+    rig = CameraRig(model, item["target"])
+    with rig.at(item["offset"]):
+        L, _, maps = viewpoint_information(model, item["theta"], item["spp"], item["seed"], item["settings"],
+                                           item["noises"], item["reduce"])
+    rec = {"i": item["i"], "j": item["j"], "offset": item["offset"],
+           "mean_fisher": [[float(np.mean(mp)) for mp in nm] for nm in maps],
+           "infinite_pixels": [[int(np.isinf(mp).sum()) for mp in nm] for nm in maps]}
+    if item["keep"]:
+        rec["images"] = (L.numpy(), maps)
+    return rec
+
+
+def run(ctx: RunContext, cfg: dict) -> dict:
+    out = ctx.study_dir(cfg)
+    m = ctx.model
+    theta = m.params.validate(m.params.default if cfg["at"] is None else cfg["at"])
+    u, offsets = offset_grid(cfg["num"], cfg["step"], cfg["axes"])
+    target = CameraRig(m, cfg["target"]).target
+    settings = GradientSettings(step=cfg["fd_step"], rounds=cfg["fd_rounds"])
+    log = out / "viewpoints.jsonl"
+    done = {}
+    if ctx.resume and log.exists():
+        for line in log.read_text().splitlines():
+            rec = json.loads(line)
+            done[(rec["i"], rec["j"])] = rec
+    elif log.exists():
+        log.unlink()
+    saved = _saved_views(cfg["num"])
+    items = [{"i": i, "j": j, "offset": offsets[i, j].tolist(), "target": target.tolist(), "theta": theta.tolist(),
+              "spp": cfg["spp"], "seed": ctx.seed_for("viewpoint", i, j), "settings": settings, "noises": ctx.noises,
+              "reduce": cfg["reduce"], "keep": (i, j) in saved}
+             for i in range(cfg["num"]) for j in range(cfg["num"]) if (i, j) not in done]
+    executor = ctx.executor if ctx.executor is not None else SerialExecutor(model=m)
+    with open(log, "a") as f:
+        for rec in ctx.progress(executor.imap_unordered(_viewpoint_task, items), total=len(items), desc="viewpoints"):
+            images = rec.pop("images", None)
+            if images is not None:
+                _save_view(out, saved[(rec["i"], rec["j"])], *images, list(m.params.names))
+            f.write(json.dumps(rec) + "\n")
+            f.flush()
+            done[(rec["i"], rec["j"])] = rec
+    rows = []
+    for (i, j), rec in sorted(done.items()):
+        for k, noise in enumerate(ctx.noises):
+            for p, name in enumerate(m.params.names):
+                rows.append({"i": i, "j": j, "offset_0": u[i], "offset_1": u[j], "noise": str(noise), "param": name,
+                             "mean_fisher": rec["mean_fisher"][k][p], "infinite_pixels": rec["infinite_pixels"][k][p]})
+    write_csv(out / "viewpoints.csv", rows)
+    summary = {"num": cfg["num"], "step": cfg["step"], "axes": cfg["axes"], "target": target.tolist(),
+               "theta": theta.tolist(), "params": list(m.params.names), "units": list(m.params.units),
+               "noises": [str(n) for n in ctx.noises], "spp": cfg["spp"],
+               "renders": cfg["num"] ** 2 * (1 + 2 * m.params.dim * cfg["fd_rounds"]),
+               "infinite_cells": sum(r["infinite_pixels"] > 0 for r in rows)}
+    heat_maps(rows, out, summary)
+    return summary
+
+
+def _save_view(out: Path, label: str, L, maps, names: list[str]) -> None:
+    write_exr(out / "views" / f"{label}_rgb.exr", L)
+    write_png(out / "views" / f"{label}_rgb.png", L, title=label)
+    for k, mp in enumerate(maps):
+        bounds.save_fisher_maps(mp, names, out / "views", prefix=f"{label}_noise{k}_fisher")
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{float(x):g}" for x in v) + ")"
+
+
+def heat_maps(rows: list[dict], out: Path, summary: dict) -> list[Path]:
+    """One PNG per noise model: log10 of the mean per-pixel FI of each parameter over the offset grid
+    (axis 0 across, axis 1 up, in cm, like the paper's figure); infinite or missing cells are blank."""
+    plt = _plt()
+    num, step = summary["num"], summary["step"]
+    half = (num - 1) / 2 * step * 100
+    ext = [-half - step * 50, half + step * 50, -half - step * 50, half + step * 50]
+    paths = []
+    for k, noise in enumerate(summary["noises"]):
+        names = summary["params"]
+        fig, axes = plt.subplots(1, len(names), figsize=(4.6 * len(names), 4), squeeze=False)
+        for p, name in enumerate(names):
+            grid = np.full((num, num), np.nan)
+            for r in rows:
+                v = float(r["mean_fisher"])
+                if r["noise"] == noise and r["param"] == name and math.isfinite(v) and v > 0:
+                    grid[int(r["i"]), int(r["j"])] = math.log10(v)
+            im = axes[0, p].imshow(grid.T, origin="lower", extent=ext, cmap="viridis", interpolation="nearest")
+            axes[0, p].set_title(f"{name}, {noise}", fontsize=9)
+            axes[0, p].set_xlabel(f"camera offset along {_fmt(summary['axes'][0])} [cm]")
+            axes[0, p].set_ylabel(f"camera offset along {_fmt(summary['axes'][1])} [cm]")
+            fig.colorbar(im, ax=axes[0, p], fraction=0.046, pad=0.04,
+                         label=f"log10 mean FI per pixel [1/{summary['units'][p]}²]")
+        fig.tight_layout()
+        path = out / f"heatmap_noise{k}.png"
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        paths.append(path)
+    return paths
+
+
+def report(study_dir: Path, results: dict) -> str:
+    rows = read_csv(study_dir / "viewpoints.csv")
+    paths = heat_maps(rows, study_dir, results)
+    n, s = results["num"], results["step"]
+    lines = [f"Average per-pixel Fisher information over a {n} × {n} grid of camera offsets "
+             f"({s * 100:.3g} cm steps, ±{(n - 1) / 2 * s * 100:.3g} cm along {results['axes']}), camera aimed at "
+             f"{[round(v, 3) for v in results['target']]}, θ = {results['theta']}, {results['spp']} spp, "
+             f"{results['renders']} renders (image + central FD with common random numbers per viewpoint).", ""]
+    lines += [f"![viewpoints {noise}]({study_dir.name}/{p.name})" for noise, p in zip(results["noises"], paths)]
+    lines += ["", "| noise | parameter | min mean FI | centre | max mean FI | argmax offset [cm] |", "|---|---|---|---|---|---|"]
+    c = str((n - 1) // 2)
+    for noise in results["noises"]:
+        for name in results["params"]:
+            sel = [r for r in rows if r["noise"] == noise and r["param"] == name]
+            vals = np.array([float(r["mean_fisher"]) for r in sel])
+            if not len(vals):
+                continue
+            best = sel[int(np.nanargmax(vals))]
+            centre = [float(r["mean_fisher"]) for r in sel if r["i"] == c and r["j"] == c]
+            lines.append(f"| {noise} | {name} | {np.nanmin(vals):.4g} | {centre[0] if centre else float('nan'):.4g} | "
+                         f"{np.nanmax(vals):.4g} | ({float(best['offset_0']) * 100:.3g}, {float(best['offset_1']) * 100:.3g}) |")
+    if results.get("infinite_cells"):
+        lines.append(f"\n{results['infinite_cells']} cell(s) have infinite Fisher information (a Poisson pixel rendered "
+                     "as exactly 0 that changes with θ): render with more spp.")
+    return "\n".join(lines)
