@@ -123,3 +123,12 @@ def test_ad_and_fd_agree_on_colour_total_derivative(cornell):
     # reverse mode gives the same total derivative as forward mode (grad_out = ones)
     rev = cornell.vjp(THETA, torch.ones(32, 32, 3), 512, 1)[j]
     assert abs(rev - float(fd)) < 0.05 * abs(float(fd))
+
+
+def test_restricted_colour_gradient_uses_prb(cornell):
+    """A colour-only restriction of a scene that also has geometry parameters needs no projective AD."""
+    r = cornell.restrict(["ball_red"])
+    cornell._ad_cache.clear()
+    g = r.vjp([0.8], torch.ones(32, 32, 3), 64, 1)
+    assert g.shape == (1,) and np.isfinite(g).all()
+    assert [dict(k)["type"] for k in cornell._ad_cache] == ["prb"]

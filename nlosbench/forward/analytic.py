@@ -56,7 +56,7 @@ class AnalyticModel(ForwardModel):
         self.stats.grad_passes += 1
         return d.float()
 
-    def vjp(self, theta, grad_out: torch.Tensor, spp: int = 1, seed: int = 0, **ad) -> np.ndarray:
+    def vjp(self, theta, grad_out: torch.Tensor, spp: int = 1, seed: int = 0, indices=None, **ad) -> np.ndarray:
         with torch.enable_grad():  # also when called from an autograd Function's backward
             t = torch.as_tensor(self.params.validate(theta), dtype=torch.float64).requires_grad_(True)
             (g,) = torch.autograd.grad(self._noisy(t, spp, seed), t, grad_out.to(torch.float64))

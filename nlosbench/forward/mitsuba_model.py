@@ -126,7 +126,11 @@ class MitsubaModel(ForwardModel):
             raise ValueError(f"AD integrator must be one of {list(AD_INTEGRATORS)}, got {opts.get('type')!r}")
         key = tuple(sorted(opts.items()))
         if key not in self._ad_cache:
-            self._ad_cache[key] = mi.load_dict(opts)
+            integ = mi.load_dict(opts)
+            # our scenes keep moving objects inside the view; scenes where they leave it set sample_border
+            if hasattr(integ, "sample_border_warning"):
+                integ.sample_border_warning = False
+            self._ad_cache[key] = integ
         return self._ad_cache[key]
 
     def _ad_pass(self, theta: np.ndarray, spp: int, seed: int, pass_seed_index: int, integrator, grad_index=None):
@@ -140,18 +144,19 @@ class MitsubaModel(ForwardModel):
                 dr.enable_grad(t)
         self.binder.apply(self._params, th)
         self._applied = None  # the scene now holds tracked values; the next primal render re-applies θ
-        with _quiet_border_warning(self.scene):
-            img = mi.render(self.scene, self._params, integrator=integrator, spp=spp,
-                            seed=derive(seed, "pass", pass_seed_index), seed_grad=derive(seed, "seed_grad", pass_seed_index))
+        img = mi.render(self.scene, self._params, integrator=integrator, spp=spp,
+                        seed=derive(seed, "pass", pass_seed_index), seed_grad=derive(seed, "seed_grad", pass_seed_index))
         return img, th
 
-    def vjp(self, theta, grad_out: torch.Tensor, spp: int, seed: int, **ad) -> np.ndarray:
+    def vjp(self, theta, grad_out: torch.Tensor, spp: int, seed: int, indices=None, **ad) -> np.ndarray:
+        """As ForwardModel.vjp; `indices` (default all) are the parameters whose gradient is wanted,
+        so a colour-only gradient gets `prb` even when other parameters move geometry."""
         import drjit as dr
         import mitsuba as mi
 
         t = self.params.validate(theta)
         spp, seed = check_spp_seed(spp, seed)
-        integ = self.ad_integrator(**ad)
+        integ = self.ad_integrator(indices, **ad)
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=np.float32)
         total = np.zeros(len(t))
         for i, (s, _) in enumerate(self._passes(spp, seed)):
@@ -182,22 +187,3 @@ class MitsubaModel(ForwardModel):
     def content_key(self) -> dict:
         return {"scene": self._hash, "defines": self.defines, "variant": self.variant,
                 "params": [repr(b) for b in self.binder.bindings], "max_pass_samples": self.max_pass_samples}
-
-
-class _quiet_border_warning:
-    """Mitsuba warns on every projective AD render when the film has no sample_border; our scenes keep
-    moving objects inside the view, so the warning is lowered to Debug for that call only."""
-
-    def __init__(self, scene):
-        self.scene = scene
-
-    def __enter__(self):
-        import mitsuba as mi
-
-        self.level = mi.log_level()
-        mi.set_log_level(mi.LogLevel.Error)
-
-    def __exit__(self, *exc):
-        import mitsuba as mi
-
-        mi.set_log_level(self.level)

@@ -71,8 +71,9 @@ class ForwardModel(ABC):
         """∂L/∂θ_index as an image (H, W, C) float32 (forward-mode AD, or exact)."""
 
     @abstractmethod
-    def vjp(self, theta, grad_out: torch.Tensor, spp: int, seed: int, **ad) -> np.ndarray:
-        """Σ_ω grad_out(ω) ∂L(ω)/∂θ as float64 (P,) (reverse-mode AD, or exact)."""
+    def vjp(self, theta, grad_out: torch.Tensor, spp: int, seed: int, indices=None, **ad) -> np.ndarray:
+        """Σ_ω grad_out(ω) ∂L(ω)/∂θ as float64 (P,) (reverse-mode AD, or exact); `indices` names the
+        components the caller needs (a model may use it to pick a cheaper method; all P are returned)."""
 
     @abstractmethod
     def content_key(self) -> dict:

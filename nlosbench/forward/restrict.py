@@ -39,7 +39,7 @@ class Restricted(ForwardModel):
         return self.base.jvp(self.expand(theta), self.index[index], spp, seed, **ad)
 
     def vjp(self, theta, grad_out, spp: int, seed: int, **ad) -> np.ndarray:
-        return self.base.vjp(self.expand(theta), grad_out, spp, seed, **ad)[self.index]
+        return self.base.vjp(self.expand(theta), grad_out, spp, seed, indices=self.index, **ad)[self.index]
 
     def content_key(self) -> dict:
         return {"base": self.base.content_key(), "index": self.index, "fixed": self.full.tolist()}
