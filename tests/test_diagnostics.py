@@ -152,6 +152,11 @@ def test_verdict_clean_when_ad_has_no_more_outliers_than_fd():
     assert v.status == "ad-clean" and v.text == "AD clean"
     assert v.settings() == GradientSettings("ad", ad={"type": "prb_projective", "guiding": "none"})
     assert v.cheapest == "pp"
+    # of two clean integrators, grad="auto" gets the one that reaches the target soonest at any spp
+    prb = json.dumps({"method": "ad", "integrator": "prb"})
+    two = D.judge([_fd(64, 5), _fd(256, 1), _row("pp", "ad", 64, 2, cost=0.5), _row("pp", "ad", 256, 0, cost=0.3),
+                   _row("prb", "ad", 64, 2, spec=prb, cost=0.1), _row("prb", "ad", 256, 0, spec=prb, cost=0.4)], "p")
+    assert two.settings() == GradientSettings("ad", ad={"type": "prb"}) and two.cheapest == "prb"
 
 
 def test_verdict_artifact_prone_on_excess_or_non_fading_outliers():
@@ -183,15 +188,30 @@ def test_verdicts_round_trip_and_choose_backend(tmp_path, cornell):
     D.save_verdicts(tmp_path / "verdicts.json", {"ball_x": clean, "ball_red": clean})
     loaded = D.load_verdicts(tmp_path)
     assert loaded["ball_x"] == clean
-    # measured verdicts: AD only when every parameter is clean, with the most general integrator
+    # measured verdicts: one AD pass for the clean parameters, with the most general integrator
     both = cornell.restrict(["ball_x", "ball_red"])
     assert D.choose_backend(both, loaded).ad["type"] == "prb_projective"
-    assert D.choose_backend(both, {"ball_x": prone, "ball_red": clean}).method == "fd"
+    assert D.choose_backend(both, tmp_path) == D.choose_backend(both, loaded)  # a saved file works as well
+    # an artifact-prone parameter gets FD, the clean one AD: a "mixed" backend, and it says why
+    mixed = D.choose_backend(both, {"ball_x": prone, "ball_red": clean})
+    assert (mixed.method, mixed.ad_params, mixed.ad["type"]) == ("mixed", (1,), "prb_projective")
+    assert "ball_x → fd" in mixed.chosen and "AD artifact-prone" in mixed.chosen and "ball_red → ad:" in mixed.chosen
+    # the "auto" settings' FD options, spp and AD overrides are kept
+    base = GradientSettings("auto", step=0.02, rounds=3, spp=8, ad={"sppi": 0})
+    kept = D.choose_backend(both, {"ball_x": prone, "ball_red": clean}, base=base)
+    assert (kept.step, kept.rounds, kept.spp, kept.ad["sppi"], kept.ad["type"]) == (0.02, 3, 8, 0, "prb_projective")
     # no measurements: the paper's finding (geometry → FD, colour → AD prb); exact toys → AD
     assert prior_settings(cornell, cornell.params.index("ball_red")) == GradientSettings("ad", ad={"type": "prb"})
-    assert D.choose_backend(cornell).method == "fd"
+    prior = D.choose_backend(cornell)
+    assert (prior.method, prior.ad_params, prior.ad) == ("mixed", (2,), {"type": "prb"})
+    assert "ball_x → fd" in prior.chosen and "prior: translate" in prior.chosen
+    assert D.choose_backend(cornell.restrict(["ball_x", "ball_radius"])) == GradientSettings("fd")
     assert D.choose_backend(cornell.restrict(["ball_red"])) == GradientSettings("ad", ad={"type": "prb"})
     assert D.choose_backend(nb.scenes.get("blob2d")) == GradientSettings("ad")
+    # verdicts of other parameters too (a study over all of θ, used on a restriction) are fine; of none, an error
+    assert D.choose_backend(cornell.restrict(["ball_red"]), {"ball_x": prone, "ball_red": clean}).method == "ad"
+    with pytest.raises(ValueError, match="name no parameter"):
+        D.choose_backend(cornell.restrict(["ball_red"]), {"red_x": clean})
     with pytest.raises(FileNotFoundError, match="gradients"):
         D.load_verdicts(tmp_path / "nothing")
 
@@ -217,13 +237,27 @@ def test_backend_specs_round_trip_and_errors(cornell):
 
 
 def test_measure_sees_memory_outside_python_objects():
-    """A 160 MiB buffer written by numpy (as Dr.Jit's would be, outside Python's object heap)."""
+    """A 160 MiB buffer written by numpy (as Dr.Jit's would be, outside Python's object heap) and freed
+    within the block. On Linux (the kernel's peak RSS, reset per block): a 40 MiB spike inside a
+    nested block counts for the inner block and, with the 10 MiB held around it, for the outer one."""
+    import sys
+
     with D.measure() as c:
         a = np.ones(20 * (1 << 20), dtype=np.float64)
         a.sum()
         del a
     assert c.seconds > 0
     assert c.peak_bytes > 100 * (1 << 20), (c.method, c.peak_bytes)
+    if sys.platform.startswith("linux"):
+        assert c.method == "vmhwm"
+        with D.measure() as outer:
+            a = np.full(10 * (1 << 17), 2.0)  # 10 MiB, kept
+            with D.measure() as inner:
+                b = np.full(40 * (1 << 17), 1.0)  # 40 MiB, freed at once
+                del b
+            del a
+        assert 39 * (1 << 20) < inner.peak_bytes < 45 * (1 << 20), inner
+        assert 49 * (1 << 20) < outer.peak_bytes < 55 * (1 << 20), outer
 
 
 # -- real renders on the paper's Cornell box -------------------------------------------------------
@@ -276,20 +310,62 @@ def test_paper_box_colour_gradient_ad_agrees_with_fd_and_is_clean(paper_box):
     assert ad.renders == 0 and ad.grad_passes == 4 and fd.renders == 8
 
 
-def test_gradients_study_end_to_end(tmp_path, paper_box):
-    """A tiny `gradients` study (16×16 box, 2 spp levels, 2 seeds, median reference, two remedies):
-    files, a verdict per parameter that `choose_backend` accepts, and the report's tables."""
-    from nlosbench.experiment.context import RunContext
+def test_visibility_boost_with_boost_1_is_the_plain_pass(paper_box):
+    """The remedy splits prb_projective into its continuous term (sppp = sppi = 0) and its visibility
+    terms (sppc = 0) at the pass's seed: on real renders (16×16 box, d/d red_x, 16 spp, 2 seeds) the
+    two parts sum to the plain pass to float rounding, so no term is lost or counted twice, and a
+    boost only adds visibility samples. (Measured the same for d/d red_radius.)"""
+    m = nb.scenes.get("cornell_paper", defines={"res": 16})
+    pp = D.backend({"method": "ad", "integrator": "prb_projective", "guiding": "none"})
+    j = m.params.index("red_x")
+    plain = D.gradient_images(m, m.params.default, j, pp, 16, [5, 6])
+    split = D.remedy_run(m, m.params.default, j, pp, 16, [5, 6], "visibility-boost", boost=1)
+    assert np.abs(plain.images).max() > 1.0  # the silhouette derivative is there
+    np.testing.assert_allclose(split.images, plain.images, rtol=0, atol=2e-6 * np.abs(plain.images).max())
+    assert split.grad_passes == 2 * plain.grad_passes
+    with pytest.raises(ValueError, match="projective"):
+        D.remedy_run(m, m.params.default, 0, D.backend({"method": "ad", "integrator": "prb"}), 16, [1], "visibility-boost")
+    with pytest.raises(ValueError, match="median of 2"):
+        D.remedy_run(m, m.params.default, 0, pp, 16, [1], "median", k=2)
+
+
+def _paper_block(**kw) -> dict:
+    """A paper-scale `gradients` block (the paper: 4096 and 16384 spp; FD averaged over 16 rounds)."""
     from nlosbench.experiment.schema import validate_block
     from nlosbench.studies import gradients as study
 
+    return validate_block({"id": "grad", "spp": [4096, 16384], "seeds": 8, "ad_options": {},
+                           "reference": {"spp": 65536, "rounds": 16}, **kw}, study.SCHEMA)
+
+
+def test_smoke_shrinks_a_paper_scale_block():
+    from nlosbench.experiment.schema import validate_block
+    from nlosbench.studies import gradients as study
+
+    big = _paper_block(backends=[{"method": "fd", "step": 0.01, "rounds": 16},
+                                 {"method": "ad", "integrator": "prb_projective", "sppi": 0}])
+    tiny = validate_block(study.smoke(big), study.SCHEMA)  # still a valid block
+    assert (tiny["spp"], tiny["seeds"], tiny["reference"]) == ([4, 8], 2, {"spp": 32, "rounds": 2})
+    assert tiny["remedies"]["k"] == 4 and tiny["remedies"]["boost"] == 2
+    assert tiny["backends"][0] == big["backends"][0]
+    assert tiny["backends"][1] == {"method": "ad", "integrator": "prb_projective", "sppi": 0, "guiding": "none"}
+    assert tiny["ad_options"] == {"guiding": "none"}
+    assert study.smoke(_paper_block(spp=[1024], reference=None))["spp"] == [8]
+    assert study.smoke(_paper_block(spp=[1024], reference=None))["reference"] is None
+
+
+def test_gradients_study_end_to_end(tmp_path, paper_box):
+    """The smoke copy of a paper-scale `gradients` study on the 16×16 box (2 spp levels, 2 seeds,
+    median reference, two remedies): files, a verdict per parameter that `choose_backend` accepts,
+    and the report's tables."""
+    from nlosbench.experiment.context import RunContext
+    from nlosbench.studies import gradients as study
+
     model = nb.scenes.get("cornell_paper", defines={"res": 16})
-    cfg = {"type": "gradients", **validate_block(
-        {"id": "grad", "params": ["red_color", "red_x"], "spp": [8, 16], "seeds": 2, "reference": None,
-         "backends": [{"method": "fd", "step": 0.02}, {"method": "ad", "integrator": "prb_projective", "sppi": 0,
-                                                       "guiding": "none"}],
-         "remedies": {"names": ["median", "visibility-boost"], "k": 2, "boost": 2}, "save_images": True},
-        study.SCHEMA)}
+    big = _paper_block(params=["red_color", "red_x"], reference=None,
+                       backends=[{"method": "fd", "step": 0.02}, {"method": "ad", "integrator": "prb_projective", "sppi": 0}],
+                       remedies={"names": ["median", "visibility-boost"], "k": 3, "boost": 4})
+    cfg = {"type": "gradients", **study.smoke(big)}
     ctx = RunContext(dir=tmp_path, config={}, model_spec={}, model=model, noises=[], seed=3, quiet=True)
     res = study.run(ctx, cfg)
     out = tmp_path / "grad"
@@ -299,9 +375,10 @@ def test_gradients_study_end_to_end(tmp_path, paper_box):
     assert len(rows) == 2 * (2 * 2 + 2)  # per parameter: 2 backends × 2 spp + 2 remedies
     assert {r["remedy"] for r in rows} == {"", "median", "visibility-boost"}
     assert all(float(r["seconds"]) > 0 and float(r["time_ratio"]) > 0 for r in rows)
+    assert {r["spp_trend"] for r in rows if not r["remedy"]} <= {"none", "fade", "steady", "grow"}
     verdicts = D.load_verdicts(out)
     assert set(verdicts) == set(res["verdicts"]) == {"red_color", "red_x"}
     assert all(v.status != "ad-clean" for v in verdicts.values())  # 2 seeds: too few to call AD clean
-    assert isinstance(D.choose_backend(model.restrict(["red_color", "red_x"]), verdicts), GradientSettings)
+    assert D.choose_backend(model.restrict(["red_color", "red_x"]), out).method == "fd"
     md = study.report(out, res)
-    assert "| red_x |" in md and "gradient_grid.png" in md and "time to target" in md
+    assert "| red_x |" in md and "gradient_grid.png" in md and "time to target" in md and "× fwd memory" in md

@@ -17,6 +17,9 @@ from .images import GradientRun, gradient_images
 from .metrics import THRESHOLD, Reference, summarize
 
 MIB = float(1 << 20)
+#: below this a forward render's peak memory is allocator noise (Dr.Jit's symbolic loops keep the path
+#: state in registers: a 32×32, 64-spp render of cornell_paper adds < 0.1 MiB), so no ratio is formed
+MIN_FORWARD_PEAK = 1 << 20
 
 
 def fd_reference(model: ForwardModel, theta, index: int, spp: int, rounds: int, step: float, seed: int) -> Reference:
@@ -32,8 +35,9 @@ def fd_reference(model: ForwardModel, theta, index: int, spp: int, rounds: int, 
 def result_row(run: GradientRun, ref: Reference, forward: Cost, target_rel_error: float,
                threshold: float = THRESHOLD, min_area: int = 1) -> dict:
     """Metrics (see metrics.summarize) plus seconds and peak MiB per gradient, their ratios to one
-    forward render at the same spp, RMSE of the per-seed total derivative against the reference (and
-    relative to |reference total|), and the seconds to reach `target_rel_error`."""
+    forward render at the same spp (memory: NaN when the render's peak is under MIN_FORWARD_PEAK),
+    RMSE of the per-seed total derivative against the reference (and relative to |reference total|),
+    and the seconds to reach `target_rel_error`."""
     if not target_rel_error > 0:
         raise ValueError(f"target_rel_error must be > 0, got {target_rel_error}")
     row = summarize(run.images, ref, threshold, min_area)
@@ -44,7 +48,7 @@ def result_row(run: GradientRun, ref: Reference, forward: Cost, target_rel_error
     row.update(
         seconds=run.seconds, time_ratio=run.seconds / forward.seconds if forward.seconds > 0 else float("nan"),
         peak_mib=run.peak_bytes / MIB,
-        memory_ratio=run.peak_bytes / forward.peak_bytes if forward.peak_bytes > 0 else float("nan"),
+        memory_ratio=run.peak_bytes / forward.peak_bytes if forward.peak_bytes >= MIN_FORWARD_PEAK else float("nan"),
         renders=run.renders, grad_passes=run.grad_passes, total_rmse=err, rel_total_error=rel,
         cost_to_target=run.seconds * (rel / target_rel_error) ** 2 if unbiased and np.isfinite(rel) else float("inf"))
     return row

@@ -13,7 +13,7 @@ term. With octree guiding a 32×32 pass takes ~20 s on 2 CPU cores (guiding cons
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -61,7 +61,13 @@ def spec_of(settings: GradientSettings) -> dict:
 
 
 def label(settings: GradientSettings) -> str:
-    """A short unique name, e.g. `fd(ξ=0.01,R=4,crn)` or `ad:prb_projective(guiding=none,sppi=0)`."""
+    """A short unique name, e.g. `fd(ξ=0.01,R=4,crn)`, `ad:prb_projective(guiding=none,sppi=0)`,
+    `mixed(ad[2]=ad:prb,fd(ξ=0.01,R=1,crn))` or `auto`."""
+    if settings.method == "auto":
+        return "auto"
+    if settings.method == "mixed":
+        fd, ad = replace(settings, method="fd", ad_params=()), replace(settings, method="ad", ad_params=())
+        return f"mixed(ad{list(settings.ad_params)}={label(ad)},{label(fd)})"
     if settings.method == "fd":
         step = "/".join(f"{x:g}" for x in np.atleast_1d(settings.step))
         return f"fd(ξ={step},R={settings.rounds},{'crn' if settings.crn else 'no-crn'})"

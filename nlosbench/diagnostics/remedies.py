@@ -2,15 +2,17 @@
 
 - mean-of-K:   K independent AD passes of spp/K each, averaged per pixel (the same estimator as one
                pass of spp, kept as the equal-cost baseline);
-- median-of-K: the per-pixel median of those K passes: robust to outliers that hit fewer than K/2
-               passes, biased where the per-pixel noise is skewed (the metrics show how much);
+- median-of-K: the per-pixel median of those K ≥ 3 passes: robust to outliers that hit fewer than
+               K/2 passes, biased where the per-pixel noise is skewed (the metrics show how much);
 - visibility-boost: more samples where visibility changes, in sample space: the continuous term at
                spp (`sppp = sppi = 0`) plus the visibility terms alone (`sppc = 0`) at boost·spp.
-               The derivative is the sum of the two, so this is unbiased.
+               The derivative is the sum of the two, so this is unbiased; with boost = 1 it is the
+               plain pass, to float rounding (both parts use the pass's seed; tested on real renders).
 
 A pixel-space variant (a second pass only over pixels flagged as silhouette or outlier) needs a
-cropped film; in Mitsuba 3.9 the projective integrators return zero silhouette derivatives for a
-cropped film (measured on cornell_paper), so it is not offered.
+cropped film; in Mitsuba 3.9 `prb_projective` gets the silhouette derivatives of a cropped film wrong
+(a 12×12 crop of the 32×32 cornell_paper film around the red ball, d/d red_x, 8 × 64 spp: silhouette
+pixels 5–10× smaller than in the full film's derivative), so it is not offered.
 """
 from __future__ import annotations
 
@@ -50,8 +52,8 @@ def k_pass(model: ForwardModel, theta, index: int, settings: GradientSettings, s
         raise ValueError(f"the K-pass remedies apply to AD backends, got method {settings.method!r}")
     if how not in ("mean", "median"):
         raise ValueError(f"how must be 'mean' or 'median', got {how!r}")
-    if k < 2 or spp // k < 1:
-        raise ValueError(f"need K >= 2 and spp >= K, got K={k}, spp={spp}")
+    if k < (3 if how == "median" else 2) or spp // k < 1:
+        raise ValueError(f"need K >= 2 (median: K >= 3, the median of 2 is their mean) and spp >= K, got K={k}, spp={spp}")
     combine = mean_of_k if how == "mean" else median_of_k
     imgs, costs, renders, passes = [], [], 0, 0
     for s in seeds:
@@ -73,8 +75,8 @@ def visibility_boost(model: ForwardModel, theta, index: int, settings: GradientS
         raise ValueError(f"boost must be >= 1, got {boost}")
     cont = replace(settings, ad={**settings.ad, "sppp": 0, "sppi": 0})
     vis = replace(settings, ad={**settings.ad, "sppc": 0})
-    a = gradient_images(model, theta, index, cont, spp, [derive(s, "boost-continuous") for s in seeds])
-    b = gradient_images(model, theta, index, vis, boost * spp, [derive(s, "boost-visibility") for s in seeds])
+    a = gradient_images(model, theta, index, cont, spp, seeds)
+    b = gradient_images(model, theta, index, vis, boost * spp, seeds)
     costs = [_sum_costs([x, y]) for x, y in zip(a.costs, b.costs)]
     return GradientRun(a.images + b.images, list(seeds), costs, a.renders + b.renders, a.grad_passes + b.grad_passes)
 

@@ -15,6 +15,7 @@ clean on fewer than MIN_SEEDS seeds.
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -23,7 +24,7 @@ import numpy as np
 from ..forward.bindings import GEOMETRY_KINDS
 from ..forward.gradients import GradientSettings
 from ..forward.model import ForwardModel
-from .images import backend, param_kind
+from .images import backend, label, param_kind
 from .metrics import spp_trend
 
 EXCESS_PIXELS = 1.0
@@ -108,7 +109,8 @@ def judge(rows: list[dict], param: str) -> Verdict:
         return Verdict(param, "undetermined", STATUS_TEXT["undetermined"], fd_spec, cheapest_label,
                        reasons + [f"AD looks clean but with fewer than {MIN_SEEDS} seeds the test has little power"])
     if clean:
-        best = min(clean, key=lambda r: _f(r, "cost_to_target", np.inf))
+        # the clean integrator that reaches the target error soonest at any measured spp
+        best = min(clean, key=lambda r: min(_f(x, "cost_to_target", np.inf) for x in plain if x["label"] == r["label"]))
         return Verdict(param, "ad-clean", STATUS_TEXT["ad-clean"], json.loads(best["spec"]), cheapest_label, reasons)
     status = "ad-artifact-prone" if any(cls == "artifacts" for _, cls, _ in found.values()) else "ad-biased"
     return Verdict(param, status, STATUS_TEXT[status], fd_spec, cheapest_label, reasons)
@@ -141,15 +143,52 @@ def prior_settings(model: ForwardModel, index: int) -> GradientSettings:
     return GradientSettings("fd")
 
 
-def choose_backend(model: ForwardModel, verdicts: dict[str, Verdict] | None = None) -> GradientSettings:
-    """GradientSettings for all parameters of `model` (for `grad="auto"`): AD when every parameter is
-    AD clean (by its verdict, or by `prior_settings` where no verdict exists), with the most general
-    of their integrators; FD otherwise (the FD settings of the first parameter that needs FD)."""
-    verdicts = verdicts or {}
-    choices = [verdicts[n].settings() if n in verdicts else prior_settings(model, j)
-               for j, n in enumerate(model.params.names)]
-    if all(c.method == "ad" for c in choices):
-        if model.exact:
-            return choices[0]
-        return max(choices, key=lambda c: _GENERALITY.index(c.ad.get("type", "prb")))
-    return next(c for c in choices if c.method == "fd")
+def _as_verdicts(verdicts) -> dict[str, Verdict]:
+    if verdicts is None:
+        return {}
+    if isinstance(verdicts, Mapping):
+        bad = [k for k, v in verdicts.items() if not isinstance(v, Verdict)]
+        if bad:
+            raise ValueError(f"verdicts for {bad} are not Verdict objects (load them with load_verdicts)")
+        return dict(verdicts)
+    return load_verdicts(verdicts)
+
+
+def choose_backend(model: ForwardModel, verdicts: Mapping[str, Verdict] | str | Path | None = None,
+                   base: GradientSettings | None = None) -> GradientSettings:
+    """Concrete GradientSettings for all parameters of `model` (what `grad="auto"` becomes).
+
+    Per parameter: AD when its verdict says "AD clean" (by `verdicts`, a mapping or a saved
+    verdicts.json / study folder), or, without a verdict, by `prior_settings` (colour → AD, geometry
+    → FD). All AD parameters share one AD pass with the most general of their integrators. The result
+    is "ad", "fd", or "mixed" (AD for some parameters, FD for the rest); `.chosen` says per parameter
+    what was picked and why. base: the "auto" settings being resolved: its FD step / rounds / crn and
+    spp are kept, its `ad` options override the chosen integrator's. Without `base`, FD uses the
+    settings of the first verdict that recommends FD (else the defaults)."""
+    found = _as_verdicts(verdicts)
+    names = list(model.params.names)
+    if found and not set(found) & set(names):  # verdicts for other parameters (e.g. of a restriction) are ignored
+        raise ValueError(f"the verdicts (for {sorted(found)}) name no parameter of {model.name!r} (parameters: {names})")
+    choices, why = [], []
+    for j, n in enumerate(names):
+        if n in found:
+            choices.append(found[n].settings())
+            why.append(f"verdict: {found[n].text}")
+        else:
+            choices.append(prior_settings(model, j))
+            kind = param_kind(model, j)
+            why.append("prior: exact model" if model.exact else f"prior: {kind or 'unknown'} parameter")
+    ad_idx = tuple(j for j, c in enumerate(choices) if c.method == "ad")
+    ad_choices = [choices[j] for j in ad_idx]
+    ad = max(ad_choices, key=lambda c: _GENERALITY.index(c.ad.get("type", "prb"))).ad if ad_choices else {}
+    if base is None:
+        fd = next((c for c in choices if c.method == "fd"), GradientSettings("fd"))
+        step, rounds, crn, spp, user_ad = fd.step, fd.rounds, fd.crn, None, {}
+    else:
+        step, rounds, crn, spp, user_ad = base.step, base.rounds, base.crn, base.spp, base.ad
+    method = "ad" if len(ad_idx) == len(names) else "fd" if not ad_idx else "mixed"
+    ad = {**ad, **user_ad} if ad_idx else {}
+    fd_label, ad_label = label(GradientSettings("fd", step, rounds, crn)), label(GradientSettings("ad", ad=ad))
+    chosen = "; ".join(f"{n} → {ad_label if j in ad_idx else fd_label} ({why[j]})" for j, n in enumerate(names))
+    return GradientSettings(method, step=step, rounds=rounds, crn=crn, spp=spp, ad=ad,
+                            ad_params=ad_idx if method == "mixed" else (), chosen=chosen)

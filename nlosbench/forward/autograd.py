@@ -1,14 +1,15 @@
 """`render(model, θ, spp, seed, grad=...)`: the forward model as a differentiable torch function.
 
 The forward pass is `model.render(θ, spp, seed)`; the backward pass contracts the incoming image
-gradient with ∂L/∂θ by FD (common random numbers) or AD — see `gradients.py`. Gradient renders use
-seeds derived from `seed`, so a whole optimisation step is reproducible.
+gradient with ∂L/∂θ by FD (common random numbers), AD, both ("mixed") or whichever the gradient
+diagnostics chose ("auto") — see `gradients.py`. Gradient renders use seeds derived from `seed`, so a
+whole optimisation step is reproducible.
 """
 from __future__ import annotations
 
 import torch
 
-from .gradients import GradientSettings, vjp
+from .gradients import GradientSettings, resolve, vjp
 from .model import ForwardModel
 
 
@@ -30,10 +31,18 @@ def render(model: ForwardModel, theta, spp: int = 64, seed: int = 0, grad: str |
            **options) -> torch.Tensor:
     """L_θ (H, W, C) float32, differentiable w.r.t. θ (a torch tensor with requires_grad).
 
-    grad: "fd" | "ad" or a GradientSettings; options (step, rounds, crn, spp, ad) build the settings
-    when grad is a string, e.g. `render(m, θ, 64, 0, grad="fd", step=0.005, rounds=4)`.
+    grad: "fd" | "ad" | "auto" or a GradientSettings; options (step, rounds, crn, spp, ad, verdicts)
+    build the settings when grad is a string, e.g. `render(m, θ, 64, 0, grad="fd", step=0.005, rounds=4)`
+    or `render(m, θ, 64, 0, grad="auto", verdicts="runs/x/gradients")`. "auto" is resolved here, once
+    per (model, settings) — `GradientSettings("auto").resolve(model).chosen` says what it picked.
     """
-    settings = grad if isinstance(grad, GradientSettings) else GradientSettings(method=grad, **options)
+    if isinstance(grad, GradientSettings):
+        if options:
+            raise ValueError(f"options {sorted(options)} go with a string `grad`; put them in the GradientSettings")
+        settings = grad
+    else:
+        settings = GradientSettings(method=grad, **options)
+    settings = resolve(model, settings)
     if not isinstance(theta, torch.Tensor):
         theta = torch.as_tensor(theta, dtype=torch.float64)
     return _Render.apply(theta, model, spp, seed, settings)

@@ -4,10 +4,17 @@ FD is central, ∂L/∂θ_j ≈ (L(θ+ξe_j) − L(θ−ξe_j)) / 2ξ, with comm
 stencil use the same render seed, so the rendering noise largely cancels. R rounds with independent
 seeds are averaged. Where θ ± ξ leaves Θ the stencil becomes one-sided (θ and the inside neighbour,
 same seed). AD asks the model (Mitsuba reverse/forward mode, or exact torch autograd for the toys).
+"mixed" differentiates the parameters `ad_params` by AD and the others by FD. "auto" is resolved once
+per (model, settings) into one of those three by `nlosbench.diagnostics.choose_backend`, from measured
+verdicts (a `gradients` study's verdicts.json) or the paper's prior (colour → AD, geometry → FD).
 """
 from __future__ import annotations
 
+import logging
+import weakref
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from os import PathLike
 
 import numpy as np
 import torch
@@ -15,17 +22,21 @@ import torch
 from ..seeds import derive
 from .model import ForwardModel
 
-METHODS = ("fd", "ad")
+METHODS = ("fd", "ad", "mixed", "auto")
+log = logging.getLogger("nlosbench.gradients")
 
 
 @dataclass(frozen=True)
 class GradientSettings:
     """How gradients are computed.
 
-    method: "fd" or "ad"; step: FD step ξ per parameter (θ units; a float applies to all);
-    rounds: FD rounds averaged (independent seeds); crn: common random numbers across each stencil
-    (False draws an independent seed per render — the naive baseline); spp: samples per pixel of
-    gradient renders (None: the primal spp); ad: options for the AD integrator (type, max_depth, ...).
+    method: "fd", "ad", "mixed" or "auto"; step: FD step ξ per parameter (θ units; a float applies to
+    all); rounds: FD rounds averaged (independent seeds); crn: common random numbers across each
+    stencil (False draws an independent seed per render — the naive baseline); spp: samples per pixel
+    of gradient renders (None: the primal spp); ad: options for the AD integrator (type, max_depth,
+    ...); ad_params: with "mixed", the parameter indices differentiated by AD (the others by FD);
+    verdicts: with "auto", a `gradients` study's verdicts.json (or its folder) or a mapping
+    {parameter: Verdict}; None uses the prior. chosen: set by `resolve`, what "auto" chose and why.
     """
 
     method: str = "fd"
@@ -34,6 +45,9 @@ class GradientSettings:
     crn: bool = True
     spp: int | None = None
     ad: dict = field(default_factory=dict)
+    ad_params: tuple = ()
+    verdicts: str | PathLike | Mapping | None = None
+    chosen: str = field(default="", compare=False)
 
     def __post_init__(self):
         if self.method not in METHODS:
@@ -42,10 +56,45 @@ class GradientSettings:
             raise ValueError(f"FD rounds must be >= 1, got {self.rounds}")
         if np.any(np.asarray(self.step, dtype=np.float64) <= 0):
             raise ValueError(f"FD step must be > 0, got {self.step}")
+        if (self.method == "mixed") != bool(self.ad_params):
+            raise ValueError("ad_params (the indices differentiated by AD) go with method 'mixed', and it needs "
+                             f"at least one; got method {self.method!r}, ad_params {self.ad_params!r}")
+        if not all(isinstance(j, (int, np.integer)) and j >= 0 for j in self.ad_params):
+            raise ValueError(f"ad_params must be non-negative parameter indices, got {self.ad_params!r}")
+        object.__setattr__(self, "ad_params", tuple(sorted({int(j) for j in self.ad_params})))
+        if self.verdicts is not None and self.method != "auto":
+            raise ValueError(f"verdicts are read by method 'auto' only, got method {self.method!r}")
+        if self.verdicts is not None and not isinstance(self.verdicts, (str, PathLike, Mapping)):
+            raise ValueError("verdicts must be a path or a mapping {parameter: Verdict}, "
+                             f"got {type(self.verdicts).__name__}")
 
     def steps(self, dim: int) -> np.ndarray:
         s = np.broadcast_to(np.asarray(self.step, dtype=np.float64), (dim,))
         return s.copy()
+
+    def resolve(self, model: ForwardModel) -> "GradientSettings":
+        """These settings with "auto" resolved for `model` (see module docstring); others as they are."""
+        return resolve(model, self)
+
+
+#: model → {repr(auto settings): resolved settings}; weak, so a model's entries go with it
+_RESOLVED: "weakref.WeakKeyDictionary[ForwardModel, dict]" = weakref.WeakKeyDictionary()
+
+
+def resolve(model: ForwardModel, settings: GradientSettings) -> GradientSettings:
+    """Concrete settings for `model` ("fd", "ad" or "mixed"). "auto" is resolved through
+    `diagnostics.choose_backend` once per (model, settings) and cached; the choice is in `.chosen`
+    and logged (logger `nlosbench.gradients`, INFO)."""
+    if settings.method != "auto":
+        return settings
+    per_model = _RESOLVED.setdefault(model, {})
+    key = repr(settings)
+    if key not in per_model:
+        from ..diagnostics.verdict import choose_backend
+
+        per_model[key] = choose_backend(model, settings.verdicts, base=settings)
+        log.info("grad='auto' on %s: %s", model.name, per_model[key].chosen)
+    return per_model[key]
 
 
 def fd_jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: GradientSettings = GradientSettings(),
@@ -80,16 +129,41 @@ def ad_jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: Gradi
     return torch.stack([model.jvp(t, j, spp, derive(seed, "ad-jvp", j), **settings.ad) for j in idx])
 
 
+def _uses_ad(settings: GradientSettings, j: int) -> bool:
+    return settings.method == "ad" or (settings.method == "mixed" and j in settings.ad_params)
+
+
+def _check_ad_params(model: ForwardModel, settings: GradientSettings) -> None:
+    if settings.ad_params and settings.ad_params[-1] >= len(model.params):
+        raise ValueError(f"ad_params {settings.ad_params} index past the {len(model.params)} parameters of {model.name!r}")
+
+
 def jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: GradientSettings, indices=None) -> torch.Tensor:
-    """Image Jacobian (P', H, W, C) with the method in `settings`."""
-    fn = fd_jacobian if settings.method == "fd" else ad_jacobian
-    return fn(model, theta, settings.spp or spp, seed, settings, indices)
+    """Image Jacobian (P', H, W, C) with the method in `settings` ("auto" resolved, see `resolve`)."""
+    settings = resolve(model, settings)
+    _check_ad_params(model, settings)
+    spp = settings.spp or spp
+    idx = list(range(len(model.params))) if indices is None else list(indices)
+    if settings.method != "mixed":
+        fn = ad_jacobian if settings.method == "ad" else fd_jacobian
+        return fn(model, theta, spp, seed, settings, idx)
+    return torch.stack([(ad_jacobian if _uses_ad(settings, j) else fd_jacobian)(model, theta, spp, seed, settings, [j])[0]
+                        for j in idx])
 
 
 def vjp(model: ForwardModel, theta, grad_out: torch.Tensor, spp: int, seed: int, settings: GradientSettings) -> np.ndarray:
-    """Σ_ω grad_out(ω) ∂L(ω)/∂θ, float64 (P,). FD contracts the FD Jacobian; AD runs one reverse pass."""
+    """Σ_ω grad_out(ω) ∂L(ω)/∂θ, float64 (P,). FD contracts the FD Jacobian of its parameters; AD runs
+    one reverse pass; "mixed" does both; "auto" is resolved first (see `resolve`)."""
+    settings = resolve(model, settings)
+    _check_ad_params(model, settings)
     spp = settings.spp or spp
-    if settings.method == "ad":
-        return model.vjp(theta, grad_out, spp, derive(seed, "ad-vjp"), **settings.ad)
-    J = fd_jacobian(model, theta, spp, seed, settings)
-    return torch.einsum("p...,...->p", J.double(), grad_out.double()).numpy()
+    P = len(model.params)
+    out = np.zeros(P)
+    ad_idx = [j for j in range(P) if _uses_ad(settings, j)]
+    fd_idx = [j for j in range(P) if j not in ad_idx]
+    if ad_idx:
+        out[ad_idx] = np.asarray(model.vjp(theta, grad_out, spp, derive(seed, "ad-vjp"), **settings.ad))[ad_idx]
+    if fd_idx:
+        J = fd_jacobian(model, theta, spp, seed, settings, fd_idx)
+        out[fd_idx] = torch.einsum("p...,...->p", J.double(), grad_out.double()).numpy()
+    return out

@@ -21,7 +21,7 @@ from ..diagnostics import (REMEDIES, Reference, applicable_integrators, backend,
                            remedy_run, save_verdicts, spec_of)
 from ..diagnostics.evaluate import fd_reference, result_row
 from ..diagnostics.figures import gradient_grid
-from ..diagnostics.metrics import THRESHOLD
+from ..diagnostics.metrics import THRESHOLD, spp_trend
 from ..experiment.context import RunContext, read_csv, write_csv
 from ..experiment.schema import Field
 from ..forward.gradients import GradientSettings
@@ -45,7 +45,7 @@ SCHEMA = {
                         "rounds": Field(int, 4, "independent FD rounds averaged (>= 2)")}, nullable=True,
                        help="high-spp FD reference; null: the per-pixel median of the FD (CRN) seeds"),
     "remedies": Field({"names": Field(list, list(REMEDIES), "remedies to measure", items=str),
-                       "k": Field(int, 4, "passes of the mean/median-of-K remedies (spp/K each)"),
+                       "k": Field(int, 4, "passes of the mean/median-of-K remedies (spp/K each; median: K >= 3)"),
                        "boost": Field(int, 4, "visibility-boost: spp multiplier of the visibility terms")}),
     "threshold": Field(float, THRESHOLD, "outlier score threshold"),
     "min_area": Field(int, 1, "smallest outlier cluster counted (pixels)"),
@@ -131,6 +131,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     if cfg["save_images"]:
         for (row_label, p, spp), img in images.items():
             write_exr(out / "images" / f"{p}__{_safe(row_label)}__{spp}spp.exr", img)
+    _add_spp_trends(rows)
     write_csv(out / "summary.csv", rows)
     write_csv(out / "seeds.csv", seed_rows)
     verdicts = {n: judge(rows, n) for n in names}
@@ -144,6 +145,37 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             "forward_seconds": {str(k): v.seconds for k, v in forward.items()},
             "forward_peak_mib": {str(k): v.peak_bytes / (1 << 20) for k, v in forward.items()},
             "verdicts": {n: v.text for n, v in verdicts.items()}}
+
+
+def _add_spp_trends(rows: list[dict]) -> None:
+    """Set `spp_trend` (none / fade / steady / grow: outlier pixels per image from the lowest to the
+    highest spp, see metrics.spp_trend) on every plain (no remedy) row; '' with a single spp level."""
+    by_config: dict = {}
+    for r in rows:
+        if not r["remedy"]:
+            by_config.setdefault((r["param"], r["label"]), []).append(r)
+    for group in by_config.values():
+        lo, hi = min(group, key=lambda r: r["spp"]), max(group, key=lambda r: r["spp"])
+        trend = spp_trend(lo["outlier_pixels_per_image"], hi["outlier_pixels_per_image"]) if hi is not lo else ""
+        for r in group:
+            r["spp_trend"] = trend
+    for r in rows:
+        r.setdefault("spp_trend", "")
+
+
+def smoke(block: dict) -> dict:
+    """A seconds-long copy: 2 seeds, spp levels 4 and 8 (one level stays one), a 32-spp × 2-round
+    reference, K ≤ 4, boost = 2, and `guiding: none` for the projective AD backends (octree guiding costs
+    ~20 s per pass on 2 cores whatever the image size)."""
+    def unguided(spec: dict) -> dict:
+        projective = spec.get("method") == "ad" and spec.get("integrator") in ("prb_projective", "direct_projective")
+        return {**spec, "guiding": "none"} if projective else spec
+
+    return {**block, "spp": [4, 8] if len(set(block["spp"])) > 1 else [8], "seeds": 2,
+            "backends": None if block["backends"] is None else [unguided(b) for b in block["backends"]],
+            "ad_options": {**block["ad_options"], "guiding": "none"},
+            "reference": block["reference"] and {"spp": min(block["reference"]["spp"], 32), "rounds": 2},
+            "remedies": {**block["remedies"], "k": min(block["remedies"]["k"], 4), "boost": 2}}
 
 
 def _safe(name: str) -> str:
@@ -171,14 +203,19 @@ def report(study_dir: Path, results: dict) -> str:
              "| parameter | verdict | backend for grad=auto | cheapest to target |", "|---|---|---|---|"]
     for n, v in verdicts.items():
         lines.append(f"| {n} | {v.text} | {label(v.settings())} | {v.cheapest or '—'} |")
-    lines += ["", "| parameter | gradient | spp | clusters/img | outlier px/img | persistence | total ± se | reference "
-              "| agrees | pixel var | s/grad | × fwd time | peak MiB | time to target [s] |", "|" + "---|" * 14]
+    lines += ["", "Persistence: mean Jaccard overlap of the outlier masks across seeds (1: clusters stay put, 0: they "
+              "move with the seed). Trend: outlier pixels from the lowest to the highest spp. × fwd memory: blank where "
+              "a forward render's own peak is under 1 MiB (then only the absolute peak means something).", "",
+              "| parameter | gradient | spp | clusters/img | outlier px/img | max cluster px | persistence | trend "
+              "| total ± se | reference | agrees | pixel var | s/grad | × fwd time | peak MiB | × fwd memory "
+              "| time to target [s] |", "|" + "---|" * 17]
     for r in rows:
         lines.append(f"| {r['param']} | {r['label']}{' (' + r['applicable'] + ')' if r['applicable'] else ''} | {r['spp']} "
-                     f"| {_fmt(r['clusters_per_image'])} | {_fmt(r['outlier_pixels_per_image'])} | {_fmt(r['persistence'], '.2f')} "
+                     f"| {_fmt(r['clusters_per_image'])} | {_fmt(r['outlier_pixels_per_image'])} "
+                     f"| {r['max_cluster_area']} | {_fmt(r['persistence'], '.2f')} | {r.get('spp_trend', '')} "
                      f"| {_fmt(r['total'], '.4g')} ± {_fmt(r['total_se'], '.2g')} | {_fmt(r['ref_total'], '.4g')} "
-                     f"| {r['agrees']} | {_fmt(r['pixel_var'])} | {_fmt(r['seconds'])} | {_fmt(r['time_ratio'])} | {_fmt(r['peak_mib'])} "
-                     f"| {_fmt(r['cost_to_target'])} |")
+                     f"| {r['agrees']} | {_fmt(r['pixel_var'])} | {_fmt(r['seconds'])} | {_fmt(r['time_ratio'])} "
+                     f"| {_fmt(r['peak_mib'])} | {_fmt(r['memory_ratio'])} | {_fmt(r['cost_to_target'])} |")
     lines += ["", "Per-verdict evidence:"]
     lines += [f"- {n}: " + "; ".join(v.reasons) for n, v in verdicts.items()]
     return "\n".join(lines)
