@@ -264,39 +264,100 @@ def _study_config(tmp_path, **study):
     return path
 
 
-def test_study_end_to_end(tmp_path):
-    """The `inexact` study through the runner: CSVs, plots, report section, JSON summary; renders shared
-    between θ* (grid-aligned Δ), decay check consistent with 1/N."""
+def test_study_measured_power_and_config_errors(tmp_path):
+    """With N^-0.8 rendering noise the decay check warns and `power: measured` fits with p ≈ 0.8; N_eff
+    = 1024 against Σ N_i = 768 warns of an unequal budget (both warnings in the report); bad settings
+    (k = 1 level, identical levels, …) are clear errors."""
     from nlosbench.experiment.runner import run
 
-    d = run(_study_config(tmp_path), out=tmp_path / "run", quiet=True)
+    d = run(_study_config(tmp_path, power="measured", bootstrap=0, noise=0, n_eff=1024,
+                          scene_options={"render_noise_power": 0.8}), out=tmp_path / "run", quiet=True)
+    res = json.loads((d / "results.json").read_text())["studies"]["00-inexact"]["results"]
+    assert res["power_source"] == "measured" and abs(res["power"] - 0.8) < 0.05
+    assert res["budget_ratio"] == pytest.approx(1024 / 768)
+    text = (d / "report.md").read_text()
+    for what in ("far from 1", "unequal render budget"):
+        assert sum(what in w for w in res["warnings"]) == 1 and text.count(what) == 1, what
+    for bad, match in (({"theta": [0.95]}, "out of range"), ({"deltas": [0.5]}, "no Δ"),
+                       ({"noise": 5}, "noise"), ({"power": -1}, "power"), ({"levels": [128]}, "at least 2 distinct"),
+                       ({"levels": [256, 256]}, "at least 2 distinct"),
+                       ({"n_eff": 770}, "divisible")):
+        with pytest.raises(ValueError, match=match):
+            run(_study_config(tmp_path, **bad), out=tmp_path / f"bad{len(match)}", quiet=True)
+
+
+def test_study_end_to_end_then_resumed_per_point(tmp_path):
+    """The `inexact` study through the runner: CSVs, plots, report section, JSON summary; renders shared
+    between θ* (grid-aligned Δ), decay check consistent with 1/N. Then resume: the later half of the
+    per-point render files deleted and one earlier file corrupted, the run resumed on a 2-worker local
+    pool instead of the serial executor gives identical CSVs (seeds per point, whatever the executor)
+    and renders only the missing/corrupt points. A changed render plan is refused on resume."""
+    from nlosbench.experiment.context import read_csv
+    from nlosbench.experiment.runner import run
+
+    cfg = _study_config(tmp_path)
+    d = run(cfg, out=tmp_path / "run", quiet=True)
     res = json.loads((d / "results.json").read_text())["studies"]["00-inexact"]["results"]
     sd = d / "00-inexact"
     for f in ("hcr.csv", "lambda.csv", "decay.csv", "decay.png", "hcr_vs_theta_awgn_sigma_1_0.png",
               "hcr_vs_theta_poisson_scale_1_0.png", "lambda_awgn_sigma_1_0_widest.png", "lambda_poisson_scale_1_0_narrowest.png"):
         assert (sd / f).is_file(), f
-    assert res["render_points"] < 3 * 6 and res["renders"] == res["render_points"] * 4 * 4
+    Q = res["render_points"]
+    assert Q < 3 * 6 and res["renders"] == Q * 4 * 4 and res["points_resumed"] == 0
     assert abs(res["decay"]["p"] - 1) < 0.1 and res["power_source"] == "assumed" and not res["warnings"]
-    from nlosbench.experiment.context import read_csv
-
     rows = read_csv(sd / "hcr.csv")
     assert len(rows) == 6 and all(math.isfinite(float(r["log10_hcr_neff"])) for r in rows)
     text = (d / "report.md").read_text()
     assert "HCR_Neff" in text and "Decay check" in text and "| 0.5 |" in text
 
-
-def test_study_measured_power_and_config_errors(tmp_path):
-    """With N^-0.8 rendering noise the decay check warns and `power: measured` fits with p ≈ 0.8; bad
-    settings are clear errors."""
-    from nlosbench.experiment.runner import run
-
-    d = run(_study_config(tmp_path, power="measured", bootstrap=0, noise=0, scene_options={"render_noise_power": 0.8}),
-            out=tmp_path / "run", quiet=True)
+    first = {f: (sd / f).read_text() for f in ("hcr.csv", "lambda.csv", "decay.csv", "decay_popt.csv")}
+    files = sorted((sd / "points").glob("*.npz"))
+    assert len(files) == Q > 4
+    for f in files[Q // 2:]:
+        f.unlink()
+    files[0].write_bytes(b"truncated")
+    (d / "results.json").unlink()
+    run(cfg, ["executor.type=local", "executor.workers=2"], out=d, resume=True, quiet=True)
     res = json.loads((d / "results.json").read_text())["studies"]["00-inexact"]["results"]
-    assert res["power_source"] == "measured" and abs(res["power"] - 0.8) < 0.05
-    assert res["warnings"] and "far from 1" in res["warnings"][0]
-    for bad, match in (({"theta": [0.95]}, "out of range"), ({"deltas": [0.5]}, "no Δ"),
-                       ({"noise": 5}, "noise"), ({"power": -1}, "power"), ({"levels": [128]}, "at least 2 distinct"),
-                       ({"n_eff": 770}, "divisible")):
-        with pytest.raises(ValueError, match=match):
-            run(_study_config(tmp_path, **bad), out=tmp_path / f"bad{len(match)}", quiet=True)
+    assert res["points_resumed"] == Q // 2 - 1
+    for f, text in first.items():
+        assert (sd / f).read_text() == text, f
+    (d / "results.json").unlink()
+    with pytest.raises(ValueError, match="render plan"):
+        run(cfg, ["studies.0.levels=[128, 256, 512]"], out=d, resume=True, quiet=True)
+
+
+def test_smoke_reduces_a_paper_scale_block(tmp_path):
+    """smoke() of the paper config's block: 2 θ*, the smallest Δ each side, 2 levels × 2 replicates,
+    equal budget, few resamples, the original untouched and the result valid under SCHEMA; a
+    paper-sized blob2d block so reduced runs end to end (6 render points, 36 renders, 2 θ* × 2 noises)."""
+    from nlosbench.experiment import config as config_mod
+    from nlosbench.experiment.context import read_csv
+    from nlosbench.experiment.runner import run
+    from nlosbench.experiment.schema import validate_block
+    from nlosbench.studies import inexact
+
+    from pathlib import Path
+
+    block = config_mod.load(Path(__file__).resolve().parents[1] / "configs" / "paper_pi_inexact.yaml")["studies"][0]
+    before = json.dumps(block)
+    s = inexact.smoke(block)
+    assert json.dumps(block) == before
+    assert s["theta"] == pytest.approx([0.7, 1.69]) and s["deltas"] == pytest.approx([-0.01, 0.01])
+    assert s["levels"] == [4, 8] and s["replicates"] == 2 and s["n_eff"] == sum(s["levels"])
+    assert s["bootstrap"] == 10 and s["decay_weights"] == 200
+    validate_block({k: v for k, v in s.items() if k != "type"}, inexact.SCHEMA, "studies[0]")
+
+    import yaml
+
+    paper_sized = {k: v for k, v in block.items() if k not in ("type", "id", "theta", "deltas")}
+    path = _study_config(tmp_path, **paper_sized, theta={"start": 0.3, "stop": 0.7, "num": 41},
+                         deltas={"start": -0.4, "stop": 0.4, "num": 81})
+    cfg = config_mod.load(path)
+    cfg["studies"] = [inexact.smoke(cfg["studies"][0])]
+    path.write_text(yaml.safe_dump(cfg))
+    d = run(path, out=tmp_path / "smoke", quiet=True)
+    res = json.loads((d / "results.json").read_text())["studies"]["00-inexact"]["results"]
+    assert res["render_points"] == 6 and res["renders"] == 6 * 2 * 3  # θ* ± 0.01 at 2 levels + N_eff, 2 replicates
+    rows = read_csv(d / "00-inexact" / "hcr.csv")
+    assert len(rows) == 4 and {float(r["theta"]) for r in rows} == {0.3, 0.7}

@@ -1,9 +1,13 @@
 """Benchmark of the inexact-rendering interval at equal render budget.
 
 (a) Synthetic toy (blob2d with rendering noise S²L/N, AWGN, true HCR from the clean images; the sup
-    sits at the smallest Δ, NLOS-like): for a few budgets N_eff, over repeated runs, the width of
-    [HCR_Neff, HCR-hat] and the error of each end against the truth (log10). The paper's design: 10
-    levels N = b·2 … b·11 with b = N_eff/64 (Σ N ≈ N_eff), one replicate each.
+    sits at the smallest Δ, NLOS-like): for a few budgets N_eff (up to the paper's 65536), over
+    repeated runs, the width of [HCR_Neff, HCR-hat] and the error of each end against the truth
+    (log10). The paper's design: 10 levels N = b·2 … b·11 with b = N_eff/64 (Σ N ≈ N_eff), each
+    level (and N_eff) as R = 8 replicates of N/8 spp (4 in reduced mode) — the same statistics as
+    one render at N — so the half-sample bootstrap can widen the ends: `coverage` is how often the
+    raw interval holds the truth, `coverage_ci` how often [HCR_Neff CI low, HCR-hat CI high] (90 %)
+    does.
     `ratio` = RMS error of HCR-hat / RMS error of HCR_Neff.
 (b) cornell_ball (real Mitsuba): renders/s and samples/s of a k-level render set against one N_eff
     render set of the same samples per image; `ratio` = time of the k levels / time of N_eff (the
@@ -21,6 +25,7 @@ import torch
 from ..bounds.hcr import hcr_from_lambda
 from ..bounds.inexact import inexact_hcr, render_replicates
 from ..noise import AWGN
+from ..seeds import derive
 
 S_RENDER = 0.15
 DX = np.array([0.0025, 0.005, 0.01, 0.02, 0.04, 0.08, -0.0025, -0.005, -0.01, -0.02, -0.04, -0.08])
@@ -30,7 +35,7 @@ def _paper_levels(n_eff: int) -> list[int]:
     return [n_eff // 64 * i for i in range(2, 12)]
 
 
-def _toy(n_eff: int, reps: int) -> dict:
+def _toy(n_eff: int, reps: int, replicates: int = 8, bootstrap: int = 100) -> dict:
     from .. import scenes
 
     model = scenes.get("blob2d", render_noise=S_RENDER)
@@ -40,21 +45,23 @@ def _toy(n_eff: int, reps: int) -> dict:
     clean = torch.stack([model.clean(torch.as_tensor(p)) for p in pts])
     true = hcr_from_lambda(noise.chi2_exponent(clean[0], clean[1:]), DX).log10
     levels = _paper_levels(n_eff)
-    ends = np.empty((reps, 3))
+    ends = np.empty((reps, 5))
     for rep in range(reps):
-        X = render_replicates(model, pts, levels, 1, seed=rep, purpose="levels")
-        Xe = render_replicates(model, pts, [n_eff], 1, seed=rep, purpose="n-eff")
-        r = inexact_hcr(X[:, :, 0], X[:, :, 1:], DX, levels, noise, Xe[0, :, 0], Xe[0, :, 1:], n_eff)
-        ends[rep] = r.hcr_neff.log10, r.hcr_hat.log10, r.hcr_hat.unresolved
+        X = render_replicates(model, pts, levels, replicates, seed=rep, purpose="levels")
+        Xe = render_replicates(model, pts, [n_eff], replicates, seed=rep, purpose="n-eff")
+        r = inexact_hcr(X[:, :, 0], X[:, :, 1:], DX, levels, noise, Xe[0, :, 0], Xe[0, :, 1:], n_eff,
+                        bootstrap=bootstrap, seed=derive(rep, "bench-inexact-bootstrap"))
+        ends[rep] = r.hcr_neff.log10, r.hcr_hat.log10, r.hcr_hat.unresolved, r.ci_neff[0], r.ci_hat[1]
     neff, hat, unres = ends[:, 0] - true, ends[:, 1] - true, ends[:, 2].astype(bool)
     ok = ~unres
     rms_neff, rms_hat = float(np.sqrt(np.mean(neff**2))), float(np.sqrt(np.mean(hat[ok] ** 2)))
     return dict(bench="toy_interval", n_eff=n_eff, levels=f"{levels[0]}..{levels[-1]} (k={len(levels)})",
-                samples_levels=sum(levels), reps=reps, true_log10=float(true),
+                samples_levels=sum(levels), replicates=replicates, reps=reps, true_log10=float(true),
                 width_decades=float(np.mean(ends[ok, 1] - ends[ok, 0])), bias_neff=float(neff.mean()),
                 rms_neff=rms_neff, bias_hat=float(hat[ok].mean()), rms_hat=rms_hat,
                 unresolved=float(unres.mean()), neff_below=float(np.mean(neff <= 0)),
-                coverage=float(np.mean((neff <= 0) & ((hat >= 0) | unres))), ratio=rms_hat / rms_neff)
+                coverage=float(np.mean((neff <= 0) & ((hat >= 0) | unres))),
+                coverage_ci=float(np.mean((ends[:, 3] <= true) & (ends[:, 4] >= true))), ratio=rms_hat / rms_neff)
 
 
 def _cornell(levels: list[int], n_eff: int, points: list[float]) -> dict:
@@ -78,8 +85,8 @@ def _cornell(levels: list[int], n_eff: int, points: list[float]) -> dict:
 
 def run(reduced: bool = False) -> list[dict]:
     """Toy interval rows (one per budget) and the cornell_ball timing row."""
-    budgets, reps = ([640], 8) if reduced else ([640, 2560, 10240, 40960], 40)
-    rows = [_toy(b, reps) for b in budgets]
+    budgets, reps, R = ([1024], 6, 4) if reduced else ([1024, 4096, 16384, 65536], 40, 8)
+    rows = [_toy(b, reps, R) for b in budgets]
     if reduced:
         rows.append(_cornell([8, 16], 24, [0.0, 0.1]))
     else:

@@ -72,34 +72,43 @@ def check_levels(levels: Sequence[int], replicates: int = 1) -> np.ndarray:
     return lv
 
 
+def render_point(model, theta, levels: Sequence[int], replicates: int, seed: int, purpose: str = "levels",
+                 index: int = 0) -> torch.Tensor:
+    """Renders (k, R, *S) float32 of one θ point: level i, replicate r with levels[i] // R spp and seed
+    derive(seed, "inexact-" + purpose, i, r, index) — independent renders (distinct seeds). Use a
+    different `purpose` for each independent render set (e.g. "levels", "n-eff": the same seed at
+    another spp shares samples) and a different `index` for each point."""
+    spp = check_spp(levels, replicates) // replicates
+    imgs = [model.render(theta, int(n), derive(seed, f"inexact-{purpose}", i, r, index))
+            for i, n in enumerate(spp) for r in range(replicates)]
+    return torch.stack(imgs).reshape(len(spp), replicates, *imgs[0].shape)
+
+
 def render_replicates(model, points, levels: Sequence[int], replicates: int, seed: int, purpose: str = "levels",
                       progress: Callable | None = None, executor=None) -> torch.Tensor:
-    """Renders (k, R, Q, *S) float32: θ point q (points (Q,) or (Q, P)) at level i, replicate r, with
-    levels[i] // R spp and seed derive(seed, "inexact-" + purpose, i, r, q) — independent renders
-    everywhere (distinct seeds). Use a different `purpose` for each independent render set (e.g.
-    "levels", "n-eff"): the same seed at another spp shares samples. `executor` (an
-    `nlosbench.executors.Executor`, e.g. RunContext.executor) spreads the renders over its workers;
-    without one they run here with `model`. `progress(iterable, total, desc)` wraps the loop."""
+    """Renders (k, R, Q, *S) float32: `render_point` for every θ point q (points (Q,) or (Q, P),
+    index q). `executor` (an `nlosbench.executors.Executor`, e.g. RunContext.executor) spreads the
+    points over its workers; without one they run here with `model`. `progress(iterable, total,
+    desc)` wraps the loop over points."""
     from nlosbench.executors import SerialExecutor
 
-    spp = check_spp(levels, replicates) // replicates
+    check_spp(levels, replicates)
     pts = np.asarray(points, dtype=np.float64)
     pts = pts.reshape(pts.shape[0], -1) if pts.ndim else pts.reshape(1, 1)
-    jobs = [((i, r, q), pts[q], int(spp[i]), derive(seed, f"inexact-{purpose}", i, r, q))
-            for i in range(len(spp)) for r in range(replicates) for q in range(pts.shape[0])]
-    done = (executor or SerialExecutor(model=model)).imap_unordered(_render_job, jobs)
+    jobs = [(q, pts[q], list(levels), replicates, seed, purpose) for q in range(pts.shape[0])]
+    done = (executor or SerialExecutor(model=model)).imap_unordered(_point_job, jobs)
     out = None
-    for (i, r, q), img in (progress(done, total=len(jobs), desc=f"inexact {purpose} renders") if progress else done):
+    for q, imgs in (progress(done, total=len(jobs), desc=f"inexact {purpose} points") if progress else done):
         if out is None:
-            out = torch.empty((len(spp), replicates, pts.shape[0], *img.shape), dtype=torch.float32)
-        out[i, r, q] = img
+            out = torch.empty((imgs.shape[0], replicates, pts.shape[0], *imgs.shape[2:]), dtype=torch.float32)
+        out[:, :, q] = imgs
     return out
 
 
-def _render_job(model, job):
-    """Executor task: (index, θ, spp, seed) → (index, image)."""
-    index, theta, spp, seed = job
-    return index, model.render(theta, spp, seed)
+def _point_job(model, job):
+    """Executor task: (q, θ, levels, R, seed, purpose) → (q, `render_point` renders (k, R, *S))."""
+    q, theta, levels, replicates, seed, purpose = job
+    return q, render_point(model, theta, levels, replicates, seed, purpose, q)
 
 
 def quadratic(noise: NoiseModel) -> QuadraticNoise:
@@ -238,8 +247,9 @@ def inexact_hcr(X0, XD, deltas, levels: Sequence[int], noise: NoiseModel, X0_eff
     X0_eff: (R, *S), XD_eff: (R, K, *S) the N_eff set (R replicates of n_eff/R spp); lower/upper:
     limits on Δ as in `hcr`; power: decay rate p of the fit; bootstrap: resamples over the
     replicates (0: none; needs R ≥ 2); seed: the bootstrap's random stream (derive it)."""
-    X0, XD, X0_eff, XD_eff = (to_float64(a, n) for a, n in
-                              ((X0, "X0"), (XD, "XD"), (X0_eff, "X0_eff"), (XD_eff, "XD_eff")))
+    X0, X0_eff = to_float64(X0, "X0"), to_float64(X0_eff, "X0_eff")
+    # the Δ renders stay in their dtype: `replicate_grams` takes them to float64 one level at a time
+    XD, XD_eff = (x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x)) for x in (XD, XD_eff))
     k, R = X0.shape[:2]
     lv = check_levels(levels, R)
     if lv.size != k or XD.shape[:2] != (k, R) or X0_eff.shape[0] != R or XD_eff.shape[0] != R:

@@ -6,24 +6,41 @@ replicates of N/R spp, which the half-sample bootstrap resamples for confidence 
 at a θ point serves every θ* that uses it (as θ* or as θ*+Δ), so a grid-aligned Δ set costs about
 one render set per grid point. The θ* replicates also feed the 1/N decay check (the paper's
 appendix), whose measured p the fit can use (`power: measured`).
+
+Resume. The work unit is a render point (a θ* or a θ*+Δ; for a grid-aligned Δ set, the θ* grid):
+its k·R level renders and R N_eff renders go through `ctx.executor` as one task and are kept as
+points/NNNNN.npz (float32, written atomically), beside plan.json (points, levels, N_eff, replicates,
+seed, scene). A resumed run (`--resume`) reads the finished points, renders the rest and repeats the
+analysis (fits, bootstrap, decay check: seconds to minutes), so its numbers equal an uninterrupted
+run's; a changed plan is a config error. Seeds derive from (experiment seed, set, level, replicate,
+point), so results do not depend on the executor. Disk: 4·(k + 1)·R·H·W·C bytes per point (20 MB at
+the paper's 160 × 120 RGB, 10 levels, 8 replicates).
 """
 from __future__ import annotations
 
+import copy
+import json
+import os
 import re
 import time
 import warnings
+import zipfile
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from ..bounds.decay import decay_check, pixel_variances
-from ..bounds.inexact import check_levels, check_spp, inexact_hcr, quadratic, render_replicates
+from ..bounds.inexact import check_levels, check_spp, inexact_hcr, quadratic, render_point
+from ..executors import SerialExecutor
+from ..io import atomic
 from ..experiment.config import GRID, grid_values
-from ..experiment.context import RunContext, read_csv, write_csv
+from ..experiment.context import RunContext, read_csv, write_csv, write_json
 from ..experiment.schema import Field
 from .plotting import _plt
 
 NAME = "inexact"
+BUDGET_TOLERANCE = 0.1  # warn when N_eff and Σ N_i differ by more than this fraction
 SCHEMA = {
     "id": Field(str, None, "folder name for this study's files", nullable=True),
     "theta": GRID,
@@ -42,6 +59,21 @@ SCHEMA = {
     "p_range": Field(list, [0.5, 1.5, 0.001], "p grid of the decay check: [start, stop, step]", items=float),
     "p_tolerance": Field(float, 0.1, "warn when the measured p is farther than this from 1"),
 }
+
+
+def smoke(block: dict) -> dict:
+    """A reduced copy of a validated `inexact` block that runs in seconds through the same code path:
+    2 θ* (the grid's ends), the smallest Δ on each side, 2 levels × 2 replicates (2 and 4 spp each),
+    N_eff = Σ N_i (equal budget), ≤ 10 bootstrap resamples, ≤ 200 decay weightings."""
+    b = copy.deepcopy(block)
+    theta = grid_values(b["theta"])
+    b["theta"] = [theta[0], theta[-1]] if len(theta) > 1 else theta
+    d = np.asarray(grid_values(b["deltas"]), dtype=np.float64)
+    neg, pos = d[d < 0], d[d > 0]
+    b["deltas"] = ([float(neg.max())] if neg.size else []) + ([float(pos.min())] if pos.size else [])
+    b.update(replicates=2, levels=[4, 8], n_eff=12, bootstrap=min(b["bootstrap"], 10),
+             decay_weights=min(b["decay_weights"], 200))
+    return b
 
 
 def _slug(s: str) -> str:
@@ -104,15 +136,19 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             raise ValueError(f"no Δ in {deltas.tolist()} keeps θ* = {t:g} + Δ inside [{lo:g}, {hi:g}]")
 
     t0 = time.perf_counter()
-    X = render_replicates(model, points, levels, R, ctx.seed_for("inexact"), "levels", ctx.progress, ctx.executor)
-    Xe = render_replicates(model, points, [n_eff], R, ctx.seed_for("inexact"), "n-eff", ctx.progress, ctx.executor)
+    X, Xe, resumed = render_points(ctx, out, points, levels, n_eff, R)
     render_seconds = time.perf_counter() - t0
 
     summary: dict = {"parameter": model.params.names[0], "units": model.params.units[0],
                      "levels": levels.tolist(), "n_eff": n_eff, "replicates": R, "bootstrap": cfg["bootstrap"],
                      "confidence": cfg["confidence"], "theta_points": len(thetas), "render_points": len(points),
-                     "renders": len(points) * R * (len(levels) + 1), "render_seconds": render_seconds,
-                     "samples_levels_per_image": int(levels.sum()), "samples_eff_per_image": n_eff, "warnings": []}
+                     "renders": len(points) * R * (len(levels) + 1), "points_resumed": resumed,
+                     "render_seconds": render_seconds, "samples_levels_per_image": int(levels.sum()),
+                     "samples_eff_per_image": n_eff, "budget_ratio": n_eff / float(levels.sum()), "warnings": []}
+    if abs(summary["budget_ratio"] - 1) > BUDGET_TOLERANCE:
+        summary["warnings"].append(f"unequal render budget: N_eff = {n_eff} vs Σ N_i = {int(levels.sum())} spp per "
+                                   "image; the two ends of the interval are not compared at equal cost")
+        ctx.log(f"warning: {summary['warnings'][-1]}")
     decay = _decay(ctx, cfg, X, levels, out) if cfg["decay_weights"] > 0 and R >= 2 else None
     if decay is not None:
         summary["decay"] = decay
@@ -131,6 +167,81 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     write_csv(out / "lambda.csv", lam_rows)
     summary["plots"] = [str(q.name) for q in make_plots(out, summary)]
     return summary
+
+
+def _render_plan(ctx: RunContext, points: np.ndarray, levels: np.ndarray, n_eff: int, R: int) -> dict:
+    """Everything that fixes the renders of the render points (what a resumed run must share)."""
+    plan = {"points": points.tolist(), "levels": levels.tolist(), "n_eff": n_eff, "replicates": R, "seed": ctx.seed,
+            "scene": {k: v for k, v in ctx.model_spec.items() if k != "cache"}}
+    return json.loads(json.dumps(plan, sort_keys=True, default=repr))
+
+
+def render_points(ctx: RunContext, out: Path, points: np.ndarray, levels: np.ndarray, n_eff: int,
+                  R: int) -> tuple[torch.Tensor, torch.Tensor, int]:
+    """Level renders X (k, R, Q, *S) and N_eff renders Xe (R, Q, *S), float32, of the Q render points,
+    one executor task per point, each finished point saved to out/points/ at once; with ctx.resume
+    the saved points are read back instead of rendered. Returns (X, Xe, number of points read back)."""
+    folder, plan_file = out / "points", out / "plan.json"
+    plan = _render_plan(ctx, points, levels, n_eff, R)
+    if ctx.resume and plan_file.exists() and json.loads(plan_file.read_text()) != plan:
+        raise ValueError(f"the render plan (points, levels, n_eff, replicates, seed, scene) differs from the one "
+                         f"{out} was started with; resume with the same config or start a new run directory")
+    folder.mkdir(exist_ok=True)
+    for f in [*folder.glob(".*.tmp"), *(() if ctx.resume else folder.glob("*.npz"))]:
+        f.unlink()  # writes cut short by a kill; a fresh run's stale points
+    write_json(plan_file, plan)
+    X = Xe = None
+
+    def place(q: int, Xq: torch.Tensor, Xeq: torch.Tensor) -> None:
+        nonlocal X, Xe
+        if X is None:
+            X = torch.empty((Xq.shape[0], R, len(points), *Xq.shape[2:]), dtype=torch.float32)
+            Xe = torch.empty((R, len(points), *Xeq.shape[1:]), dtype=torch.float32)
+        X[:, :, q], Xe[:, q] = Xq, Xeq
+
+    todo = []
+    for q in range(len(points)):
+        path = folder / f"{q:05d}.npz"
+        got = _load_point(path, points[q], len(levels), R) if ctx.resume else None
+        if got is None and ctx.resume and path.exists():
+            ctx.log(f"warning: {path} unreadable or not of this plan; rendering point {q} again")
+        if got is None:
+            todo.append(q)
+        else:
+            place(q, *got)
+    seed = ctx.seed_for("inexact")
+    jobs = [(q, float(points[q]), levels.tolist(), n_eff, R, seed) for q in todo]
+    executor = ctx.executor or SerialExecutor(model=ctx.model)
+    for q, Xq, Xeq in ctx.progress(executor.imap_unordered(_render_point_sets, jobs), total=len(jobs),
+                                   desc="inexact render points"):
+        _save_point(folder / f"{q:05d}.npz", points[q], Xq, Xeq)
+        place(q, Xq, Xeq)
+    return X, Xe, len(points) - len(jobs)
+
+
+def _render_point_sets(model, job) -> tuple[int, torch.Tensor, torch.Tensor]:
+    """Executor task: (q, θ, levels, n_eff, R, seed) → (q, level renders (k, R, *S), N_eff renders (R, *S))."""
+    q, theta, levels, n_eff, R, seed = job
+    return (q, render_point(model, [theta], levels, R, seed, "levels", q),
+            render_point(model, [theta], [n_eff], R, seed, "n-eff", q)[0])
+
+
+def _save_point(path: Path, theta: float, X: torch.Tensor, Xe: torch.Tensor) -> None:
+    """One point's renders as .npz (no pickle), written atomically."""
+    with atomic(path) as tmp, open(tmp, "wb") as f:
+        np.savez(f, theta=np.float64(theta), X=X.numpy(), Xe=Xe.numpy())
+
+
+def _load_point(path: Path, theta: float, k: int, R: int) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """A saved point's (X (k, R, *S), Xe (R, *S)), or None if missing, unreadable or not θ with k levels × R."""
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            t, X, Xe = float(z["theta"]), z["X"], z["Xe"]
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+        return None
+    if t != float(theta) or X.shape[:2] != (k, R) or Xe.shape[:1] != (R,) or X.shape[2:] != Xe.shape[1:]:
+        return None
+    return torch.from_numpy(X), torch.from_numpy(Xe)
 
 
 def _decay(ctx: RunContext, cfg: dict, X, levels: np.ndarray, out: Path) -> dict:
@@ -159,7 +270,7 @@ def _analyse(ctx: RunContext, cfg: dict, m: int, noise, X, Xe, thetas, plan, lev
     n_unres = n_inv = 0
     widths, hcr_rows, lam_rows = [], [], []
     for t, (theta, (q0, d, qd)) in enumerate(zip(thetas, plan)):
-        r = inexact_hcr(X[:, :, q0], X[:, :, qd], d, levels, noise, Xe[0, :, q0], Xe[0, :, qd], n_eff,
+        r = inexact_hcr(X[:, :, q0], X[:, :, qd], d, levels, noise, Xe[:, q0], Xe[:, qd], n_eff,
                         power=p, bootstrap=cfg["bootstrap"], confidence=cfg["confidence"],
                         seed=ctx.seed_for("inexact-bootstrap", m, t))
         he, hh = r.hcr_neff, r.hcr_hat
@@ -308,7 +419,9 @@ def report(study_dir: Path, results: dict) -> str:
     name = study_dir.name
     lines = [f"HCR interval from inexact renders for θ = {results['parameter']} at {results['theta_points']} θ* "
              f"({results['render_points']} distinct render points, {results['renders']} renders, "
-             f"{results['render_seconds']:.1f} s wall time rendering). λ̂: weighted least squares of λ̃ = λ + C/N^p over "
+             f"{results['render_seconds']:.1f} s wall time rendering"
+             + (f"; {results['points_resumed']} points read back from an earlier run" if results.get("points_resumed") else "")
+             + f"). λ̂: weighted least squares of λ̃ = λ + C/N^p over "
              f"{len(lv)} levels N = {', '.join(map(str, lv))} (Σ = {results['samples_levels_per_image']} spp per image) "
              f"with p = {results['power']:.3f} ({results['power_source']}); HCR_Neff: one render set at "
              f"N_eff = {results['n_eff']} spp. Each level and N_eff: {results['replicates']} independent replicates.", "",
@@ -317,6 +430,9 @@ def report(study_dir: Path, results: dict) -> str:
              f"{results['confidence']:.0%} half-sample bootstrap intervals over the render replicates "
              f"({results['bootstrap']} resamples): how far another run of the same budget may land. "
              "Values: log10 of the bound on the variance [units²].", ""]
+    for w in results["warnings"]:
+        if w != results.get("decay", {}).get("warning"):
+            lines += [f"**Warning:** {w}.", ""]
     dec = results.get("decay")
     if dec:
         lines += [f"**Decay check** ({dec['n_weights']} random weightings of per-pixel variances): "
