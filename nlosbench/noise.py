@@ -20,6 +20,8 @@ from typing import Callable, ClassVar
 import numpy as np
 import torch
 
+from .binning import check_bin
+
 
 def to_float64(x, what: str = "input") -> torch.Tensor:
     """`x` (tensor, numpy array or memmap, any float dtype) as a float64 torch tensor (same device)."""
@@ -74,6 +76,11 @@ class NoiseModel(ABC):
     def fisher(self, L, dL) -> torch.Tensor:
         """Per-pixel Fisher information, float64. dL = ∂L/∂θ with the shape of L → (*S);
         dL of shape (P, *S) → (P, P, *S)."""
+
+    def binned(self, b: int) -> "NoiseModel":
+        """The model of one b×b-binned pixel whose value is the mean of the block's b² independent
+        observations (radiance units; see `nlosbench.binning`). Models that support binning override this."""
+        raise NotImplementedError(f"noise model {type(self).__name__} does not define binned(b)")
 
     def _inputs(self, check: bool, **arrays) -> list[torch.Tensor]:
         out = [to_float64(a, k) for k, a in arrays.items()]
@@ -185,6 +192,10 @@ class AWGN(QuadraticNoise):
     def weight(self, L0: torch.Tensor) -> torch.Tensor:
         return torch.tensor(1.0 / self.sigma**2, dtype=torch.float64, device=L0.device)
 
+    def binned(self, b: int) -> "AWGN":
+        """Mean of b² pixels with independent N(0, σ²) noise: σ/b (the block's sum carries b·σ)."""
+        return AWGN(self.sigma / check_bin(b))
+
     def sample(self, L: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         check_finite(L, "L")
         eps = torch.randn(L.shape, generator=generator, dtype=L.dtype, device=L.device)
@@ -218,6 +229,11 @@ class Poisson(QuadraticNoise):
 
     def weight(self, L0: torch.Tensor) -> torch.Tensor:
         return self.scale / L0  # +inf where L0 = 0
+
+    def binned(self, b: int) -> "Poisson":
+        """Counts of b² pixels summed (a b² larger pixel): Poisson(scale·Σ L) = b²·scale photons per unit
+        of the block's mean radiance."""
+        return Poisson(self.scale * check_bin(b) ** 2)
 
     def sample(self, L: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
         self.validate(L, "L")

@@ -49,6 +49,29 @@ def _scene_hash(path: Path) -> str:
     return h.hexdigest()
 
 
+def pruned_xml(scene_file: Path, remove: list[str]) -> str:
+    """The XML of `scene_file` without the elements whose `id` is in `remove` (anywhere in the tree),
+    relative `filename` references made absolute so the string loads like the file. ValueError names
+    ids the file does not have."""
+    import xml.etree.ElementTree as ET
+
+    # comments go first: Mitsuba's parser accepts "--" inside them (our ASCII maps), expat does not
+    root = ET.fromstring(re.sub(r"<!--.*?-->", "", scene_file.read_text(), flags=re.S))
+    ids = {e.get("id"): e for e in root.iter() if e.get("id")}
+    missing = [r for r in remove if r not in ids]
+    if missing:
+        raise ValueError(f"scene file {scene_file.name} has no element with id {missing} to remove "
+                         f"(ids: {', '.join(sorted(ids))})")
+    parent = {c: p for p in root.iter() for c in p}
+    for r in remove:
+        parent[ids[r]].remove(ids[r])
+    for e in root.iter():
+        key = "filename" if e.tag == "include" else ("value" if e.get("name") == "filename" else None)
+        if key and e.get(key) and "$" not in e.get(key) and not Path(e.get(key)).is_absolute():
+            e.set(key, str(scene_file.parent / e.get(key)))
+    return ET.tostring(root, encoding="unicode")
+
+
 class MitsubaModel(ForwardModel):
     """A Mitsuba scene file plus parameter bindings (see `bindings.py`)."""
 
@@ -57,7 +80,7 @@ class MitsubaModel(ForwardModel):
 
     def __init__(self, name: str, scene_file: str | Path, params: list[dict], variant: str | None = None,
                  defines: dict | None = None, ad_integrator: dict | None = None,
-                 max_pass_samples: int = 1 << 24, cache=None):
+                 max_pass_samples: int = 1 << 24, cache=None, remove: list[str] | None = None):
         self.variant = _variant.select(variant)
         import mitsuba as mi
 
@@ -65,9 +88,13 @@ class MitsubaModel(ForwardModel):
         if not self.scene_file.is_file():
             raise FileNotFoundError(f"scene {name!r}: scene file {self.scene_file} does not exist")
         self.defines = {k: v for k, v in (defines or {}).items()}
+        self.remove = list(remove or [])  # element ids dropped from the scene file before loading
         # optimize=False: merging meshes orders shapes and emitters differently in each process,
         # which breaks "same (θ, spp, seed) → same image" across worker processes
-        self.scene = mi.load_file(str(self.scene_file), optimize=False, **self.defines)
+        if self.remove:
+            self.scene = mi.load_string(pruned_xml(self.scene_file, self.remove), optimize=False, **self.defines)
+        else:
+            self.scene = mi.load_file(str(self.scene_file), optimize=False, **self.defines)
         MitsubaModel.loads += 1
         self._params = mi.traverse(self.scene)
         bindings = [Binding.from_spec(p) for p in params]
@@ -185,5 +212,6 @@ class MitsubaModel(ForwardModel):
         return out
 
     def content_key(self) -> dict:
-        return {"scene": self._hash, "defines": self.defines, "variant": self.variant,
-                "params": [repr(b) for b in self.binder.bindings], "max_pass_samples": self.max_pass_samples}
+        key = {"scene": self._hash, "defines": self.defines, "variant": self.variant,
+               "params": [repr(b) for b in self.binder.bindings], "max_pass_samples": self.max_pass_samples}
+        return {**key, "remove": self.remove} if self.remove else key

@@ -33,6 +33,10 @@ class RenderStats:
     def snapshot(self) -> "RenderStats":
         return RenderStats(self.renders, self.grad_passes, self.samples, self.seconds)
 
+    def __add__(self, o: "RenderStats") -> "RenderStats":
+        return RenderStats(self.renders + o.renders, self.grad_passes + o.grad_passes, self.samples + o.samples,
+                           self.seconds + o.seconds)
+
     def since(self, before: "RenderStats") -> "RenderStats":
         return RenderStats(self.renders - before.renders, self.grad_passes - before.grad_passes,
                            self.samples - before.samples, self.seconds - before.seconds)

@@ -14,7 +14,8 @@ def _plt():
     return plt
 
 
-def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = None, xlabel: str = "θ") -> Path:
+def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = None, xlabel: str = "θ",
+                      units: str = "units") -> Path:
     """log10 bound vs θ: one solid line (HCR) and, where present, dashed CRLB and dotted Barankin per noise."""
     plt = _plt()
     series = defaultdict(list)
@@ -33,10 +34,15 @@ def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = No
         ax.text(float(los_until), ax.get_ylim()[1], " NLOS →", va="top", ha="left", fontsize=8, color="gray")
         ax.text(float(los_until), ax.get_ylim()[1], "← LOS ", va="top", ha="right", fontsize=8, color="gray")
     ax.set_xlabel(xlabel)
-    ax.set_ylabel("log10 bound [units²]")
+    ax.set_ylabel(f"log10 bound [{units}²]")
+    return finish(fig, ax, path)
+
+
+def finish(fig, ax, path: Path, dpi: int = 120) -> Path:
+    """Grid, legend, tight layout; save as PNG and close the figure."""
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    fig.savefig(path, dpi=dpi)
+    _plt().close(fig)
     return path

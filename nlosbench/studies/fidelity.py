@@ -1,0 +1,490 @@
+"""Study `fidelity`: the cheapest scene model whose bound matches the highest-fidelity one.
+
+For a 1-D θ grid, every noise model and one knob at a time around a reference (the highest-fidelity
+point: the largest spp, no binning, the deepest path, FD gradients), the HCR curve (G renders,
+`bounds.hcr_curve`) and the CRLB (image Jacobian at each grid point, `bounds.crlb_log10`) are computed,
+with the point's wall time, renders and pixel-samples. Knobs:
+  spp        samples per sensor pixel of every render;
+  bin        b×b binning at a fixed photon budget (`nlosbench.binning`): rendered at full resolution with
+             spp/b² samples per pixel (the samples of a b× coarser sensor at `spp`), the renders and
+             Jacobians binned to their block means, the noise model `noise.binned(b)` (AWGN σ/b, Poisson
+             counts summed);
+  max_depth  the integrator's path depth (scene reloaded with `defines: {max_depth: d}`; 1 = emitters
+             seen directly, 2 = direct lighting, 3 = one indirect bounce, ...);
+  gradient   the CRLB's Jacobian by central FD with common random numbers (reference) or Mitsuba AD.
+Error of a point: |b/b_ref − 1| of its bounds against the reference's, aggregated (`aggregate`: max or
+median) over θ, noise models and bound kinds (HCR, CRLB). Recommendation per knob: the cheapest value
+within `tolerance` (`nlosbench.fidelity.recommend`); overall: the per-knob choices together, computed
+once more (`verify`) for their actual error and speed-up. Depth sufficiency: the max_depth points over
+the NLOS grid points (θ > `los_until`) and the depth from which the bound stops changing. Pruning: the
+reference with each element of `prune` removed from the scene (one at a time) against the full scene.
+
+Every point renders with the same derived seeds (common random numbers across settings), serially in
+this process and without the render cache, so its cost is measured; scene loads and one warm-up render
+per model (kernel compilation) are not counted. Files: fidelity.csv (a row per knob value, noise model and
+θ: bounds, errors, cost), fidelity.png (error against cost, a panel per knob), depth.png (bound against
+depth); the recommendations are in results.json.
+"""
+from __future__ import annotations
+
+import math
+import re
+import time
+from collections import defaultdict
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import bounds
+from ..binning import bin_image, check_bin
+from ..experiment.config import GRID, grid_values, smoke_grid
+from ..experiment.context import RunContext, build_model, read_csv, write_csv
+from ..experiment.schema import Field
+from ..fidelity import AGGREGATES, Point, aggregate, check_tolerance, recommend, relative_error, settled
+from ..forward.gradients import METHODS, GradientSettings, jacobian
+from ..forward.mitsuba_model import MitsubaModel, pruned_xml
+from ..forward.model import RenderStats
+from .bounds import crlb_log10
+from .plotting import _plt, finish
+
+NAME = "fidelity"
+KNOBS = ("spp", "bin", "max_depth", "gradient")
+SCHEMA = {
+    "id": Field(str, None, "folder name for this study's files", nullable=True),
+    "grid": GRID,
+    "spp": Field(list, [256, 1024, 4096], "samples per sensor pixel; the largest is the reference", items=int),
+    "bins": Field(list, [1], "binning factors b (b×b pixels → one, photon budget fixed); 1 is the reference",
+                  items=int),
+    "max_depth": Field(list, [], "integrator path depths (scene reloaded); the largest is the reference; "
+                                 "[]: the scene's own depth, not swept", items=int),
+    "gradient": Field(list, ["fd"], "Jacobian methods for the CRLB; fd (central, common random numbers) is "
+                                    "the reference", items=Field(str, choices=METHODS)),
+    "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
+    "ad": Field(dict, {}, "AD integrator options, e.g. {sppc: 4, sppp: 4, sppi: 0} for prb_projective on CPU"),
+    "seeds": Field(str, "independent", "render seeds across the θ grid: independent or common (as in `bounds`)",
+                   choices=("independent", "common")),
+    "tolerance": Field(float, 0.05, "largest relative bound error |b/b_ref − 1| a recommendation may have"),
+    "aggregate": Field(str, "max", "how a point's errors over θ, noise models and bounds combine",
+                       choices=AGGREGATES),
+    "cost": Field(str, "seconds", "cost measure: wall seconds, or pixel-samples (an AD pass counts as one "
+                                  "render's samples)", choices=("seconds", "samples")),
+    "los_until": Field(float, None, "θ where the object leaves the line of sight: depth sufficiency uses "
+                                    "θ > los_until (null: every grid point)", nullable=True),
+    "prune": Field(list, [], "scene element ids: the reference bound without each of them", items=str),
+    "verify": Field(bool, True, "compute the combined recommended setting for its actual error and speed-up"),
+}
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One point: samples per sensor pixel, binning b, path depth (None: the scene's own), Jacobian
+    method and the removed element (None: the full scene)."""
+
+    spp: int
+    bin: int
+    max_depth: int | None
+    gradient: str
+    prune: str | None = None
+
+    @property
+    def render_spp(self) -> int:
+        """Samples per full-resolution pixel (spp of the coarse sensor spread over its b² pixels)."""
+        return self.spp // self.bin ** 2
+
+
+@dataclass
+class _Bounds:
+    """One noise model's bounds at one setting over the θ grid: log10 HCR and CRLB (G,), CRLB flags, and
+    how many HCR sups sit at the smallest grid Δ (grid-limited)."""
+
+    hcr: np.ndarray
+    crlb: np.ndarray
+    flags: list[str]
+    sup_at_smallest: int
+
+
+def _integrator_depth(model) -> int | None:
+    """The loaded integrator's max_depth (None for a model without a Mitsuba scene)."""
+    scene = getattr(getattr(model, "base", model), "scene", None)
+    found = re.search(r"max_depth = (-?\d+)", str(scene.integrator())) if scene is not None else None
+    return int(found.group(1)) if found else None
+
+
+class _Sweep:
+    """Models per (depth, removed element), loaded once; render and Jacobian sets per setting, timed."""
+
+    def __init__(self, ctx: RunContext, cfg: dict, thetas: list[float], pixels: int):
+        self.ctx, self.cfg, self.thetas, self.pixels = ctx, cfg, thetas, pixels
+        self.models: dict = {}
+        self.warm: set = set()
+        self.done: dict[Setting, tuple[dict, RenderStats]] = {}
+        p = ctx.model.params
+        self.lo, self.hi = p.lower[0], p.upper[0]
+
+    def model(self, depth: int | None, prune: str | None):
+        key = (depth, prune)
+        if key not in self.models:
+            ctx = self.ctx
+            same_depth = depth is None or _integrator_depth(ctx.model) == depth
+            if same_depth and prune is None and not ctx.model_spec.get("cache"):
+                self.models[key] = ctx.model
+            else:
+                opts = dict(ctx.model_spec.get("options") or {})
+                if depth is not None:
+                    opts["defines"] = {**(opts.get("defines") or {}), "max_depth": depth}
+                if prune is not None:
+                    opts["remove"] = [*(opts.get("remove") or []), prune]
+                m = build_model({**ctx.model_spec, "options": opts, "cache": None})
+                if depth is not None and _integrator_depth(m) != depth:
+                    raise ValueError(f"max_depth: scene {m.name!r} does not take its integrator's max_depth from "
+                                     f"the define $max_depth (asked {depth}, loaded {_integrator_depth(m)})")
+                self.models[key] = m
+        return self.models[key]
+
+    def _seed(self, purpose: str, g: int) -> int:
+        return self.ctx.seed_for(purpose, 0 if self.cfg["seeds"] == "common" else g)
+
+    def _timed(self, model, spp: int, fn) -> tuple[object, RenderStats]:
+        before, t0 = model.stats.snapshot(), time.perf_counter()
+        out = fn()
+        spent, seconds = model.stats.since(before), time.perf_counter() - t0
+        return out, RenderStats(spent.renders, spent.grad_passes, spent.samples + spent.grad_passes * spp * self.pixels, seconds)
+
+    def renders(self, key: tuple, spp: int, label: str) -> tuple[np.ndarray, RenderStats]:
+        """(G, H, W, C) float32 renders of model `key` at `spp` and their cost."""
+        model = self.model(*key)
+        if ("render", key) not in self.warm:
+            model.render([self.thetas[0]], 1, self.ctx.seed_for("fidelity-warmup"))
+            self.warm.add(("render", key))
+        items = self.ctx.progress(enumerate(self.thetas), total=len(self.thetas), desc=f"{label} renders")
+        return self._timed(model, spp, lambda: np.stack(
+            [model.render([t], spp, self._seed("fidelity-grid", g)).numpy() for g, t in items]))
+
+    def jacobians(self, key: tuple, spp: int, method: str, label: str) -> tuple[np.ndarray, RenderStats]:
+        """(G, 1, H, W, C) float32 image Jacobians of model `key` by `method` and their cost."""
+        model = self.model(*key)
+        settings = GradientSettings(method, step=self.cfg["fd_step"], ad=dict(self.cfg["ad"]))
+        if method == "ad" and ("ad", key) not in self.warm:
+            jacobian(model, [self.thetas[0]], 1, self.ctx.seed_for("fidelity-warmup"), settings)
+            self.warm.add(("ad", key))
+        items = self.ctx.progress(enumerate(self.thetas), total=len(self.thetas), desc=f"{label} {method} Jacobians")
+        return self._timed(model, spp, lambda: np.stack(
+            [jacobian(model, [t], spp, self._seed("fidelity-jac", g), settings).numpy() for g, t in items]))
+
+    def bounds_of(self, R: np.ndarray, J: np.ndarray, b: int) -> dict[str, _Bounds]:
+        """Bounds per noise model from renders (G, H, W, C) and Jacobians (G, 1, H, W, C) binned by b."""
+        if b > 1:
+            R, J = bin_image(R, b), bin_image(J, b)
+        out = {}
+        for noise in self.ctx.noises:
+            nz = noise.binned(b) if b > 1 else noise
+            curve = bounds.hcr_curve(R, np.array(self.thetas), nz, self.lo, self.hi)
+            crlb = [crlb_log10(R[g], J[g], nz) for g in range(len(self.thetas))]
+            out[str(noise)] = _Bounds(curve.log10, np.array([c[0][0] for c in crlb]), [c[1] for c in crlb],
+                                      int(sum(e == "smallest" for e in curve.at_edge)))
+        return out
+
+    def evaluate(self, settings: list[Setting]) -> None:
+        """Bounds and cost of every setting not done yet; settings sharing renders share them."""
+        groups = defaultdict(list)
+        for s in dict.fromkeys(settings):
+            if s not in self.done:
+                groups[(s.max_depth, s.prune, s.render_spp)].append(s)
+        for (depth, prune, spp), group in groups.items():
+            label = f"spp {spp}" + (f", depth {depth}" if depth is not None else "") + (f", without {prune}" if prune else "")
+            R, rcost = self.renders((depth, prune), spp, label)
+            for method in dict.fromkeys(s.gradient for s in group):
+                J, jcost = self.jacobians((depth, prune), spp, method, label)
+                for s in (s for s in group if s.gradient == method):
+                    self.done[s] = (self.bounds_of(R, J, s.bin), rcost + jcost)
+            if prune is not None:
+                del self.models[(depth, prune)]  # used once: free its scene
+
+
+def _validate(ctx: RunContext, cfg: dict) -> tuple[list[float], Setting, int]:
+    """θ grid, reference setting and pixels per image (H·W); ValueError for bad input before any work."""
+    p = ctx.model.params
+    if p.dim != 1:
+        raise ValueError(f"the fidelity study needs one parameter; set scene.params to one of {list(p.names)}")
+    thetas = grid_values(cfg["grid"])
+    if len(thetas) < 2:
+        raise ValueError(f"grid: the HCR curve needs at least 2 points, got {len(thetas)}")
+    for t in (min(thetas), max(thetas)):
+        p.validate([t])
+    check_tolerance(cfg["tolerance"])
+    if not cfg["spp"] or min(cfg["spp"]) < 1:
+        raise ValueError(f"spp: need at least one value, all >= 1, got {cfg['spp']}")
+    spp_ref = max(cfg["spp"])
+    shape = ctx.model.render([thetas[0]], 1, ctx.seed_for("fidelity-warmup")).shape
+    for b in cfg["bins"]:
+        check_bin(b)
+        if spp_ref % (b * b):
+            raise ValueError(f"bins: b = {b} renders spp/b² samples per pixel; the reference spp {spp_ref} "
+                             f"is not a multiple of b² = {b * b}")
+        if shape[0] % b or shape[1] % b:
+            raise ValueError(f"bins: b = {b} does not divide the {shape[0]}×{shape[1]} image")
+    base = getattr(ctx.model, "base", ctx.model)
+    if (cfg["max_depth"] or cfg["prune"]) and not isinstance(base, MitsubaModel):
+        raise ValueError(f"max_depth and prune need a Mitsuba scene; {ctx.model.name!r} is not one")
+    if any(d < 1 for d in cfg["max_depth"]):
+        raise ValueError(f"max_depth: path depths must be >= 1, got {cfg['max_depth']}")
+    if cfg["prune"]:
+        if len(set(cfg["prune"])) != len(cfg["prune"]):
+            raise ValueError(f"prune: repeated element ids in {cfg['prune']}")
+        pruned_xml(base.scene_file, cfg["prune"])  # ValueError naming unknown ids
+        bound = {b.object or b.key.split(".")[0]: b.param.name for b in base.binder.bindings}
+        for e in cfg["prune"]:
+            if e in bound:
+                raise ValueError(f"prune: element {e!r} carries θ ({bound[e]}); removing it leaves nothing to estimate")
+    return thetas, Setting(spp_ref, 1, max(cfg["max_depth"]) if cfg["max_depth"] else None, "fd"), shape[0] * shape[1]
+
+
+def _knob_settings(cfg: dict, ref: Setting) -> dict[str, list[tuple[object, Setting]]]:
+    """(value, setting) per swept knob, reference included; knobs with one value only are left out."""
+    values = {"spp": sorted(set(cfg["spp"])), "bin": sorted(set(cfg["bins"]) | {1}),
+              "max_depth": sorted(set(cfg["max_depth"])),
+              "gradient": [m for m in METHODS if m in set(cfg["gradient"]) | {"fd"}]}
+    out = {k: [(v, replace(ref, **{k: v})) for v in vals] for k, vals in values.items() if len(vals) > 1}
+    if cfg["prune"]:
+        out["prune"] = [("none", ref)] + [(e, replace(ref, prune=e)) for e in cfg["prune"]]
+    return out
+
+
+def _errors(res: dict, ref: dict, mask: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """Relative errors against the reference: {"hcr": (N·G',), "crlb": (N·G',)} over noise models and θ (masked)."""
+    m = slice(None) if mask is None else mask
+    return {kind: np.concatenate([relative_error(getattr(res[n], kind)[m], getattr(ref[n], kind)[m]) for n in ref])
+            for kind in ("hcr", "crlb")}
+
+
+def _point(value, setting: Setting, res: dict, cost: RenderStats, ref: dict, cfg: dict) -> dict:
+    e = _errors(res, ref)
+    how = cfg["aggregate"]
+    return {"value": value, "setting": vars(setting).copy(), "cost": cost.seconds if cfg["cost"] == "seconds" else cost.samples,
+            "seconds": cost.seconds, "samples": cost.samples, "renders": cost.renders, "grad_passes": cost.grad_passes,
+            "error": aggregate(np.concatenate([e["hcr"], e["crlb"]]), how), "error_hcr": aggregate(e["hcr"], how),
+            "error_crlb": aggregate(e["crlb"], how)}
+
+
+def run(ctx: RunContext, cfg: dict) -> dict:
+    out = ctx.study_dir(cfg)
+    thetas, ref, pixels = _validate(ctx, cfg)
+    tol, how = cfg["tolerance"], cfg["aggregate"]
+    knobs = _knob_settings(cfg, ref)
+    sweep = _Sweep(ctx, cfg, thetas, pixels)
+    sweep.evaluate([ref] + [s for pts in knobs.values() for _, s in pts])
+    ref_res = sweep.done[ref][0]
+
+    rows, summary = [], {}
+    for knob, pts in knobs.items():
+        points = [_point(v, s, *sweep.done[s], ref_res, cfg) for v, s in pts]
+        ref_value = next(v for v, s in pts if s == ref)
+        summary[knob] = {"reference": ref_value, "points": points}
+        if knob != "prune":
+            rec = recommend(knob, [Point(p["value"], p["cost"], p["error"]) for p in points], ref_value, tol)
+            summary[knob]["recommendation"] = {"value": rec.value, "error": rec.error, "cost": rec.cost,
+                                               "speedup": rec.speedup}
+        for (v, s), p in zip(pts, points):
+            res = sweep.done[s][0]
+            for noise, r in res.items():
+                e_h, e_c = relative_error(r.hcr, ref_res[noise].hcr), relative_error(r.crlb, ref_res[noise].crlb)
+                for g, t in enumerate(thetas):
+                    rows.append({"knob": knob, "value": v, "reference": s == ref, **vars(s), "cost": p["cost"],
+                                 "seconds": p["seconds"], "renders": p["renders"], "noise": noise, "theta": t,
+                                 "log10_hcr": r.hcr[g], "log10_crlb": r.crlb[g], "err_hcr": e_h[g], "err_crlb": e_c[g],
+                                 "crlb_flag": r.flags[g]})
+    write_csv(out / "fidelity.csv", rows)
+
+    overall = _overall(sweep, summary, ref, cfg)
+    depth = _depth_sufficiency(sweep, summary, ref, thetas, cfg) if "max_depth" in summary else None
+    ref_cost = sweep.done[ref][1]
+    results = {"parameter": ctx.model.params.names[0], "grid_points": len(thetas), "noises": [str(n) for n in ctx.noises],
+               "reference": vars(ref).copy(), "reference_cost": {"seconds": ref_cost.seconds, "renders": ref_cost.renders},
+               "reference_sup_at_smallest_delta": sum(r.sup_at_smallest for r in ref_res.values()),
+               "tolerance": tol, "aggregate": how, "cost": cfg["cost"], "seeds": cfg["seeds"],
+               "los_until": cfg["los_until"], "knobs": summary, "overall": overall, "depth": depth,
+               # the next-lower spp's error: how far the reference itself may be from converged
+               "spp_convergence": summary["spp"]["points"][-2] if "spp" in summary else None}
+    return results  # plots: report() draws them from the saved files
+
+
+def _overall(sweep: _Sweep, summary: dict, ref: Setting, cfg: dict) -> dict:
+    """The per-knob recommendations together; with `verify`, computed for their actual error and speed-up."""
+    chosen = {k: summary[k]["recommendation"]["value"] for k in KNOBS if k in summary}
+    combo = replace(ref, **chosen)
+    predicted = math.prod(summary[k]["recommendation"]["speedup"] for k in chosen)
+    out = {"setting": vars(combo).copy(), "predicted_speedup": predicted, "verified": False, "reason": ""}
+    if not cfg["verify"] or combo == ref:
+        out["reason"] = "not requested" if not cfg["verify"] else "the reference itself"
+        return out
+    if combo.spp % combo.bin ** 2:
+        out["reason"] = f"spp {combo.spp} is not a multiple of b² = {combo.bin ** 2}: not computed"
+        return out
+    sweep.evaluate([combo])
+    p, r = (_point(name, s, *sweep.done[s], sweep.done[ref][0], cfg) for name, s in (("combined", combo), ("reference", ref)))
+    out.update(verified=True, error=p["error"], cost=p["cost"], speedup=r["cost"] / p["cost"],
+               within=p["error"] <= cfg["tolerance"])
+    return out
+
+
+def _depth_sufficiency(sweep: _Sweep, summary: dict, ref: Setting, thetas: list[float], cfg: dict) -> dict:
+    """Bound change against the deepest path over the NLOS grid points (all when none is NLOS), and the
+    depth from which it stays within tolerance."""
+    lu = cfg["los_until"]
+    mask = np.array([lu is None or t > lu for t in thetas])
+    if not mask.any():
+        mask[:] = True
+    ref_res = sweep.done[ref][0]
+    rows = []
+    for p in summary["max_depth"]["points"]:
+        res = sweep.done[Setting(**p["setting"])][0]
+        e = _errors(res, ref_res, mask)
+        rows.append({"max_depth": p["value"], "error": aggregate(np.concatenate([e["hcr"], e["crlb"]]), cfg["aggregate"]),
+                     "median_log10_hcr": {n: float(np.median(res[n].hcr[mask])) for n in res},
+                     "median_log10_crlb": {n: float(np.median(res[n].crlb[mask])) for n in res}})
+    return {"nlos_points": int(mask.sum()), "all_points": bool(mask.all()), "rows": rows,
+            "settled": settled([r["max_depth"] for r in rows], [r["error"] for r in rows], cfg["tolerance"])}
+
+
+# -- plots and report (from saved data only) ----------------------------------------------------
+def _plots(study_dir: Path, results: dict) -> None:
+    """fidelity.png (a panel per knob) and, with a depth sweep, depth.png."""
+    knobs = {k: s for k, s in results["knobs"].items() if k != "prune"}
+    if knobs:
+        _knob_plot(knobs, results, study_dir / "fidelity.png")
+    if results["depth"] is not None:
+        _depth_plot(read_csv(study_dir / "fidelity.csv"), results, study_dir / "depth.png")
+
+
+def _knob_plot(knobs: dict, results: dict, path: Path) -> Path:
+    """Per knob: relative bound error against cost (log-log); errors of 0 drawn at the bottom edge (▼),
+    errors ≥ 100 (10⁴ %) or ∞ at the top edge (▲)."""
+    plt = _plt()
+    from matplotlib.ticker import FuncFormatter, LogLocator
+
+    tol = results["tolerance"]
+    fig, axes = plt.subplots(1, len(knobs), figsize=(4 * len(knobs), 3.6), squeeze=False)
+    for ax, (knob, s) in zip(axes[0], knobs.items()):
+        shown = [p["error"] for p in s["points"] if 0 < p["error"] < 100]
+        floor, top = tol / 100, max([tol * 10] + [2 * e for e in shown])
+        for p in s["points"]:
+            e = p["error"]
+            y, marker = (floor, "v") if e == 0 else ((top, "^") if e >= 100 else (e, "o"))
+            ax.loglog(p["cost"], y, marker, color="C3" if p["value"] == s["reference"] else "C0")
+            ax.annotate(str(p["value"]), (p["cost"], y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+        ax.axhline(tol, ls="--", color="gray", lw=0.8)
+        ax.minorticks_off()  # few plain tick labels: mathtext and minor ticks make the plot slow
+        for axis, subs in ((ax.xaxis, (1.0, 2.0, 5.0)), (ax.yaxis, (1.0,))):
+            axis.set_major_locator(LogLocator(subs=subs, numticks=8))
+            axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.set_xlabel("cost [s]" if results["cost"] == "seconds" else "cost [pixel-samples]")
+        ax.set_title(f"{knob} (reference {s['reference']}: red)", fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel(f"relative bound error (- - tolerance {tol:g}; ▼ 0, ▲ ≥ 100)", fontsize=8)
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.16, top=0.9, wspace=0.3)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _depth_plot(rows: list[dict], results: dict, path: Path) -> Path:
+    """Median log10 HCR (solid, min–max band) and CRLB (dashed) over the NLOS θ against path depth."""
+    plt = _plt()
+    lu = results["los_until"]
+    depth_rows = [r for r in rows if r["knob"] == "max_depth" and (lu is None or float(r["theta"]) > lu
+                                                                    or results["depth"]["all_points"])]
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    for i, noise in enumerate(results["noises"]):
+        by = defaultdict(lambda: ([], []))
+        for r in depth_rows:
+            if r["noise"] == noise:
+                by[int(r["value"])][0].append(float(r["log10_hcr"]))
+                by[int(r["value"])][1].append(float(r["log10_crlb"]))
+        d = sorted(by)
+        fin = [np.array([v for v in by[k][0] if math.isfinite(v)] or [np.nan]) for k in d]
+        ax.plot(d, [np.median(f) for f in fin], "o-", color=f"C{i}", label=f"HCR, {noise}")
+        ax.fill_between(d, [f.min() for f in fin], [f.max() for f in fin], color=f"C{i}", alpha=0.15)
+        crlb = [np.median([v for v in by[k][1] if math.isfinite(v)] or [np.nan]) for k in d]
+        ax.plot(d, crlb, "s--", color=f"C{i}", label=f"CRLB, {noise}")
+    ax.set_xticks(d)
+    ax.set_xlabel("max_depth (1: emitters seen directly, 2: direct light, ...)")
+    ax.set_ylabel("log10 bound, NLOS θ [units²]")
+    return finish(fig, ax, path)
+
+
+def smoke(block: dict) -> dict:
+    """A seconds-long copy: 3 grid points, spp [4, 16], bins [1, 2], two depths, one pruned element."""
+    two = lambda xs: sorted(set(xs))[:1] + sorted(set(xs))[-1:] if len(set(xs)) > 1 else list(xs)  # noqa: E731
+    return {**block, "grid": smoke_grid(block["grid"], 3), "spp": [4, 16] if len(set(block["spp"])) > 1 else [16],
+            "bins": [1, 2] if any(b > 1 for b in block["bins"]) else [1], "max_depth": two(block["max_depth"]),
+            "prune": block["prune"][:1]}
+
+
+def _pct(e: float) -> str:
+    return "∞" if math.isinf(e) else f"{100 * e:.3g} %"
+
+
+def report(study_dir: Path, results: dict) -> str:
+    _plots(study_dir, results)
+    ref, tol = results["reference"], results["tolerance"]
+    unit = "s" if results["cost"] == "seconds" else "pixel-samples"
+    rc = results["reference_cost"]
+    lines = [f"Bound error against cost, one knob at a time around the reference (spp {ref['spp']} per sensor pixel, "
+             f"no binning, max_depth {ref['max_depth'] or 'of the scene'}, FD Jacobians): {results['grid_points']}-point "
+             f"grid of {results['parameter']}, {results['seeds']} seeds, noise {', '.join(results['noises'])}. Error = "
+             f"{results['aggregate']} over θ, noise models and bounds (HCR, CRLB) of |b/b_ref − 1|; cost in {unit} "
+             f"(renders and Jacobians; scene loads and warm-up excluded). Reference: {rc['seconds']:.3g} s, "
+             f"{rc['renders']} renders. Tolerance {_pct(tol)}."
+             + (f" In {results['reference_sup_at_smallest_delta']} (θ, noise) pairs the reference HCR's sup sits at the "
+                "smallest grid Δ: a finer grid may raise those bounds, whose errors then compare grid-limited values."
+                if results["reference_sup_at_smallest_delta"] else ""), "",
+             f"| knob | value | cost [{unit}] | renders | error HCR | error CRLB | error | within |", "|---|---|---|---|---|---|---|---|"]
+    conv = results.get("spp_convergence")
+    if conv is not None and conv["error"] > tol:
+        lines[1:1] = ["", f"**Caution:** at {conv['value']} spp the bound differs from the reference's by {_pct(conv['error'])}: "
+                      "the reference is not converged in spp, so every error below includes rendering noise of about that "
+                      "size (bounds from Monte Carlo renders are biased low; see the `inexact` study). Raise the reference "
+                      "spp or use common seeds before trusting a recommendation."]
+    for knob, s in results["knobs"].items():
+        if knob == "prune":
+            continue
+        for p in s["points"]:
+            mark = " (ref)" if p["value"] == s["reference"] else ""
+            work = f"{p['renders']}" + (f" + {p['grad_passes']} AD passes" if p["grad_passes"] else "")
+            lines.append(f"| {knob} | {p['value']}{mark} | {p['cost']:.4g} | {work} | {_pct(p['error_hcr'])} | "
+                         f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {'yes' if p['error'] <= tol else 'no'} |")
+    lines += ["", "| knob | recommended | reference | error | speed-up |", "|---|---|---|---|---|"]
+    for knob, s in results["knobs"].items():
+        if "recommendation" in s:
+            r = s["recommendation"]
+            lines.append(f"| {knob} | {r['value']} | {s['reference']} | {_pct(r['error'])} | {r['speedup']:.3g}× |")
+    o = results["overall"]
+    combo = ", ".join(f"{k} {o['setting'][k]}" for k in ("spp", "bin", "max_depth", "gradient") if o["setting"][k] is not None)
+    lines += ["", f"**Overall:** {combo}; predicted speed-up {o['predicted_speedup']:.3g}× (product of the knobs'). "
+              + (f"Computed: error {_pct(o['error'])} ({'within' if o['within'] else 'NOT within'} tolerance: "
+                 f"{'the errors do not compound here' if o['within'] else 'the errors compound: keep one knob at its reference'}), "
+                 f"speed-up {o['speedup']:.3g}×." if o["verified"] else f"Not computed ({o['reason']}).")]
+    lines += ["", f"![bound error against cost]({study_dir.name}/fidelity.png)"]
+    d = results["depth"]
+    if d is not None:
+        where = "all grid points" if d["all_points"] else f"the {d['nlos_points']} NLOS grid points (θ > {results['los_until']})"
+        lines += ["", f"**Depth sufficiency** over {where}: the bound stops changing (within {_pct(tol)}) from "
+                  f"max_depth {d['settled']} on.", "",
+                  "| max_depth | change vs deepest | " + " | ".join(f"median log10 HCR, {n}" for n in results["noises"]) + " |",
+                  "|---|---|" + "---|" * len(results["noises"])]
+        for r in d["rows"]:
+            lines.append(f"| {r['max_depth']} | {_pct(r['error'])} | "
+                         + " | ".join(f"{r['median_log10_hcr'][n]:.4g}" for n in results["noises"]) + " |")
+        lines += ["", "(±inf: no usable Δ or no information at that depth, e.g. the object does not show in the image; "
+                  "the plot leaves such values out.)", "", f"![depth]({study_dir.name}/depth.png)"]
+    if "prune" in results["knobs"]:
+        s = results["knobs"]["prune"]
+        base = next(p for p in s["points"] if p["value"] == "none")
+        lines += ["", "**Scene pruning:** the reference bound with one element removed.", "",
+                  "| element removed | error HCR | error CRLB | bound depends on it | cost vs full scene |", "|---|---|---|---|---|"]
+        for p in s["points"]:
+            if p["value"] != "none":
+                lines.append(f"| {p['value']} | {_pct(p['error_hcr'])} | {_pct(p['error_crlb'])} | "
+                             f"{'yes' if p['error'] > tol else 'no'} | {p['cost'] / base['cost']:.3g}× |")
+    return "\n".join(lines)

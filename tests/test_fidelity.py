@@ -1,0 +1,259 @@
+"""Fidelity sweeps: the recommendation logic, pixel binning at a fixed photon budget, scene pruning, and
+the `fidelity` study end to end (analytic toy with a known cost curve; real cornell_ball renders)."""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+import nlosbench as nb
+from nlosbench import bounds
+from nlosbench.binning import bin_image
+from nlosbench.cli import main
+from nlosbench.experiment import config
+from nlosbench.experiment.context import RunContext, read_csv
+from nlosbench.fidelity import Point, aggregate, recommend, relative_error, settled
+from nlosbench.forward.gradients import GradientSettings, fd_jacobian
+from nlosbench.studies import fidelity as study
+from nlosbench.studies.bounds import crlb_log10
+
+NOISES = [nb.noise.AWGN(sigma=0.3), nb.noise.Poisson(scale=5.0)]
+
+
+# -- pure logic --------------------------------------------------------------------------------
+def test_relative_error_is_exact_and_handles_infinities():
+    assert relative_error(math.log10(1.03), 0.0) == pytest.approx(0.03, rel=1e-12)
+    assert relative_error(-5.0, -5.0 + math.log10(2.0)) == pytest.approx(0.5, rel=1e-12)  # b = b_ref / 2
+    d = 1e-15  # expm1 keeps full relative accuracy for tiny differences
+    assert relative_error(d, 0.0) == pytest.approx(d * math.log(10.0), rel=1e-9)
+    got = relative_error([np.inf, -np.inf, np.inf, -np.inf, 3.0], [np.inf, -np.inf, 1.0, 1.0, np.inf])
+    assert got.tolist() == [0.0, 0.0, np.inf, np.inf, np.inf]
+    assert relative_error(-1e4, -1.1e4) == np.inf  # 10^1000 overflows: honestly infinite, not NaN
+    with pytest.raises(ValueError, match="NaN"):
+        relative_error([np.nan], [0.0])
+    assert aggregate([0.1, 0.3, 0.2]) == 0.3 and aggregate([0.1, 0.3, 0.2], "median") == 0.2
+    with pytest.raises(ValueError, match="aggregate"):
+        aggregate([0.1], "mean")
+
+
+def test_recommendation_on_a_known_cost_accuracy_curve():
+    """Error halves as cost doubles (e_k = 0.4/2^k, cost 2^k): with 5 % the first setting within is k = 3;
+    its speed-up over the reference k = 5 is 2^5/2^3 = 4."""
+    pts = [Point(k, 2.0 ** k, 0.4 / 2 ** k if k < 5 else 0.0) for k in range(6)]
+    r = recommend("spp", pts, reference=5, tolerance=0.05)
+    assert (r.value, r.speedup, r.error) == (3, 4.0, 0.05)
+    assert recommend("spp", pts, 5, 0.049).value == 4  # 0.05 > 0.049: one step costlier
+    assert recommend("spp", pts, 5, 1.0).value == 0
+    # cost need not follow the value order; ∞ errors never qualify; equal costs keep the first listed
+    pts = [Point("a", 5.0, 0.0), Point("b", 1.0, math.inf), Point("c", 2.0, 0.01), Point("d", 2.0, 0.02)]
+    r = recommend("gradient", pts, "a", 0.05)
+    assert (r.value, r.speedup) == ("c", 2.5)
+    assert recommend("gradient", pts, "a", 0.001).value == "a"  # nothing cheaper qualifies: the reference
+
+
+def test_depth_settles_where_every_later_change_is_within_tolerance():
+    depths = [1, 2, 3, 4, 5, 6]
+    assert settled(depths, [math.inf, 0.5, 0.04, 0.06, 0.01, 0.0], 0.05) == 5  # 4 still changes by 6 %
+    assert settled(depths, [math.inf, 0.5, 0.04, 0.03, 0.01, 0.0], 0.05) == 3
+    assert settled(depths, [0.0] * 6, 0.05) == 1
+
+
+@pytest.mark.parametrize("tol", [0.0, -0.1, math.nan, math.inf, True])
+def test_bad_tolerance_is_refused(tol):
+    with pytest.raises(ValueError, match="tolerance"):
+        recommend("spp", [Point(1, 1.0, 0.0)], 1, tol)
+
+
+def test_bad_tables_are_refused():
+    with pytest.raises(ValueError, match="reference 7 is not among"):
+        recommend("spp", [Point(1, 1.0, 0.0)], 7, 0.05)
+    with pytest.raises(ValueError, match="cost"):
+        recommend("spp", [Point(1, 0.0, 0.0)], 1, 0.05)
+    with pytest.raises(ValueError, match="as many errors"):
+        settled([1, 2], [0.0], 0.05)
+
+
+# -- binning -----------------------------------------------------------------------------------
+def _bound_set(R, J, noise, thetas):
+    """log10 HCR curve (G,) and log10 CRLB (G,) from renders (G, H, W, C) and Jacobians (G, 1, H, W, C)."""
+    hcr = bounds.hcr_curve(R, thetas, noise).log10
+    crlb = np.array([crlb_log10(R[g], J[g], noise)[0][0] for g in range(len(thetas))])
+    return hcr, crlb
+
+
+@pytest.mark.parametrize("noise", NOISES, ids=str)
+def test_binning_an_image_constant_within_bins_keeps_every_bound(noise, rng):
+    """Image and derivative constant in each b×b block: the block means with σ/b (AWGN) or summed counts
+    (Poisson) are sufficient statistics, so HCR and CRLB are unchanged (to rounding)."""
+    b, G = 3, 5
+    thetas = np.linspace(0.0, 0.4, G)
+    coarse = rng.uniform(0.5, 2.0, (G, 4, 5, 3)) + thetas[:, None, None, None] * rng.uniform(0, 1, (4, 5, 3))
+    up = lambda x: x.repeat(b, axis=-3).repeat(b, axis=-2)  # noqa: E731
+    R, J = up(coarse), up(rng.normal(0, 1, (G, 1, 4, 5, 3)))
+    full = _bound_set(R, J, noise, thetas)
+    binned = _bound_set(bin_image(R, b), bin_image(J, b), noise.binned(b), thetas)
+    for f, g in zip(full, binned):
+        np.testing.assert_allclose(g, f, rtol=1e-12)
+
+
+@pytest.mark.parametrize("noise", NOISES, ids=str)
+def test_binning_a_generic_image_never_lowers_a_bound(noise, rng):
+    """Data processing: binning loses information, so every λ shrinks and every bound grows (or stays)."""
+    b, G = 2, 6
+    thetas = np.linspace(0.0, 0.5, G)
+    R = rng.uniform(0.2, 2.0, (G, 8, 6, 3))
+    J = rng.normal(0, 1, (G, 1, 8, 6, 3))
+    lam, lam_b = (bounds.pairwise_lambda(x, n) for x, n in ((R, noise), (bin_image(R, b), noise.binned(b))))
+    assert np.all(lam_b <= lam * (1 + 1e-12)) and np.any(lam_b < 0.9 * lam)
+    full = _bound_set(R, J, noise, thetas)
+    binned = _bound_set(bin_image(R, b), bin_image(J, b), noise.binned(b), thetas)
+    for f, g in zip(full, binned):
+        assert np.all(g >= f - 1e-12)
+
+
+def test_binned_noise_models_and_bad_factors():
+    assert nb.noise.AWGN(sigma=0.4).binned(2) == nb.noise.AWGN(sigma=0.2)
+    assert nb.noise.Poisson(scale=3.0).binned(3) == nb.noise.Poisson(scale=27.0)
+    assert bin_image(np.ones((4, 6, 3)), 1).shape == (4, 6, 3)
+    for b in (0, 1.5, True, "2"):
+        with pytest.raises(ValueError, match="binning factor"):
+            bin_image(np.ones((4, 4, 3)), b)
+    with pytest.raises(ValueError, match="cannot bin a 4×6 image by b = 4"):
+        bin_image(np.ones((4, 6, 3)), 4)
+
+
+# -- scene pruning -------------------------------------------------------------------------------
+def test_scene_elements_can_be_removed_before_loading(cornell):
+    theta = [0.0, 0.3, 0.8]
+    dark = nb.scenes.get("cornell_ball", remove=["light"])
+    assert float(dark.render(theta, 4, 0).abs().max()) == 0.0  # the only emitter is gone
+    assert dark.content_key() != cornell.content_key()  # cached renders cannot mix
+    with pytest.raises(ValueError, match=r"no element with id \['lamp'\].*ids: back, ball"):
+        nb.scenes.get("cornell_ball", remove=["lamp"])
+
+
+# -- the study end to end --------------------------------------------------------------------------
+def _run(tmp_path: Path, raw: dict) -> tuple[Path, dict]:
+    path = tmp_path / "cfg.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "run"
+    assert main(["run", str(path), "--out", str(out), "--quiet"]) == 0
+    return out, json.loads((out / "results.json").read_text())["studies"]["00-fidelity"]["results"]
+
+
+TOY = {"name": "toy", "seed": 5, "executor": {"type": "serial"},
+       "scene": {"name": "blob2d", "options": {"width": 0.2}, "params": ["x"]},
+       "noise": [{"model": "awgn", "sigma": 2.0}],
+       "studies": [{"type": "fidelity", "grid": {"start": 0.35, "stop": 0.65, "num": 7}, "spp": [36, 144],
+                    "bins": [1, 2, 3, 4, 6], "gradient": ["fd", "ad"], "cost": "samples"}]}
+
+
+def test_toy_study_picks_the_settings_of_its_known_cost_curve(tmp_path):
+    """blob2d is exact (no rendering noise), cost counted in pixel-samples, so the curve is known:
+    spp changes nothing (error 0, cost ∝ spp: 144/36 = 4×); bin b costs 1/b² and its error equals an
+    independent computation on block sums with AWGN σ·b; AD (exact) differs from FD (ξ = 0.01) by the FD
+    truncation error only, at 2 passes per point against 3 (1.5×)."""
+    out, res = _run(tmp_path, TOY)
+    k = res["knobs"]
+    assert [p["error"] for p in k["spp"]["points"]] == [0.0, 0.0]
+    assert k["spp"]["recommendation"] == {"value": 36, "error": 0.0, "cost": k["spp"]["points"][0]["cost"], "speedup": 4.0}
+
+    model = nb.scenes.get("blob2d", width=0.2).restrict(["x"])
+    thetas = np.linspace(0.35, 0.65, 7)
+    R = np.stack([model.render([t], 1, 0).numpy() for t in thetas]).astype(np.float64)
+    J = np.stack([fd_jacobian(model, [t], 1, 0, GradientSettings(step=0.01)).numpy() for t in thetas]).astype(np.float64)
+    sums = lambda x, b: x.reshape(*x.shape[:-3], 24 // b, b, 24 // b, b, 1).sum(axis=(-4, -2))  # noqa: E731
+    ref = _bound_set(R, J, nb.noise.AWGN(2.0), thetas)
+    expected = {}
+    for b in (2, 3, 4, 6):
+        got = _bound_set(sums(R, b), sums(J, b), nb.noise.AWGN(2.0 * b), thetas)
+        expected[b] = max(relative_error(g, r).max() for g, r in zip(got, ref))
+    points = {p["value"]: p for p in k["bin"]["points"]}
+    for b, e in expected.items():
+        assert points[b]["error"] == pytest.approx(e, rel=1e-9)
+        assert points[1]["cost"] / points[b]["cost"] == b * b
+    assert expected[2] < 0.05 < expected[3]  # so the right pick is b = 2, neither end of the list
+    assert (k["bin"]["recommendation"]["value"], k["bin"]["recommendation"]["speedup"]) == (2, 4.0)
+
+    ad = next(p for p in k["gradient"]["points"] if p["value"] == "ad")
+    assert 0 < ad["error"] < 0.05 and ad["error_hcr"] == 0.0  # AD changes the CRLB only
+    assert (k["gradient"]["recommendation"]["value"], k["gradient"]["recommendation"]["speedup"]) == ("ad", 1.5)
+    o = res["overall"]
+    assert o["setting"] == {"spp": 36, "bin": 2, "max_depth": None, "gradient": "ad", "prune": None}
+    assert o["verified"] and o["speedup"] == pytest.approx(4 * 4 * 1.5, rel=1e-12) == o["predicted_speedup"]
+    report = (out / "report.md").read_text()
+    assert f"| bin | 2 | 1 | {study._pct(expected[2])} | 4× |" in report and "**Caution:**" not in report
+
+
+CORNELL = {"name": "cornell-fidelity", "seed": 2, "executor": {"type": "serial"},
+           "scene": {"name": "cornell_ball", "options": {"defines": {"res": 16}}, "params": ["ball_x"]},
+           "noise": [{"model": "awgn", "sigma": 1.0}, {"model": "poisson", "scale": 10.0}],
+           "studies": [{"type": "fidelity", "grid": {"start": -0.06, "stop": 0.06, "num": 4}, "spp": [4, 16],
+                        "bins": [1, 2], "max_depth": [2, 3], "fd_step": 0.02, "los_until": 0.0,
+                        "prune": ["green_wall"]}]}
+
+
+def test_cornell_study_runs_end_to_end_and_its_report_reproduces(tmp_path):
+    """Real renders through the runner: every knob point, depth sufficiency and pruning, then `report`
+    re-makes report.md and the plots from the saved files alone."""
+    out, res = _run(tmp_path, CORNELL)
+    d = out / "00-fidelity"
+    rows = read_csv(d / "fidelity.csv")
+    n_points = sum(len(s["points"]) for s in res["knobs"].values())
+    assert n_points == 2 + 2 + 2 + 2 and len(rows) == n_points * 2 * 4
+    assert all(float(r["err_hcr"]) == float(r["err_crlb"]) == 0.0 for r in rows if r["reference"] == "True")
+    k = res["knobs"]
+    assert all(p["renders"] == 3 * 4 and p["cost"] > 0 for s in k.values() for p in s["points"])  # image + FD pair
+    spp4, bin2 = k["spp"]["points"][0], next(p for p in k["bin"]["points"] if p["value"] == 2)
+    assert bin2["seconds"] == spp4["seconds"]  # bin 2 at 16 spp renders 16/4 per pixel: the spp-4 set, shared
+    depth2 = next(p for p in k["max_depth"]["points"] if p["value"] == 2)
+    assert depth2["error"] > 0  # a Cornell box without indirect light is another image
+    assert res["depth"]["settled"] in (2, 3) and res["depth"]["nlos_points"] == 2
+    assert next(p for p in k["prune"]["points"] if p["value"] == "green_wall")["error"] > 0
+    report = (out / "report.md").read_text()
+    assert "**Depth sufficiency**" in report and "| green_wall |" in report and "**Overall:**" in report
+    assert ("**Caution:**" in report) == (res["spp_convergence"]["error"] > 0.05)  # reference not converged in spp
+    for f in ("fidelity.png", "depth.png"):
+        (d / f).unlink()
+    (out / "report.md").unlink()
+    assert main(["report", str(out)]) == 0
+    assert (out / "report.md").read_text() == report
+    assert (d / "fidelity.png").stat().st_size > 0 and (d / "depth.png").stat().st_size > 0
+
+
+def _ctx(tmp_path, raw):
+    cfg = config.resolve(raw)
+    return RunContext.create(cfg, tmp_path, quiet=True), cfg["studies"][0]
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"tolerance": 0.0}, "tolerance must be a finite number > 0"),
+    ({"bins": [1, 5], "spp": [25]}, r"b = 5 does not divide the 24×24 image"),
+    ({"bins": [1, 4], "spp": [8]}, r"reference spp 8 is not a multiple of b² = 16"),
+    ({"bins": [0]}, "binning factor must be an integer >= 1"),
+    ({"max_depth": [2, 4]}, "max_depth and prune need a Mitsuba scene"),
+])
+def test_bad_toy_settings_are_refused_before_any_work(tmp_path, change, message):
+    ctx, block = _ctx(tmp_path, {**TOY, "studies": [{**TOY["studies"][0], **change}]})
+    with pytest.raises(ValueError, match=message):
+        study.run(ctx, block)
+    assert ctx.model.stats.renders <= 1  # at most the 1-spp probe of the image size
+
+
+def test_bad_mitsuba_settings_are_refused(tmp_path):
+    base = CORNELL["studies"][0]
+    ctx, block = _ctx(tmp_path, {**CORNELL, "studies": [{**base, "prune": ["green_wall", "lamp"]}]})
+    with pytest.raises(ValueError, match=r"no element with id \['lamp'\]"):
+        study.run(ctx, block)
+    for change, message in (({"prune": ["ball"]}, "'ball' carries θ"), ({"max_depth": [0, 3]}, "depths must be >= 1")):
+        with pytest.raises(ValueError, match=message):
+            study.run(ctx, {**block, **change})
+
+
+def test_smoke_shrinks_the_paper_config_and_stays_valid():
+    cfg = config.load(Path(__file__).parents[1] / "configs" / "paper_fidelity.yaml", smoke=True)
+    s = cfg["studies"][0]
+    assert s["spp"] == [4, 16] and s["bins"] == [1, 2] and len(s["max_depth"]) == 2 and len(s["prune"]) <= 1
+    assert config.grid_values(s["grid"]).__len__() <= 3
