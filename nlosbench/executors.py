@@ -94,15 +94,19 @@ def _default_threads(workers: int) -> int:
     return max(1, (os.cpu_count() or 1) // workers)
 
 
+def _check_workers(workers) -> int:
+    if isinstance(workers, bool) or int(workers) != workers or workers < 1:
+        raise ValueError(f"workers must be a positive integer, got {workers!r}")
+    return int(workers)
+
+
 class LocalPoolExecutor(Executor):
     """A pool of `workers` spawned processes, each loading the scene once (on its first task) and
     using `threads` CPU threads for torch and Dr.Jit (default: cores / workers). At most
     `2 × workers` tasks are queued at a time, so a stopped run leaves little work in flight."""
 
     def __init__(self, spec: dict, workers: int = 2, threads: int | None = None):
-        if isinstance(workers, bool) or int(workers) != workers or workers < 1:
-            raise ValueError(f"workers must be a positive integer, got {workers!r}")
-        self.spec, self.workers = spec, int(workers)
+        self.spec, self.workers = spec, _check_workers(workers)
         self.threads = threads or _default_threads(self.workers)
         self._pool: ProcessPoolExecutor | None = None
 
@@ -140,7 +144,7 @@ class DaskExecutor(Executor):
             import distributed  # noqa: F401
         except ImportError:
             raise ImportError("the dask executor needs dask.distributed: pip install 'nlosbench[dask]'") from None
-        self.spec, self.address, self.workers = spec, address, int(workers)
+        self.spec, self.address, self.workers = spec, address, _check_workers(workers)
         self.threads = threads or _default_threads(self.workers)
         self._client = None
         self._cluster = None

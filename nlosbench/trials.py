@@ -3,9 +3,11 @@
 For each noise model j, θ* (index i) and trial k: a fresh noisy image y = noise.sample(L_θ*) of the
 clean image (rendered once at N_eff and reused), a fresh start, and one fit per estimator setting —
 every setting sees the same y and start (paired comparison). Seeds derive from the experiment seed,
-the purpose and (j, i, k). Each finished trial is appended to `trials.jsonl` with flush + fsync, so a
-killed run resumes without losing or repeating a trial; the summary sorts records first, so it does
-not depend on the order in which trials finished.
+the purpose and the indices: the noise of y from (j, i, k); the start and the fit's generator (its
+render seeds) from (i, k), so the noise models are compared from the same starts too. Each finished
+trial is appended to `trials.jsonl` with flush + fsync, so a killed run resumes without losing or
+repeating a trial; the summary sorts records first, so it does not depend on the order in which
+trials finished.
 """
 from __future__ import annotations
 

@@ -65,6 +65,14 @@ def test_entry_point_plugin_is_listed_built_and_fitted(plugin):
     assert e.theta.tolist() == pytest.approx([0.6]) and e.converged and e.renders == 0
 
 
+def test_cli_lists_estimators_with_the_plugin(plugin, capsys):
+    from nlosbench import cli
+
+    assert cli.main(["list", "estimators"]) == 0
+    listed = {line.split()[0].rstrip(":") for line in capsys.readouterr().out.splitlines() if line.strip()}
+    assert {"constant", "mle-adam", "grid-search", "gauss-newton", "multi-start"} <= listed
+
+
 def test_broken_plugin_names_its_entry_point(monkeypatch):
     ep = importlib.metadata.EntryPoint(name="broken", value="no_such_module_xyz:Thing", group=estimators.ENTRY_POINT_GROUP)
     monkeypatch.setattr(importlib.metadata, "entry_points", lambda **kw: importlib.metadata.EntryPoints([ep]))
@@ -222,8 +230,8 @@ def test_reduced_benchmark_rows():
     from nlosbench.benchmarks import estimators as bench
 
     rows = bench.run(reduced=True)
-    per = [r for r in rows if r["name"] == "per-trial"]
+    per = [r for r in rows if r["bench"] == "per-trial"]
     assert {r["scene"] for r in per} == {"blob2d", "edge1d"} and all(r["failed"] == 0 for r in per)
     assert all(r["seconds"] > 0 and r["renders"] + r["ad_passes"] > 0 for r in per)
-    (recipe,) = [r for r in rows if r["name"] == "paper-recipe"]
+    (recipe,) = [r for r in rows if r["bench"] == "paper-recipe"]
     assert recipe["reached"] and recipe["renders_ratio"] > 1, recipe

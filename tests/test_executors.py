@@ -1,6 +1,6 @@
 """Executors: a spawned process pool loads the real Mitsuba scene once per worker and renders bit for
 bit what this process renders; trials through the pool and through Dask (LocalCluster) give exactly
-the records of a serial run."""
+the records of a serial run, each worker having built its model once."""
 import os
 
 import numpy as np
@@ -36,6 +36,11 @@ def test_pool_workers_load_the_scene_once_and_render_bit_identically(cornell):
         assert torch.equal(img, ball_x.render([x], 16, 7))
 
 
+def probe_task(model, x):
+    """Runs in a worker: (process id, models built in that process)."""
+    return os.getpid(), executors.builds
+
+
 def _trials():
     model = nb.scenes.get(BLOB["name"], **BLOB["options"])
     noise = nb.noise.AWGN(0.05)
@@ -58,8 +63,10 @@ def test_trials_through_workers_match_a_serial_run(tmp_path, make):
     serial = run_trials(SerialExecutor(model), trials, tmp_path / "serial" / LOG_NAME)
     with make() as ex:
         remote = run_trials(ex, trials, tmp_path / "remote" / LOG_NAME)
+        probes = list(ex.imap_unordered(probe_task, range(4)))
     assert len(remote) == len(trials) == 12
     assert _comparable(remote) == _comparable(serial)
+    assert all(pid != os.getpid() and builds == 1 for pid, builds in probes)  # one model per worker process
 
 
 def test_create_from_the_run_config(cornell):
@@ -69,8 +76,9 @@ def test_create_from_the_run_config(cornell):
     assert isinstance(executors.create({"type": "dask", "workers": 2, "address": None}, CORNELL), DaskExecutor)
     with pytest.raises(ValueError, match="unknown executor type 'mpi'"):
         executors.create({"type": "mpi"}, CORNELL)
-    with pytest.raises(ValueError, match="workers must be a positive integer"):
-        LocalPoolExecutor(CORNELL, workers=0)
+    for make in (LocalPoolExecutor, DaskExecutor):
+        with pytest.raises(ValueError, match="workers must be a positive integer"):
+            make(CORNELL, workers=0)
 
 
 def test_serial_executor_uses_the_given_model_without_loading():

@@ -17,6 +17,7 @@ from nlosbench import estimators
 from nlosbench.bounds import crlb, fisher_matrix
 from nlosbench.estimators import Estimator
 from nlosbench.executors import SerialExecutor
+from nlosbench.experiment.config import load as load_config
 from nlosbench.experiment.config import resolve
 from nlosbench.experiment.context import RunContext, read_csv
 from nlosbench.experiment.schema import ConfigError
@@ -76,6 +77,11 @@ def test_edge1d_mse_respects_hcr_and_far_above_is_flagged(tmp_path):
         assert "hcr" in r["far_above"].split(",") and r["mse_over_hcr"] > 100, r
     md = study.report(ctx.dir / "trials", res)
     assert "far above hcr,crlb,barankin" in md and "gauss-newton at θ* #0" in md
+    # the paper's MLE-vs-HCR table: θ*, the bounds, then MSE and Var of each estimator
+    assert ("| θ* (m) | HCR_Neff | CRLB | Barankin | MSE(mle-adam) | Var(mle-adam) | MSE(grid-search) | "
+            "Var(grid-search) | MSE(gauss-newton) | Var(gauss-newton) |") in md
+    adam = next(r for r in rows if r["estimator"] == "mle-adam" and r["theta_index"] == 1)
+    assert f"| {adam['mse']:.4g} | {adam['var']:.4g} |" in md
     assert (ctx.dir / "trials" / "plots" / "mse_vs_theta.png").stat().st_size > 1000
 
 
@@ -83,15 +89,18 @@ def test_cornell_study_produces_a_complete_summary(tmp_path):
     """The real 32×32 Mitsuba scene, θ = ball_x: two estimators, two θ*, two trials each (tiny spp)."""
     ctx, block = make_ctx(tmp_path, {"name": "cornell_ball", "params": ["ball_x"]}, {
         "theta": [-0.1, 0.15], "n": 2, "n_eff": 64, "hcr_grid": 5, "hcr_offsets": 2, "fd_step": 0.02,
-        "estimators": [{"name": "mle-adam", "label": "adam-fd", "options": {"lr": 0.1, "iterations": 6, "spp": 16},
-                        "gradient": {"method": "fd", "step": 0.02}},
+        "estimators": [{"name": "mle-adam", "label": "adam-auto", "options": {"lr": 0.1, "iterations": 6, "spp": 16},
+                        "gradient": {"method": "auto", "step": 0.02}},
                        {"name": "grid-search", "options": {"num": 9, "spp": 16, "refine_evals": 6}}]},
         noise=[{"model": "awgn", "sigma": 0.05}], seed=1)
+    before = ctx.model.stats.snapshot()
     res = study.run(ctx, block)
+    used = ctx.model.stats.since(before)
+    assert res["renders"] == used.renders + used.grad_passes  # serial: every render of the study is counted
     folder = ctx.dir / "trials"
     rows = read_csv(folder / "summary.csv")
     assert {(r["theta_ball_x"], r["estimator"]) for r in rows} == {
-        (t, e) for t in ("-0.1", "0.15") for e in ("adam-fd", "grid-search")}
+        (t, e) for t in ("-0.1", "0.15") for e in ("adam-auto", "grid-search")}
     for r in res["summary"]:
         assert r["n"] == 2 and r["n_failed"] == 0 and r["mse"] < 0.05, r
         assert r["mean_renders"] > 0 and r["mean_seconds"] > 0
@@ -102,8 +111,12 @@ def test_cornell_study_produces_a_complete_summary(tmp_path):
     for f in ("bounds.csv", "plan.json", "images/clean_000.exr", "images/clean_001.exr", "plots/mse_vs_theta.png",
               "plots/speed_vs_error.png"):
         assert (folder / f).is_file(), f
+    # grad auto on a position: the prior picks FD with the block's step; the choice is reported
+    chosen = res["gradients"]["adam-auto"]
+    assert chosen.startswith("fd(ξ=0.02,R=1,crn) (auto: ball_x → fd") and "prior" in chosen, chosen
     md = study.report(folder, res)
-    assert "| -0.1 | adam-fd | 2 | 0 |" in md and "CRLB: trace of F⁻¹" in md
+    assert "| -0.1 | adam-auto | 2 | 0 |" in md and "CRLB: trace of F⁻¹" in md
+    assert f"gradient of **adam-auto**: {chosen}" in md
 
 
 RESUME_SCRIPT = """
@@ -213,16 +226,91 @@ def test_failed_fits_are_counted_shown_and_not_silently_dropped(tmp_path):
     ({"bounds": ["barankin"], "theta": [0.5]}, None, None),
 ])
 def test_bad_input_is_rejected_before_any_render(tmp_path, change, path, msg):
+    """Estimator names and options fail when the config is resolved (`check`: studies[0]...), the rest
+    when the study starts (trials...); either way before any render."""
     block = {"theta": [0.5], "n": 2, "n_eff": 1, "estimators": [{"name": "grid-search", "options": {"spp": 1}}], **change}
-    ctx, block = make_ctx(tmp_path, {"name": "edge1d"}, block)
     if path is None:  # a valid block (scalar θ allows barankin): runs
+        ctx, block = make_ctx(tmp_path, {"name": "edge1d"}, block)
         assert study.run(ctx, block)["trials"] == 2
         return
-    before = ctx.model.stats.renders
+    ctx = None
     with pytest.raises(ConfigError, match=msg) as e:
+        ctx, block = make_ctx(tmp_path, {"name": "edge1d"}, block)
+        before = ctx.model.stats.renders
         study.run(ctx, block)
-    assert str(e.value).startswith(f"trials.{path}:"), str(e.value)
-    assert ctx.model.stats.renders == before
+    where = "studies[0]" if ctx is None else "trials"
+    assert str(e.value).startswith(f"{where}.{path}:"), str(e.value)
+    assert ctx is None or ctx.model.stats.renders == before
+
+
+def test_auto_gradient_follows_the_verdicts_or_the_prior(cornell, tmp_path):
+    """`gradient: {method: auto}` is resolved when the block is parsed (the problem carries concrete
+    settings): without verdicts the prior (colour → AD prb, position → FD); a verdicts file that judges
+    the colour artifact-prone turns it to FD; a missing verdicts file is a config error naming the key."""
+    from nlosbench.diagnostics import Verdict, save_verdicts
+
+    red, x = cornell.restrict(["ball_red"]), cornell.restrict(["ball_x"])
+    auto = [{"name": "mle-adam", "options": {}, "label": None, "gradient": {"method": "auto"}}]
+    (s,) = study.parse_settings(auto, "trials.estimators", red)
+    assert s.gradient == GradientSettings("ad", ad={"type": "prb"})
+    (s,) = study.parse_settings(auto, "trials.estimators", x)
+    assert s.gradient.method == "fd"
+    path = save_verdicts(tmp_path / "verdicts.json", {"ball_red": Verdict(
+        "ball_red", "ad-artifact-prone", "outliers", {"method": "fd", "step": 0.05, "rounds": 2, "crn": True})})
+    auto[0]["gradient"] = {"method": "auto", "verdicts": str(path)}
+    (s,) = study.parse_settings(auto, "trials.estimators", red)
+    assert s.gradient == GradientSettings("fd") and "outliers" in s.gradient.chosen
+    auto[0]["gradient"] = {"method": "auto", "verdicts": str(tmp_path / "nowhere")}
+    with pytest.raises(ConfigError, match=r"trials.estimators\[0\].gradient: no gradient verdicts"):
+        study.parse_settings(auto, "trials.estimators", red)
+
+
+def test_paper_table_writes_bounds_below_float64_from_their_log10():
+    """The paper's first row (θ* = 80 cm: HCR_Neff 4.17e-214, HCR-hat 1.30e-216) and a bound of 1e-400,
+    which underflows float64: every cell comes from log10."""
+    rows = [{"noise": 0, "theta_index": i, "estimator": "MLE", "mse": m, "var": v}
+            for i, (m, v) in enumerate([(0.0024, 0.0019), (4.0518, 4.0372)])]
+    bound_rows = [{"noise": 0, "theta_index": 0, "theta_x": 80.0, "hcr_log10": math.log10(4.17) - 214,
+                   "hcr_hat_log10": math.log10(1.3) - 216},
+                  {"noise": 0, "theta_index": 1, "theta_x": 100.0, "hcr_log10": -400.0, "hcr_hat_log10": math.inf}]
+    table = study.paper_table(rows, bound_rows, ["hcr", "hcr_hat"], ["x"], ["cm"], 0)
+    assert table == ["| θ* (cm) | HCR_Neff | HCR-hat | MSE(MLE) | Var(MLE) |", "|---|---|---|---|---|",
+                     "| 80 | 4.17e-214 | 1.3e-216 | 0.0024 | 0.0019 |", "| 100 | 1e-400 | – | 4.052 | 4.037 |"]
+
+
+def test_smoke_runs_the_paper_config_in_seconds(tmp_path):
+    """`--smoke` on configs/paper_pi_trials.yaml (Π hallway, 5 θ* × 30 trials × 400 iterations at
+    512/1024 spp): the smoke block keeps the estimator and the code path but 2 θ*, 2 trials and 3
+    iterations at 4 spp on the scene's tiny image; the study then finishes with a complete summary."""
+    root = Path(__file__).resolve().parents[1]
+    cfg = load_config(root / "configs" / "paper_pi_trials.yaml", ["executor.type=serial", "cache=null"], smoke=True)
+    block = cfg["studies"][0]
+    assert block["theta"] == [0.8, 1.6] and block["n"] == 2 and block["n_eff"] == 32
+    assert block["budget"]["iterations"] == 3
+    assert block["estimators"][0]["options"] == {"lr": 0.05, "iterations": 3, "spp": [[0.0, 4], [0.5, 4]]}
+    ctx = RunContext.create(cfg, tmp_path, quiet=True)
+    res = study.run(ctx, block)
+    assert res["trials"] == 4 and [r["n"] for r in res["summary"]] == [2, 2]
+    assert all(r["n_failed"] == 0 and r["mean_iterations"] <= 3 and r["mean_renders"] <= 9 for r in res["summary"])
+
+
+def test_smoke_caps_every_estimator_and_gradient_option():
+    block = resolve({"scene": {"name": "blob2d"}, "studies": [{
+        "type": "trials", "theta": [[0.3, 0.3], [0.4, 0.5], [0.7, 0.7]],
+        "n": 200, "n_eff": 65536, "hcr_grid": 41, "levels": [2048, 4096, 8192], "bootstrap": 5000,
+        "budget": {"iterations": 1000, "renders": 10000},
+        "estimators": [{"name": "grid-search", "options": {"num": 65, "spp": 1024, "refine_evals": 150}},
+                       {"name": "multi-start", "options": {"base": "gauss-newton", "starts": 8,
+                                                           "options": {"iterations": 30, "spp": 512}},
+                        "gradient": {"method": "fd", "rounds": 16, "spp": 4096}}]}]})["studies"][0]
+    b = study.smoke({k: v for k, v in block.items() if k != "type"})
+    assert b["theta"] == [[0.3, 0.3], [0.7, 0.7]] and b["n"] == 2 and b["n_eff"] == 32 and b["bootstrap"] == 20
+    assert b["hcr_grid"] == 5 and b["levels"] == [8, 16]
+    assert b["budget"] == {"iterations": 3, "renders": 10000, "seconds": None}
+    assert b["estimators"][0]["options"] == {"num": 5, "spp": 4, "refine_evals": 4}
+    assert b["estimators"][1]["options"] == {"base": "gauss-newton", "starts": 2, "options": {"iterations": 3, "spp": 4}}
+    assert b["estimators"][1]["gradient"] == {"method": "fd", "rounds": 1, "spp": 4}
+    assert block["n"] == 200 and block["estimators"][0]["options"]["num"] == 65  # a copy: the block is unchanged
 
 
 def test_barankin_needs_a_scalar_theta(tmp_path):

@@ -1,9 +1,13 @@
 """Benchmark of the estimators and the trial runner.
 
 (a) per-trial wall time, renders and AD passes of every estimator, with its RMSE, on the analytic
-    toys (blob2d, edge1d) and on cornell_ball (θ = ball_x; full mode only);
+    toys (blob2d, edge1d) and on cornell_ball (θ = ball_x; full mode only), side by side on the same
+    trials (same noisy images, same starts); `ratio` = the first setting's seconds per trial / this
+    setting's (speed relative to `relative_to`);
 (b) local process pool with 2 workers against 1 on the same batch of trials (full mode only: spawning
-    workers that import torch and Mitsuba takes seconds), `ratio` = speed-up;
+    workers that import torch and Mitsuba takes seconds): `ratio` = the steady-state throughput
+    speed-up, counted once every worker has delivered its first trial (what matters for long runs);
+    `total_ratio` = the speed-up of the whole batch, spawn, scene loads and first JIT compiles included;
 (c) our MLE against the paper's recipe at equal final error: the paper computes the FD gradient with
     independent seeds for θ ± ξ and reloads the scene for every render; ours uses common random
     numbers and one scene load. Both run Adam with the same settings from the same starts on a
@@ -14,8 +18,6 @@ Run: `python -m nlosbench.benchmarks.estimators [--reduced]` (a table, then one 
 """
 from __future__ import annotations
 
-import argparse
-import json
 import math
 import tempfile
 import time
@@ -65,26 +67,38 @@ def _per_trial(spec: dict, label: str, theta, noise, settings: list[Setting], n:
     with tempfile.TemporaryDirectory() as d:
         records = run_trials(SerialExecutor(model), trials, Path(d) / LOG_NAME)
     rows = summarize(records, model.params.names, bootstrap=0, labels=[s.label for s in settings])
-    return [dict(name="per-trial", scene=label, estimator=r["estimator"], trials=r["n"], failed=r["n_failed"],
+    first = rows[0]
+    return [dict(bench="per-trial", scene=label, estimator=r["estimator"], trials=r["n"], failed=r["n_failed"],
                  nonconverged=r["n_nonconverged"], rmse=math.sqrt(r["mse"]), seconds=r["mean_seconds"],
-                 renders=r["mean_renders"], ad_passes=r["mean_grad_passes"], iterations=r["mean_iterations"])
+                 renders=r["mean_renders"], ad_passes=r["mean_grad_passes"], iterations=r["mean_iterations"],
+                 relative_to=first["estimator"], ratio=first["mean_seconds"] / r["mean_seconds"])
             for r in rows]
 
 
 def _pool_speedup(spec: dict, theta: float, n: int) -> dict:
-    """Wall time of the same trials through a local pool of 1 and of 2 workers (spawn + scene loads included)."""
+    """The same n trials through a local pool of 1 and of 2 workers: total wall time (spawn and scene
+    loads included) and steady-state throughput (trials per second after the w-th result)."""
     model = build_model(spec)
     clean = model.render([theta], 256, derive(SEED, "bench-clean", 0))
     settings = [Setting("mle-adam", {"lr": 0.1, "iterations": 10, "spp": 32}, gradient=GradientSettings(step=0.02))]
     trials = make_trials(np.array([[theta]]), n, settings, {0: AWGN(0.05)}, {0: clean}, SEED)
-    secs = {}
+    wall, rate = {}, {}
     for w in (1, 2):
+        stamps: list[float] = []
+
+        def stamp(results, total=None, desc=""):
+            for r in results:
+                stamps.append(time.perf_counter())
+                yield r
+
         with tempfile.TemporaryDirectory() as d, LocalPoolExecutor(spec, workers=w) as pool:
             t0 = time.perf_counter()
-            run_trials(pool, trials, Path(d) / LOG_NAME)
-            secs[w] = time.perf_counter() - t0
-    return dict(name="pool-speedup", scene=spec["name"], trials=n, workers_1_s=secs[1], workers_2_s=secs[2],
-                ratio=secs[1] / secs[2])
+            run_trials(pool, trials, Path(d) / LOG_NAME, progress=stamp)
+        wall[w] = stamps[-1] - t0
+        rate[w] = (n - w) / (stamps[-1] - stamps[w - 1])
+    return dict(bench="pool-speedup", scene=spec["name"], trials=n, workers_1_s=wall[1], workers_2_s=wall[2],
+                trials_per_s_1=rate[1], trials_per_s_2=rate[2], total_ratio=wall[1] / wall[2],
+                ratio=rate[2] / rate[1])
 
 
 def _optimise(model: ForwardModel, y, starts, grad: GradientSettings, options: dict) -> list[list[dict]]:
@@ -118,12 +132,12 @@ def _recipe(spec: dict, truth, starts, options: dict, n_eff: int) -> dict:
     above = np.flatnonzero(rms > target)
     k = int(above[-1]) + 1 if above.size else 0
     if k >= len(rms):
-        return dict(name="paper-recipe", scene=spec["name"], paper_rmse=float(target), ours_rmse=float(rms[-1]),
+        return dict(bench="paper-recipe", scene=spec["name"], paper_rmse=float(target), ours_rmse=float(rms[-1]),
                     reached=False, ratio=math.nan)
     paper_renders = sum(tr[-1]["renders"] for tr in paper)
     ours_renders = sum(tr[k]["renders"] for tr in ours)
     ours_s = sum(tr[k]["seconds"] for tr in ours)
-    return dict(name="paper-recipe", scene=spec["name"], paper_rmse=float(target), ours_rmse_at=float(rms[k]),
+    return dict(bench="paper-recipe", scene=spec["name"], paper_rmse=float(target), ours_rmse_at=float(rms[k]),
                 ours_final_rmse=float(rms[-1]),
                 ours_iterations=k + 1, paper_iterations=len(paper[0]), paper_renders=paper_renders,
                 ours_renders=ours_renders, paper_s=paper_s, ours_s=ours_s, reached=True,
@@ -168,22 +182,13 @@ def run(reduced: bool = False) -> list[dict]:
             Setting("gauss-newton", {"spp": 64, "iterations": 8}, "gauss-newton (FD)", GradientSettings(step=0.02)),
             Setting("grid-search", {"num": 33, "spp": 64, "refine_evals": 15}),
         ], 6, 1024)
-        rows.append(_pool_speedup(cornell, 0.1, 12))
+        rows.append(_pool_speedup(cornell, 0.1, 16))
         rows.append(_recipe(cornell, [0.1], [[-0.2], [0.35]], {"lr": 0.1, "iterations": 15, "spp": [[0, 64], [0.5, 128]]},
                             1024))
     return rows
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--reduced", action="store_true", help="toys only, a few trials (a few seconds)")
-    rows = run(reduced=ap.parse_args().reduced)
-    for row in rows:
-        print(f"{row['name']:<13} " + "  ".join(
-            f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in row.items() if k != "name"))
-    for row in rows:
-        print(json.dumps(row))
-
-
 if __name__ == "__main__":
-    main()
+    from . import main
+
+    main(__name__)

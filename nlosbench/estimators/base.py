@@ -27,7 +27,8 @@ from ..params import ParamSpace
 class Problem:
     """An estimation problem: observations y ~ noise(model.render(θ*)), θ* ∈ model.params.
 
-    gradient: how estimators that need ∂L/∂θ get it (FD with CRN, or AD);
+    gradient: how estimators that need ∂L/∂θ get it (forward.GradientSettings: FD with CRN, AD, mixed,
+    or auto — resolved once per model by GradientSettings.resolve);
     seed: seed for renders that are the same for every fit (derive it from the experiment seed)."""
 
     model: ForwardModel

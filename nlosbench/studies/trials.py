@@ -7,9 +7,15 @@ small offsets ±ξ·2^k along each axis), the CRLB from an FD Jacobian at θ* (s
 numbers), optionally the Barankin bound (scalar θ) and HCR-hat (bias-corrected λ̂ from several spp
 levels, `bounds.inexact`); then n trials per θ* for every estimator setting (`trials.py`), resumable
 from trials.jsonl. Outputs: summary.csv, bounds.csv, plots/mse_vs_theta.png, plots/speed_vs_error.png.
+
+An estimator's `gradient: {method: auto}` is resolved once, before any render (GradientSettings.resolve:
+`diagnostics.choose_backend` from a gradients study's verdicts, `verdicts: PATH`, or the prior: colour →
+AD, geometry → FD); workers get the concrete settings, and the choice is in the results and the report.
 """
 from __future__ import annotations
 
+import copy
+import dataclasses
 import itertools
 import json
 import math
@@ -21,9 +27,10 @@ import torch
 
 from .. import estimators, io
 from ..bounds import barankin, crlb, fisher_matrix, hcr
+from ..diagnostics.images import label as gradient_label
 from ..estimators import Budget
 from ..executors import SerialExecutor
-from ..experiment.config import grid_values
+from ..experiment.config import grid_values, smoke_grid
 from ..experiment.context import read_csv, write_csv, write_json
 from ..experiment.schema import ConfigError, Field
 from ..forward.gradients import GradientSettings, fd_jacobian
@@ -46,7 +53,9 @@ ESTIMATOR = {
     "name": Field(str, help="registered estimator (nlosbench list estimators)"),
     "options": Field(dict, {}, "keyword options of the estimator"),
     "label": Field(str, None, "name in tables and plots (default: name); unique within the study", nullable=True),
-    "gradient": Field(dict, {}, "gradient settings of the problem: method (fd | ad), step, rounds, crn, spp, ad"),
+    "gradient": Field(dict, {}, "gradient settings of the problem (forward.GradientSettings): method (fd | ad | "
+                                "mixed | auto), step, rounds, crn, spp, ad, ad_params, verdicts; auto picks per "
+                                "parameter from `verdicts` (a gradients study's verdicts.json) or the prior"),
 }
 SCHEMA = {
     "id": Field(str, "trials", "folder of this study in the run directory"),
@@ -56,6 +65,8 @@ SCHEMA = {
     "estimators": Field(list, help="estimator settings {name, options, label, gradient}", items=ESTIMATOR),
     "noise": Field("any", "all", "index (or list of indices) into the run's noise models, or 'all'"),
     "bounds": Field(list, ["hcr", "crlb"], "bounds compared with the MSE", items=Field(str, choices=BOUNDS)),
+    "seeds": Field(str, "independent", "seeds of the clean and HCR renders: independent (the paper) or common "
+                   "(common random numbers: less λ inflation by rendering noise)", choices=("independent", "common")),
     "hcr_grid": Field(int, 21, "HCR test points per parameter on a grid over Θ (shared by all θ*)"),
     "hcr_offsets": Field(int, 4, "HCR test offsets ±ξ·2^k, k < hcr_offsets, along each parameter"),
     "fd_step": Field(float, 0.01, "ξ: FD step of the CRLB Jacobian and smallest HCR offset (θ units, every parameter)"),
@@ -99,19 +110,34 @@ def parse_noises(spec, noises: list, where: str) -> dict:
     return {j: noises[j] for j in idx}
 
 
-def parse_settings(specs: list, where: str) -> list[Setting]:
-    """Estimator settings, each built once to check its name and options."""
+def check(block: dict, path: str) -> None:
+    """Config-time check (before anything is written): every estimator exists and takes its options."""
+    check_estimators(block["estimators"], f"{path}.estimators")
+
+
+def check_estimators(specs: list, where: str) -> None:
+    """Build each estimator setting once to check its name and options (ConfigError naming the entry)."""
     if not specs:
         raise ConfigError(where, "expected at least one estimator")
-    out = []
     for k, s in enumerate(specs):
         try:
             estimators.get(s["name"], **s["options"])
-            grad = GradientSettings(**s["gradient"])
         except KeyError as e:
             raise ConfigError(f"{where}[{k}].name", e.args[0]) from None
         except (TypeError, ValueError) as e:
             raise ConfigError(f"{where}[{k}]", str(e)) from None
+
+
+def parse_settings(specs: list, where: str, model) -> list[Setting]:
+    """Estimator settings (checked by `check_estimators`); gradient method `auto` resolved for `model`
+    here, once."""
+    check_estimators(specs, where)
+    out = []
+    for k, s in enumerate(specs):
+        try:
+            grad = GradientSettings(**s["gradient"]).resolve(model)
+        except (TypeError, ValueError, FileNotFoundError) as e:
+            raise ConfigError(f"{where}[{k}].gradient", str(e)) from None
         out.append(Setting(s["name"], s["options"], s["label"] or s["name"], grad))
     labels = [s.label for s in out]
     dup = sorted({x for x in labels if labels.count(x) > 1})
@@ -122,17 +148,27 @@ def parse_settings(specs: list, where: str) -> list[Setting]:
 
 # -- renders through the executor ---------------------------------------------------------------
 def _render_task(model, item):
+    """(tag, image, renders done) in whichever process runs it (cached renders count 0)."""
     tag, theta, spp, seed = item
-    return tag, model.render(theta, spp, seed)
+    before = model.stats.snapshot()
+    img = model.render(theta, spp, seed)
+    return tag, img, model.stats.since(before).renders
 
 
 def _jacobian_task(model, item):
     tag, theta, spp, seed, step = item
-    return tag, fd_jacobian(model, theta, spp, seed, GradientSettings(step=step))
+    before = model.stats.snapshot()
+    jac = fd_jacobian(model, theta, spp, seed, GradientSettings(step=step))
+    return tag, jac, model.stats.since(before).renders
 
 
-def _run(ctx, executor, fn, items: list, desc: str) -> dict:
-    return dict(ctx.progress(executor.imap_unordered(fn, items), total=len(items), desc=desc))
+def _run(ctx, executor, fn, items: list, desc: str) -> tuple[dict, int]:
+    """({tag: result}, renders done) of the tasks `items` through the executor, with a progress bar."""
+    out, renders = {}, 0
+    for tag, value, n in ctx.progress(executor.imap_unordered(fn, items), total=len(items), desc=desc):
+        out[tag] = value
+        renders += n
+    return out, renders
 
 
 def offsets(params, theta: np.ndarray, count: int, step: float) -> np.ndarray:
@@ -146,20 +182,29 @@ def offsets(params, theta: np.ndarray, count: int, step: float) -> np.ndarray:
     return np.array(pts).reshape(-1, params.dim)
 
 
-def clean_images(ctx, executor, thetas: np.ndarray, n_eff: int, folder: Path) -> dict[int, torch.Tensor]:
-    """The clean image at every θ*, rendered once at n_eff and kept as images/clean_<i>.exr (a resumed
-    run reads them back: float32 EXR is lossless)."""
+def bound_seed(ctx, cfg: dict, purpose: str, *idx: int) -> int:
+    """Seed of a clean or bound render: derived per render, or one for all with `seeds: common`
+    (common random numbers: L(θ*+Δ) − L(θ*) then carries far less rendering noise)."""
+    return ctx.seed_for("bounds-common") if cfg["seeds"] == "common" else ctx.seed_for(purpose, *idx)
+
+
+def clean_images(ctx, executor, thetas: np.ndarray, cfg: dict, folder: Path) -> tuple[dict[int, torch.Tensor], int]:
+    """(θ index → clean image at n_eff, renders done). Each is rendered once and kept as
+    images/clean_<i>.exr (a resumed run reads them back: float32 EXR is lossless; files are renamed
+    into place once complete)."""
     files = {i: folder / "images" / f"clean_{i:03d}.exr" for i in range(len(thetas))}
     out = {i: torch.from_numpy(io.read_exr(f)) for i, f in files.items() if ctx.resume and f.exists()}
-    todo = [(i, thetas[i], n_eff, ctx.seed_for("clean", i)) for i in files if i not in out]
-    for i, img in _run(ctx, executor, _render_task, todo, "clean images").items():
+    todo = [(i, thetas[i], cfg["n_eff"], bound_seed(ctx, cfg, "clean", i)) for i in files if i not in out]
+    done, renders = _run(ctx, executor, _render_task, todo, "clean images")
+    for i, img in done.items():
         io.write_exr(files[i], img)
         out[i] = img
-    return out
+    return out, renders
 
 
-def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> list[dict]:
-    """One row per (noise j, θ* i) with every requested bound: value, log10 (units²) and diagnostics."""
+def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> tuple[list[dict], int]:
+    """(one row per (noise j, θ* i) with every requested bound: value, log10 (units²) and diagnostics;
+    renders done)."""
     model, params = ctx.model, ctx.model.params
     want, n_eff, step = cfg["bounds"], cfg["n_eff"], cfg["fd_step"]
     axes = [np.linspace(lo, hi, cfg["hcr_grid"]) for lo, hi in zip(params.lower, params.upper)]
@@ -167,13 +212,15 @@ def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> li
     offs = {i: offsets(params, t, cfg["hcr_offsets"], step) for i, t in enumerate(thetas)}
     jobs = []
     if {"hcr", "barankin", "hcr_hat"} & set(want):
-        jobs += [(("grid", g), t, n_eff, ctx.seed_for("hcr-grid", g)) for g, t in enumerate(grid)]
-        jobs += [(("offset", i, q), t, n_eff, ctx.seed_for("hcr-offset", i, q)) for i in offs for q, t in enumerate(offs[i])]
-    renders = _run(ctx, executor, _render_task, jobs, "bound renders")
-    jac = {}
-    if "crlb" in want:
-        jac = _run(ctx, executor, _jacobian_task,
-                   [(i, t, n_eff, ctx.seed_for("crlb", i), step) for i, t in enumerate(thetas)], "CRLB Jacobians")
+        jobs += [(("grid", g), t, n_eff, bound_seed(ctx, cfg, "hcr-grid", g)) for g, t in enumerate(grid)]
+        jobs += [(("offset", i, q), t, n_eff, bound_seed(ctx, cfg, "hcr-offset", i, q))
+                 for i in offs for q, t in enumerate(offs[i])]
+    renders, count = _run(ctx, executor, _render_task, jobs, "bound renders")
+    jac, jac_count = _run(ctx, executor, _jacobian_task, [(i, t, n_eff, ctx.seed_for("crlb", i), step)
+                                                           for i, t in enumerate(thetas)] if "crlb" in want else [],
+                          "CRLB Jacobians")
+    count += jac_count
+    before = model.stats.snapshot()  # HCR-hat renders its spp levels in this process
     rows = []
     for (j, noise), (i, theta) in itertools.product(noises.items(), enumerate(thetas)):
         row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(params.names, theta)}}
@@ -199,7 +246,7 @@ def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> li
         if "hcr_hat" in want:
             row.update(_hcr_hat(ctx, model, theta, pts, cleans[i], alt, deltas, noise, cfg, i, lower, upper))
         rows.append(row)
-    return rows
+    return rows, count + model.stats.since(before).renders
 
 
 def _hcr_hat(ctx, model, theta, pts, clean, alt, deltas, noise, cfg, i, lower, upper) -> dict:
@@ -220,17 +267,20 @@ def bounds_map(rows: list[dict], want) -> dict:
 
 
 # -- the study ------------------------------------------------------------------------------------
-def _plan(ctx, cfg: dict, noises: dict) -> dict:
+def _plan(ctx, cfg: dict, noises: dict, settings: list[Setting]) -> dict:
     """What fixes the trials and bounds (not the summary's far_above / bootstrap): a resumed run must
-    have the same plan."""
+    have the same plan, including the gradient settings an `auto` block resolved to."""
     study = {k: v for k, v in cfg.items() if k not in ("far_above", "bootstrap")}
     return json.loads(json.dumps({"study": study, "seed": ctx.seed, "noise": {j: repr(n) for j, n in noises.items()},
-                                  "scene": {k: v for k, v in ctx.model_spec.items() if k != "cache"}},
+                                  "scene": {k: v for k, v in ctx.model_spec.items() if k != "cache"},
+                                  "gradients": {s.label: dataclasses.asdict(s.gradient) for s in settings}},
                                  sort_keys=True, default=repr))
 
 
 def run(ctx, cfg: dict) -> dict:
-    """Validate the block, render clean images and bounds, run (or resume) the trials, summarise."""
+    """Validate the block, render clean images and bounds, run (or resume) the trials, summarise.
+    The result's `renders` counts renders + AD passes in every process: all fits in trials.jsonl, and
+    the clean and bound renders this call made (a resumed run reads those back)."""
     t0 = time.perf_counter()
     sid = cfg.get("id", NAME)
     params = ctx.model.params
@@ -240,7 +290,10 @@ def run(ctx, cfg: dict) -> dict:
     if cfg["n_eff"] < 1:
         raise ConfigError(f"{sid}.n_eff", f"expected a positive spp, got {cfg['n_eff']}")
     noises = parse_noises(cfg["noise"], ctx.noises, f"{sid}.noise")
-    settings = parse_settings(cfg["estimators"], f"{sid}.estimators")
+    settings = parse_settings(cfg["estimators"], f"{sid}.estimators", ctx.model)
+    for s in settings:
+        if s.gradient.chosen:
+            ctx.log(f"[{sid}] {s.label}: gradient auto → {s.gradient.chosen}")
     if "barankin" in cfg["bounds"] and params.dim > 1:
         raise ConfigError(f"{sid}.bounds", f"barankin bounds a scalar θ; this model has {list(params.names)}")
     try:
@@ -249,7 +302,7 @@ def run(ctx, cfg: dict) -> dict:
         raise ConfigError(f"{sid}.budget", str(e)) from None
 
     folder = ctx.study_dir(cfg)
-    plan = _plan(ctx, cfg, noises)
+    plan = _plan(ctx, cfg, noises, settings)
     plan_file = folder / "plan.json"
     if ctx.resume and plan_file.exists() and json.loads(plan_file.read_text()) != plan:
         raise ConfigError(sid, f"the config differs from the one {folder} was started with; resume with the same "
@@ -257,12 +310,13 @@ def run(ctx, cfg: dict) -> dict:
     write_json(plan_file, plan)
     executor = ctx.executor or SerialExecutor(ctx.model)
 
-    cleans = clean_images(ctx, executor, thetas, cfg["n_eff"], folder)
+    cleans, renders = clean_images(ctx, executor, thetas, cfg, folder)
     bounds_file = folder / "bounds.csv"
     if ctx.resume and bounds_file.exists():
         bound_rows = [{k: _num(v) for k, v in r.items()} for r in read_csv(bounds_file)]
     else:
-        bound_rows = compute_bounds(ctx, executor, thetas, cleans, noises, cfg)
+        bound_rows, bound_renders = compute_bounds(ctx, executor, thetas, cleans, noises, cfg)
+        renders += bound_renders
         write_csv(bounds_file, bound_rows)
 
     trials = make_trials(thetas, cfg["n"], settings, noises, cleans, ctx.seed, budget, cfg["start_width"], cfg["traces"])
@@ -272,15 +326,60 @@ def run(ctx, cfg: dict) -> dict:
     write_csv(folder / "summary.csv", rows)
     plots = [plot_mse(rows, bound_rows, cfg["bounds"], params, {j: repr(n) for j, n in noises.items()},
                       folder / "plots" / "mse_vs_theta.png"),
-             plot_speed(rows, mse_units(params), folder / "plots" / "speed_vs_error.png")]
+             plot_speed(rows, mse_units(params.units), folder / "plots" / "speed_vs_error.png")]
     errors = sorted({r["error"] for r in records if r["error"]})
     return {"id": sid, "theta": thetas.tolist(), "params": list(params.names), "units": list(params.units),
             "n": cfg["n"], "n_eff": cfg["n_eff"], "estimators": [s.label for s in settings],
+            "gradients": {s.label: gradient_label(s.gradient) + (f" (auto: {s.gradient.chosen})" if s.gradient.chosen
+                                                                 else "") for s in settings},
             "noise": {str(j): repr(n) for j, n in noises.items()}, "bounds": cfg["bounds"],
             "bound_notes": {b: BOUND_NOTES[b] for b in cfg["bounds"]}, "fd_step": cfg["fd_step"],
             "far_above": cfg["far_above"], "trials": len(records), "seconds": time.perf_counter() - t0,
+            "renders": renders + sum(r["renders"] + r["grad_passes"] for r in records),
             "summary": rows, "bound_rows": bound_rows, "errors": errors[:20],
             "files": [str(p.relative_to(folder)) for p in [folder / LOG_NAME, folder / "summary.csv", bounds_file] + plots]}
+
+
+#: caps on estimator options in a smoke run (known option names of the built-in estimators; nested
+#: `options`, e.g. multi-start's base estimator, are capped the same way)
+SMOKE_OPTIONS = {"iterations": 3, "spp": 4, "num": 5, "starts": 2, "refine_evals": 4, "refine_spp": 4}
+
+
+def _smoke_options(options: dict) -> dict:
+    out = {}
+    for k, v in options.items():
+        if k == "options" and isinstance(v, dict):
+            v = _smoke_options(v)
+        elif k in SMOKE_OPTIONS and isinstance(v, int) and not isinstance(v, bool):
+            v = min(v, SMOKE_OPTIONS[k])
+        elif k == "spp" and isinstance(v, list):  # an spp schedule [[fraction, spp], ...]
+            v = [[f, min(n, SMOKE_OPTIONS["spp"])] for f, n in v]
+        out[k] = v
+    return out
+
+
+def _smoke_gradient(gradient: dict) -> dict:
+    g = {**gradient, "rounds": 1}
+    if g.get("spp"):
+        g["spp"] = min(g["spp"], SMOKE_OPTIONS["spp"])
+    return g
+
+
+def smoke(block: dict) -> dict:
+    """A reduced copy of a validated `trials` block that runs in seconds through the same code path:
+    2 θ* (the list's ends), 2 trials, N_eff ≤ 32 spp, HCR grid ≤ 5 points per parameter and ≤ 2 offsets,
+    spp levels [8, 16], ≤ 20 bootstrap resamples, at most 3 iterations per fit (the budget, which caps
+    plug-in estimators too) and the built-in estimators' options capped (`SMOKE_OPTIONS`: spp ≤ 4,
+    grid num ≤ 5, starts ≤ 2, ...); gradient renders ≤ 4 spp and 1 FD round."""
+    b = copy.deepcopy(block)
+    b["theta"] = smoke_grid(b["theta"], 2)
+    iters = b["budget"].get("iterations")
+    b["budget"] = {**b["budget"], "iterations": min(iters or SMOKE_OPTIONS["iterations"], SMOKE_OPTIONS["iterations"])}
+    b["estimators"] = [{**e, "options": _smoke_options(e["options"]), "gradient": _smoke_gradient(e["gradient"])}
+                       for e in b["estimators"]]
+    b.update(n=min(b["n"], 2), n_eff=min(b["n_eff"], 32), hcr_grid=min(b["hcr_grid"], 5),
+             hcr_offsets=min(b["hcr_offsets"], 2), levels=[8, 16], bootstrap=min(b["bootstrap"], 20))
+    return b
 
 
 def _num(v: str):
@@ -305,9 +404,9 @@ def _pyplot():
     return plt
 
 
-def mse_units(params) -> str:
+def mse_units(units) -> str:
     """Units of the MSE of θ: the parameters' unit squared (or a note when they differ)."""
-    return f"{params.units[0]}²" if len(set(params.units)) == 1 else "mixed units²"
+    return f"{units[0]}²" if len(set(units)) == 1 else "mixed units²"
 
 
 def plot_mse(rows: list[dict], bound_rows: list[dict], bounds, params, noise_names: dict, path: Path) -> Path:
@@ -327,7 +426,7 @@ def plot_mse(rows: list[dict], bound_rows: list[dict], bounds, params, noise_nam
             ax.plot([r[xkey] for r in bs], [10.0 ** r[f"{b}_log10"] for r in bs], "--", marker=".", label=b.upper())
         ax.set_yscale("log")
         ax.set_xlabel(f"θ* ({xname}{', ' + params.units[0] if params.dim == 1 else ''})")
-        ax.set_ylabel(f"MSE, bound [{mse_units(params)}]")
+        ax.set_ylabel(f"MSE, bound [{mse_units(params.units)}]")
         ax.set_title(f"noise {j}: {noise_names[j]}")
         ax.legend(fontsize=8)
     fig.tight_layout()
@@ -345,6 +444,7 @@ def plot_speed(rows: list[dict], units: str, path: Path) -> Path:
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     several = len({r["noise"] for r in rows}) > 1
+    xs: list[list[float]] = [[], []]
     for (j, label) in dict.fromkeys((r["noise"], r["estimator"]) for r in rows):
         rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r["mse"] > 0]
         if not rs:  # every fit failed (or hit θ* exactly): nothing to place on a log axis
@@ -352,13 +452,15 @@ def plot_speed(rows: list[dict], units: str, path: Path) -> Path:
         mse = float(np.mean([r["mse"] for r in rs]))
         secs = float(np.mean([r["mean_seconds"] for r in rs]))
         rend = float(np.mean([r["mean_renders"] + r["mean_grad_passes"] for r in rs]))
-        for ax, x in zip(axes, (secs, rend)):
+        for ax, x, seen in zip(axes, (secs, rend), xs):
+            seen.append(x)
             ax.scatter([x], [mse], s=40)
             ax.annotate(f"{label} (noise {j})" if several else label, (x, mse), fontsize=8, xytext=(4, 4),
                         textcoords="offset points")
-    for ax, xl in zip(axes, ("wall seconds per trial", "renders + AD passes per trial")):
-        ax.set_xscale("log")
-        ax.set_yscale("log")
+    for ax, xl, seen in zip(axes, ("wall seconds per trial", "renders + AD passes per trial"), xs):
+        if seen and min(seen) > 0:  # a log axis needs positive data (cached renders count 0)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
         ax.set_xlabel(xl)
         ax.set_ylabel(f"MSE averaged over θ* [{units}]")
         ax.xaxis.set_minor_formatter(NullFormatter())
@@ -380,25 +482,65 @@ def _fmt(v, digits: int = 3) -> str:
     return str(v)
 
 
+BOUND_TITLES = {"hcr": "HCR_Neff", "hcr_hat": "HCR-hat", "crlb": "CRLB", "barankin": "Barankin"}
+
+
+def paper_table(rows: list[dict], bound_rows: list[dict], bounds, params: list[str], units: list[str],
+                noise: int) -> list[str]:
+    """The paper's MLE-vs-HCR table for one noise model: θ*, the bounds, then MSE and Var of every
+    estimator (units², 4 significant digits; an underflowed bound is written from its log10)."""
+    labels = list(dict.fromkeys(r["estimator"] for r in rows))
+    head = [f"θ* ({', '.join(units)})"] + [BOUND_TITLES[b] for b in bounds] + [f"{m}({e})" for e in labels for m in ("MSE", "Var")]
+    out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for b in (b for b in bound_rows if b["noise"] == noise):
+        cells = [", ".join(_fmt(b[f"theta_{n}"], 4) for n in params)]
+        cells += [_fmt_log10(float(b[f"{k}_log10"])) for k in bounds]
+        for e in labels:
+            r = next(r for r in rows if r["noise"] == noise and r["theta_index"] == b["theta_index"] and r["estimator"] == e)
+            cells += [_fmt(r["mse"], 4), _fmt(r["var"], 4)]
+        out.append("| " + " | ".join(cells) + " |")
+    return out
+
+
+def _fmt_log10(lg: float) -> str:
+    """10**lg with 4 significant digits, also beyond float64's range (e.g. 1.3e-400); '–' when the
+    bound is unavailable (log10 = ±inf; its reason is in the bounds table)."""
+    if not math.isfinite(lg):
+        return "–"
+    if -300 < lg < 300:
+        return f"{10.0 ** lg:.4g}"
+    e = math.floor(lg)
+    return f"{10.0 ** (lg - e):.4g}e{e:+d}"
+
+
 def report(study_dir, results: dict) -> str:
-    """Markdown: what was run, the MSE/bound table per noise model, flags, failures and the plots."""
+    """Markdown: what was run, the paper-style MSE-vs-bounds table and the detailed MSE/bound table per
+    noise model, flags, failures and the plots."""
     sid = results["id"]
     rows, bounds = results["summary"], results["bounds"]
     failed = sum(r["n_failed"] for r in rows)
     nonconv = sum(r["n_nonconverged"] for r in rows)
+    fit_s = sum(r["total_seconds"] for r in rows)
+    fit_renders = sum(r["total_renders"] + r["total_grad_passes"] for r in rows)
     lines = [f"## Trials ({sid}): estimators against the bounds", "",
              f"{results['n']} trials per θ* at {len(results['theta'])} θ* of {results['params']} "
              f"({', '.join(results['units'])}), estimators {results['estimators']}, noise "
              f"{', '.join(results['noise'].values())}; clean images at N_eff = {results['n_eff']} spp. "
              f"{results['trials']} fits recorded, {failed} failed, {nonconv} not converged; "
-             f"{results['seconds']:.1f} s.", "",
-             "Bounds (each ratio is MSE / that bound, MSE = mean ‖θ̂ − θ*‖² over the trials that did not fail; "
-             "standard errors by bootstrap over trials):", ""]
+             f"{results['seconds']:.1f} s in all, of which the fits took {fit_s:.1f} s and {fit_renders} renders "
+             "(+ AD passes).", ""]
+    lines += [f"- gradient of **{label}**: {g}" for label, g in results.get("gradients", {}).items()]
+    lines += ["", "MSE = mean ‖θ̂ − θ*‖² over the fits that did not fail, standard errors by bootstrap over trials; "
+              + ("each ratio is MSE / that bound. Bounds:" if bounds else "no bounds were computed."), ""]
     lines += [f"- **{b}**: {results['bound_notes'][b]}" for b in bounds]
+    for j in sorted({r["noise"] for r in rows}):
+        lines += ["", f"### MSE against the bounds, the paper's format (noise {j}: {results['noise'][str(j)]}; "
+                      f"{mse_units(results['units'])})", ""]
+        lines += paper_table(rows, results["bound_rows"], bounds, results["params"], results["units"], j)
     head = ["θ*", "estimator", "n", "failed", "not conv.", "MSE ± SE", "Var", "‖bias‖"] + \
            [f"MSE/{b}" for b in bounds] + ["s / trial", "renders / trial", "flag"]
     for j in sorted({r["noise"] for r in rows}):
-        lines += ["", f"### Noise {j}: {results['noise'][str(j)]}", "", "| " + " | ".join(head) + " |",
+        lines += ["", f"### Details, noise {j}: {results['noise'][str(j)]}", "", "| " + " | ".join(head) + " |",
                   "|" + "---|" * len(head)]
         for r in (r for r in rows if r["noise"] == j):
             theta = ", ".join(_fmt(r[f"theta_{n}"], 4) for n in results["params"])
