@@ -11,6 +11,7 @@ EPILOG = """examples:
   nlosbench run configs/quick.yaml                      # the demo: bounds, Fisher maps, MLE trials
   nlosbench run configs/quick.yaml --set seed=3 --set studies.0.spp=256 --out runs/try
   nlosbench run configs/quick.yaml --out runs/try --resume   # continue a killed run
+  nlosbench run configs/paper_pi_trials.yaml --smoke --out runs/check   # seconds-long dry run
   nlosbench render cornell_ball --theta 0.1 0.3 0.8 --spp 256 --out runs/render
   nlosbench list scenes | estimators | noise | studies
   nlosbench report runs/try                              # re-make plots and report.md from saved data
@@ -29,6 +30,8 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--out", help="run directory (default: OUTPUT/NAME from the config)")
     r.add_argument("--resume", action="store_true", help="continue a run in --out, keeping finished work")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
+    r.add_argument("--smoke", action="store_true", help="a seconds-long run of the same config: tiny image, grids, "
+                   "spp and trials (checks a paper-scale config before it runs for days)")
     d = sub.add_parser("render", help="render a scene at θ and write EXR + PNG")
     d.add_argument("scene", help="scene name (see `nlosbench list scenes`) or a scene spec .yaml")
     d.add_argument("--theta", type=float, nargs="+", help="θ values in parameter order (default: defaults)")
@@ -80,7 +83,7 @@ def _list(what: str) -> None:
     else:
         from . import estimators
 
-        items = estimators.available()
+        items = [f"{name}: {text}" for name, text in estimators.describe().items()]
     print("\n".join(items))
 
 
@@ -92,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "run":
             from .experiment.runner import run
 
-            run_dir = run(args.config, args.overrides, args.out, args.resume, args.quiet)
+            run_dir = run(args.config, args.overrides, args.out, args.resume, args.quiet, args.smoke)
             print(f"done: {run_dir}/report.md")
         elif args.command == "render":
             _render(args)

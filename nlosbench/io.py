@@ -1,9 +1,30 @@
 """Image files: EXR for data (float32, lossless), PNG for people (matplotlib, optional log scale)."""
 from __future__ import annotations
 
+import os
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
+
+
+@contextmanager
+def atomic(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside `path` (unique per writer); once the body has written it, it is
+    fsynced and renamed onto `path`, so a run killed while writing never leaves a torn file that a
+    resumed run would read back, and concurrent writers never mix. On error it is removed."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        yield tmp
+        with open(tmp, "rb") as f:
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def _as_hwc(array) -> np.ndarray:
@@ -16,19 +37,17 @@ def _as_hwc(array) -> np.ndarray:
 
 
 def write_exr(path: str | Path, array) -> Path:
-    """Write an image (H, W) or (H, W, C) as float32 EXR; 1 channel → Y, 3 → RGB, else C0..Cn."""
+    """Write an image (H, W) or (H, W, C) as float32 EXR (atomically); 1 channel → Y, 3 → RGB, else C0..Cn."""
     import OpenEXR
 
     a = _as_hwc(array)
     c = a.shape[2]
     names = {1: ["Y"], 3: ["R", "G", "B"]}.get(c, [f"C{i}" for i in range(c)])
     channels = {n: np.ascontiguousarray(a[..., i]) for i, n in enumerate(names)}
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    with OpenEXR.File(header, channels) as f:
-        f.write(str(path))
-    return path
+    with atomic(path) as tmp, OpenEXR.File(header, channels) as f:
+        f.write(str(tmp))
+    return Path(path)
 
 
 def read_exr(path: str | Path) -> np.ndarray:

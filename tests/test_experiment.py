@@ -30,6 +30,8 @@ def _write(tmp_path, mutate) -> Path:
     (lambda c: c["noise"][0].update(model="gauss"), "noise[0].model: expected one of"),
     (lambda c: c["noise"][0].update(sigma=-1.0), "noise[0].sigma: awgn needs sigma > 0"),
     (lambda c: c["scene"].update(name="scenes/nosuch.yaml"), "nosuch.yaml does not exist"),
+    (lambda c: c["studies"].append({"type": "trials", "theta": [0.0], "estimators": [{"name": "mle-adamm"}]}),
+     "studies[2].estimators[0].name: unknown estimator 'mle-adamm'; did you mean 'mle-adam'?"),
 ])
 def test_config_errors_are_one_clear_line_and_write_nothing(tmp_path, capsys, mutate, message):
     out = tmp_path / "run"
@@ -75,11 +77,35 @@ def test_run_then_report_reproduces_tables(tmp_path, capsys):
     assert "done already" not in capsys.readouterr().out
 
 
-def test_same_config_same_numbers(tmp_path):
-    a, b = tmp_path / "a", tmp_path / "b"
-    for d in (a, b):
-        assert main(["run", str(CFG), "--out", str(d), "--quiet"]) == 0
-    assert (a / "00-bounds" / "bounds.csv").read_text() == (b / "00-bounds" / "bounds.csv").read_text()
+def test_same_config_same_numbers_on_any_executor(tmp_path):
+    """Seeds are derived per grid point, so a rerun, and a run on a 2-process pool, give identical files."""
+    runs = {"a": [], "b": [], "pool": ["--set", "executor.type=local", "--set", "executor.workers=2"]}
+    for name, extra in runs.items():
+        assert main(["run", str(CFG), "--out", str(tmp_path / name), "--quiet", *extra]) == 0
+    csv = {name: (tmp_path / name / "00-bounds" / "bounds.csv").read_text() for name in runs}
+    assert csv["a"] == csv["b"] == csv["pool"]
+
+
+SHIPPED = sorted((Path(__file__).parents[1] / "configs").glob("*.yaml"))
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
+def test_every_shipped_config_runs_in_smoke_mode(tmp_path, path):
+    """`--smoke` shrinks image, grids, spp and trials but runs every study through the same code path."""
+    cfg = config.load(path, smoke=True)
+    full = config.load(path)
+    assert [s["type"] for s in cfg["studies"]] == [s["type"] for s in full["studies"]]
+    out = tmp_path / "run"
+    cache = ["--set", f"cache={tmp_path / 'cache'}"] if full["cache"] else []  # not the repository's runs/
+    assert main(["run", str(path), "--smoke", "--out", str(out), "--quiet", *cache]) == 0
+    results = json.loads((out / "results.json").read_text())
+    assert [s["status"] for s in results["studies"].values()] == ["done"] * len(cfg["studies"])
+    report = (out / "report.md").read_text()
+    for i, s in enumerate(cfg["studies"]):
+        assert f"## {i:02d}-{s['type']}" in report or f"## {s['id']}" in report
+    if path.stem == "quick":  # what `make demo` promises: the HCR curve, the Fisher maps, the trial table
+        assert "bounds.png)" in report and "fisher_maps.png)" in report
+        assert "| θ* |" in report and (out / "00-bounds" / "bounds.png").stat().st_size > 0
 
 
 def test_render_and_list_commands(tmp_path, capsys):

@@ -31,8 +31,9 @@ TOP = {
 }
 
 
-def load(path: str | Path, overrides: list[str] = ()) -> dict:
-    """Read a YAML config, apply `key.path=value` overrides, validate; raises ConfigError."""
+def load(path: str | Path, overrides: list[str] = (), smoke: bool = False) -> dict:
+    """Read a YAML config, apply `key.path=value` overrides, validate; raises ConfigError.
+    smoke: shrink it to a seconds-long run through the same code path (see `smoke`)."""
     path = Path(path)
     if not path.is_file():
         raise ConfigError("", f"config file {path} does not exist")
@@ -42,6 +43,24 @@ def load(path: str | Path, overrides: list[str] = ()) -> dict:
         raise ConfigError("", f"{path} is not valid YAML: {e}") from None
     for item in overrides:
         apply_override(raw, item)
+    cfg = resolve(raw)
+    return smoke_config(cfg) if smoke else cfg
+
+
+def smoke_config(cfg: dict) -> dict:
+    """A tiny copy of a validated config: the scene's own `smoke` options (its spec's tiny image size
+    and depth) over the config's, and every study block through its module's `smoke(block)`.
+    The result is validated again, so a smoke run exercises exactly what the full run would."""
+    from .. import scenes
+
+    sc = cfg["scene"]
+    tiny = scenes.smoke_options(sc["name"])
+    options = {**sc["options"], **{k: v for k, v in tiny.items() if k != "defines"}}
+    if "defines" in tiny:
+        options["defines"] = {**(sc["options"].get("defines") or {}), **tiny["defines"]}
+    raw = {**cfg, "name": f"{cfg['name']}-smoke", "scene": {**sc, "options": options},
+           "studies": [{"type": b["type"], **studies.get(b["type"]).smoke(
+               {k: v for k, v in b.items() if k != "type"})} for b in cfg["studies"]]}
     return resolve(raw)
 
 
@@ -83,6 +102,8 @@ def resolve(raw: dict) -> dict:
         except KeyError as e:
             raise ConfigError(f"{path}.type", e.args[0]) from None
         body = validate_block({k: v for k, v in block.items() if k != "type"}, mod.SCHEMA, path)
+        if hasattr(mod, "check"):  # checks beyond the schema (e.g. registered names), before anything runs
+            mod.check(body, path)
         out.append({"type": block["type"], **body})
     if not out:
         raise ConfigError("studies", "expected at least one study")
@@ -91,12 +112,26 @@ def resolve(raw: dict) -> dict:
 
 
 def grid_values(spec) -> list[float]:
-    """θ values from a list or from {start, stop, num} (inclusive, like numpy.linspace)."""
+    """θ values from a list, from {start, stop, num} (inclusive, like numpy.linspace), or from a list of
+    such segments (merged and sorted: e.g. 1 cm steps where θ is well determined, coarser elsewhere)."""
     import numpy as np
 
     if isinstance(spec, dict):
         return np.linspace(spec["start"], spec["stop"], int(spec["num"])).tolist()
+    if any(isinstance(v, dict) for v in spec):
+        return sorted({round(t, 12) for seg in spec for t in grid_values(seg if isinstance(seg, dict) else [seg])})
     return [float(v) for v in spec]
 
 
-GRID = Field("any", help="θ values: a list, or {start, stop, num}")
+def smoke_grid(spec, num: int = 3):
+    """A grid spec shrunk to about `num` points over the same range (a list keeps its first and last
+    values; each segment of a segment list keeps 2 points)."""
+    if isinstance(spec, dict):
+        return {**spec, "num": min(int(spec["num"]), num)}
+    spec = list(spec)
+    if any(isinstance(v, dict) for v in spec):
+        return [smoke_grid(v, 2) if isinstance(v, dict) else v for v in spec]
+    return spec if len(spec) <= num else spec[:num - 1] + spec[-1:]
+
+
+GRID = Field("any", help="θ values: a list, {start, stop, num}, or a list of {start, stop, num} segments")

@@ -12,6 +12,7 @@ from pathlib import Path
 from .. import noise as noise_models
 from .. import scenes
 from ..forward.model import ForwardModel
+from ..io import atomic
 from ..seeds import derive
 
 
@@ -72,11 +73,11 @@ class RunContext:
 
 
 def write_csv(path: Path, rows: list[dict]) -> Path:
-    """Rows of dicts as CSV (header from the first row's keys in order, plus any later new keys)."""
+    """Rows of dicts as CSV, written atomically (header from the first row's keys in order, plus any later new keys)."""
     keys: list = []
     for r in rows:
         keys += [k for k in r if k not in keys]
-    with open(path, "w", newline="") as f:
+    with atomic(path) as tmp, open(tmp, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=keys)
         w.writeheader()
         w.writerows(rows)
@@ -89,9 +90,8 @@ def read_csv(path: Path) -> list[dict]:
 
 
 def write_json(path: Path, data) -> Path:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_json_default))
-    tmp.replace(path)
+    with atomic(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, default=_json_default))
     return path
 
 

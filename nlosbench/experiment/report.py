@@ -18,7 +18,8 @@ def make_report(run_dir: str | Path) -> Path:
     noises = ", ".join(f"{n['model']} ({'σ = ' + str(n['sigma']) if n['model'] == 'awgn' else 'scale = ' + str(n['scale'])})"
                        for n in cfg["noise"])
     total = sum(s.get("seconds", 0) for s in results["studies"].values())
-    renders = sum(s.get("renders_in_process", 0) for s in results["studies"].values())
+    renders = sum(max(int(s["results"].get("renders") or 0), s.get("renders_in_process", 0))
+                  for s in results["studies"].values())
     lines = [f"# nlosbench run: {cfg['name']}", "",
              "**Question.** How well can the scene parameter(s) "
              f"{', '.join(sc['params'] or ['(all)'])} of scene `{sc['name']}` be estimated from noisy images "
@@ -26,8 +27,8 @@ def make_report(run_dir: str | Path) -> Path:
              f"**Setup.** scene `{sc['name']}` (options {sc['options'] or '{}'}), fixed {sc['fixed'] or '{}'}; "
              f"noise: {noises}; seed {cfg['seed']}; executor {cfg['executor']['type']}; "
              f"machine: {platform.machine()}, {platform.system()}, Python {platform.python_version()}.", "",
-             f"**Cost.** {total:.1f} s wall time in total; {renders} renders in the main process "
-             "(worker renders are counted in each study's own table).", ""]
+             f"**Cost.** {total:.1f} s wall time in total; {renders} renders (each study's own count, worker "
+             "processes included, where it keeps one; else those of the main process).", ""]
     for sid, s in results["studies"].items():
         mod = studies.get(s["type"])
         lines += [f"## {sid}: {s['type']} ({s.get('seconds', 0):.1f} s)", "",

@@ -16,9 +16,9 @@ from .report import make_report
 
 
 def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | None = None,
-        resume: bool = False, quiet: bool = False) -> Path:
-    """Run every study of a config; returns the run directory."""
-    cfg = config_mod.load(config_path, overrides)
+        resume: bool = False, quiet: bool = False, smoke: bool = False) -> Path:
+    """Run every study of a config (shrunk to seconds with `smoke`); returns the run directory."""
+    cfg = config_mod.load(config_path, overrides, smoke=smoke)
     run_dir = Path(out) if out else Path(cfg["output"]) / cfg["name"]
     results_path = run_dir / "results.json"
     if results_path.exists() and not resume:
@@ -38,8 +38,9 @@ def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | No
             before, t0 = ctx.model.stats.snapshot(), time.perf_counter()
             try:
                 summary = studies.get(study["type"]).run(ctx, study)
-            except (ValueError, KeyError) as e:
-                raise type(e)(f"study {study['id']}: {e.args[0] if e.args else e}") from e
+            except (ValueError, KeyError) as e:  # bad input found by the study: name the study, keep the kind
+                msg = f"study {study['id']}: {e.args[0] if isinstance(e, KeyError) and e.args else e}"
+                raise (KeyError if isinstance(e, KeyError) else ValueError)(msg) from e
             spent = ctx.model.stats.since(before)
             results["studies"][study["id"]] = {"type": study["type"], "status": "done", "results": summary,
                                                "seconds": time.perf_counter() - t0, "renders_in_process": spent.renders,

@@ -11,11 +11,12 @@ import hashlib
 import io
 import json
 import os
-import uuid
 from pathlib import Path
 
 import numpy as np
 import torch
+
+from ..io import atomic
 
 _MAGIC = b"NLOSRC01"
 
@@ -59,11 +60,5 @@ class RenderCache:
         buf = io.BytesIO()
         np.save(buf, image.detach().cpu().numpy().astype(np.float32), allow_pickle=False)
         payload = buf.getvalue()
-        path = self._path(key)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex}")
-        with open(tmp, "wb") as f:
-            f.write(_MAGIC + hashlib.sha256(payload).digest() + payload)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
+        with atomic(self._path(key)) as tmp:
+            tmp.write_bytes(_MAGIC + hashlib.sha256(payload).digest() + payload)

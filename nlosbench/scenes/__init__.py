@@ -44,7 +44,8 @@ def register(name: str, factory: Callable[..., ForwardModel]) -> None:
 
 def load_spec(path: str | Path, **options) -> ForwardModel:
     """A MitsubaModel from a scene spec: `file` (XML, relative to the spec), `params`, optional
-    `defines` (XML $-defaults such as res, max_depth), `ad_integrator`, `variant`. Options given here
+    `defines` (XML $-defaults such as res, max_depth), `ad_integrator`, `variant`, `remove` (element ids
+    dropped from the scene before loading, e.g. [light_c] to see what the bound owes it). Options given here
     override the spec's top-level keys; `defines` are merged."""
     from ..forward.mitsuba_model import MitsubaModel
 
@@ -60,7 +61,18 @@ def load_spec(path: str | Path, **options) -> ForwardModel:
     return MitsubaModel(name=spec.get("name", path.stem), scene_file=path.parent / spec["file"], params=spec["params"],
                         variant=spec.get("variant"), defines={k: str(v) for k, v in defines.items()},
                         ad_integrator=spec.get("ad_integrator"), max_pass_samples=spec.get("max_pass_samples", 1 << 24),
-                        cache=spec.get("cache"))
+                        cache=spec.get("cache"), remove=spec.get("remove"))
+
+
+def smoke_options(name: str) -> dict:
+    """Options that make a scene tiny for smoke runs: the spec's `smoke` key (e.g. {defines: {width: 16,
+    height: 12}}); {} for the analytic toys, which are cheap already."""
+    if name in _BUILTIN:
+        return {}
+    path = _specs().get(name) or Path(name)
+    if not path.is_file():
+        raise FileNotFoundError(f"scene spec {path} does not exist")
+    return dict((yaml.safe_load(path.read_text()) or {}).get("smoke") or {})
 
 
 def get(name: str, **options) -> ForwardModel:

@@ -5,6 +5,10 @@ Contract of a study module (see `bounds.py` for a complete one):
   SCHEMA: dict[str, Field]       the keys of its config block besides `type`
   run(ctx, cfg) -> dict          does the work, writes files under ctx.study_dir(cfg), returns a
                                  JSON-serialisable summary (stored in results.json)
+  smoke(block) -> dict           a reduced copy of its validated block (tiny grids, few spp/trials) for
+                                 `nlosbench run --smoke`: the same code path in seconds
+  check(block, path) (optional)  raises ConfigError for what the schema cannot see (e.g. an unknown
+                                 estimator), so a bad config fails before anything is written
   report(study_dir, results) -> str
                                  a markdown section made only from saved data (so `nlosbench report`
                                  re-makes it without rendering)

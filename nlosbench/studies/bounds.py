@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import bounds
-from ..experiment.config import GRID, grid_values
+from ..experiment.config import GRID, grid_values, smoke_grid
 from ..experiment.context import RunContext, read_csv, write_csv
 from ..experiment.schema import Field
 from ..forward.gradients import GradientSettings, fd_jacobian
@@ -22,6 +22,8 @@ SCHEMA = {
     "id": Field(str, None, "folder name for this study's files", nullable=True),
     "grid": GRID,
     "spp": Field(int, 1024, "samples per pixel of each grid render"),
+    "seeds": Field(str, "independent", "render seeds across the grid: independent (the paper) or common "
+                   "(common random numbers: less λ inflation by rendering noise)", choices=("independent", "common")),
     "crlb": Field(bool, True, "also compute the CRLB from an FD Jacobian at each grid point"),
     "fd_step": Field(float, 0.01, "FD step ξ for the CRLB (parameter units)"),
     "barankin": Field(bool, False, "also compute the multi-point Barankin bound at each grid point"),
@@ -41,11 +43,32 @@ def crlb_log10(L, J, noise) -> tuple[np.ndarray, str]:
         return np.log10(c.component), (c.reason if c.singular else "")
 
 
-def render_grid(ctx: RunContext, thetas: list[float], spp: int, purpose: str) -> np.ndarray:
-    """Renders (G, H, W, C) float32 at each θ with independent derived seeds."""
-    imgs = [ctx.model.render([t], spp, ctx.seed_for(purpose, g))
-            for g, t in ctx.progress(enumerate(thetas), total=len(thetas), desc=f"{purpose} renders")]
-    return np.stack([i.numpy() for i in imgs])
+def _grid_point(model, item: tuple) -> tuple:
+    """Worker task: (g, render (H, W, C) float32, FD Jacobian (P, H, W, C) or None) at one grid θ."""
+    g, theta, spp, seed, fd_seed, step = item
+    img = model.render([theta], spp, seed).numpy()
+    jac = None if step is None else fd_jacobian(model, [theta], spp, fd_seed, GradientSettings(step=step))
+    return g, img, jac
+
+
+def grid_renders(ctx: RunContext, thetas: list[float], spp: int, purpose: str, seeds: str = "independent",
+                 fd_step: float | None = None) -> tuple[np.ndarray, list | None]:
+    """Renders (G, H, W, C) float32 at each θ and, with `fd_step`, their FD Jacobians (CRN), through the
+    run's executor. seeds: "independent" (a derived seed per point, as in the paper) or "common" (one
+    seed for every point: common random numbers across θ, so differences L(θ+Δ) − L(θ) carry far less
+    rendering noise and λ is inflated less, at the price of correlated errors along the curve)."""
+    from ..executors import SerialExecutor
+
+    executor = ctx.executor or SerialExecutor(ctx.model)
+    idx = (lambda g: 0) if seeds == "common" else (lambda g: g)
+    items = [(g, t, spp, ctx.seed_for(purpose, idx(g)), ctx.seed_for(purpose + "-fd", idx(g)), fd_step)
+             for g, t in enumerate(thetas)]
+    out = {}
+    for g, img, jac in ctx.progress(executor.imap_unordered(_grid_point, items), total=len(items),
+                                    desc=f"{purpose} renders"):
+        out[g] = (img, jac)
+    renders = np.stack([out[g][0] for g in range(len(thetas))])
+    return renders, (None if fd_step is None else [out[g][1] for g in range(len(thetas))])
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:
@@ -56,17 +79,13 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     for t in (min(thetas), max(thetas)):
         ctx.model.params.validate([t])
     lo, hi = ctx.model.params.lower[0], ctx.model.params.upper[0]
-    renders = render_grid(ctx, thetas, cfg["spp"], "bounds-grid")
+    renders, jac = grid_renders(ctx, thetas, cfg["spp"], "bounds-grid", cfg["seeds"],
+                                cfg["fd_step"] if cfg["crlb"] else None)
     np.save(out / "renders.npy", renders)
     if cfg["save_images"]:
         for g, img in enumerate(renders):
             write_exr(out / "images" / f"grid_{g:04d}.exr", img)
-    jac = None
-    if cfg["crlb"]:
-        settings = GradientSettings(step=cfg["fd_step"])
-        jac = [fd_jacobian(ctx.model, [t], cfg["spp"], ctx.seed_for("bounds-fd", g), settings)
-               for g, t in ctx.progress(enumerate(thetas), total=len(thetas), desc="FD Jacobians")]
-    rows, summary = [], {}
+    rows, per_noise = [], {}
     for k, noise in enumerate(ctx.noises):
         curve = bounds.hcr_curve(renders, np.array(thetas), noise, lo, hi)
         for g, t in enumerate(thetas):
@@ -80,20 +99,33 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                 b = bounds.barankin(renders[g], renders[others], np.array(thetas)[others] - t, noise, lower=lo - t, upper=hi - t)
                 row["log10_barankin"] = b.log10
             rows.append(row)
-        summary[str(noise)] = {"max_log10_hcr": float(np.nanmax(curve.log10)), "min_log10_hcr": float(np.nanmin(curve.log10)),
-                               "at_edge": int(sum(bool(e) for e in curve.at_edge))}
+        per_noise[str(noise)] = {"max_log10_hcr": float(np.nanmax(curve.log10)),
+                                 "min_log10_hcr": float(np.nanmin(curve.log10)),
+                                 "at_edge": int(sum(bool(e) for e in curve.at_edge))}
     write_csv(out / "bounds.csv", rows)
-    bound_curves_plot(rows, out / "bounds.png", los_until=cfg["los_until"], xlabel=f"θ = {ctx.model.params.names[0]} [{ctx.model.params.units[0]}]")
-    return {"grid_points": len(thetas), "renders": len(thetas) * (3 if cfg["crlb"] else 1), "spp": cfg["spp"],
-            "los_until": cfg["los_until"], "parameter": ctx.model.params.names[0], "noise": summary}
+    summary = {"grid_points": len(thetas), "renders": len(thetas) * (3 if cfg["crlb"] else 1), "spp": cfg["spp"],
+               "seeds": cfg["seeds"], "los_until": cfg["los_until"], "parameter": ctx.model.params.names[0],
+               "units": ctx.model.params.units[0], "noise": per_noise}
+    _plot(rows, out, summary)
+    return summary
+
+
+def _plot(rows: list[dict], study_dir: Path, results: dict) -> Path:
+    units = results.get("units", "units")
+    return bound_curves_plot(rows, study_dir / "bounds.png", los_until=results.get("los_until"), units=units,
+                             xlabel=f"θ = {results.get('parameter', 'θ')} [{units}]")
+
+
+def smoke(block: dict) -> dict:
+    return {**block, "grid": smoke_grid(block["grid"], 4), "spp": min(block["spp"], 16)}
 
 
 def report(study_dir: Path, results: dict) -> str:
     rows = read_csv(study_dir / "bounds.csv")
-    bound_curves_plot(rows, study_dir / "bounds.png", los_until=results.get("los_until"),
-                      xlabel=f"θ = {results.get('parameter', 'θ')}")
-    lines = [f"HCR over a {results['grid_points']}-point grid at {results['spp']} spp "
-             f"({results['renders']} renders). Bounds on the variance of an unbiased estimator, log10 of units².", "",
+    _plot(rows, study_dir, results)
+    lines = [f"HCR over a {results['grid_points']}-point grid at {results['spp']} spp, "
+             f"{results.get('seeds', 'independent')} seeds ({results['renders']} renders). Bounds on the variance "
+             f"of an unbiased estimator, log10 of {results.get('units', 'units')}².", "",
              f"![bounds]({study_dir.name}/bounds.png)", "",
              "| noise | min log10 HCR | max log10 HCR | sup at Δ-grid edge |", "|---|---|---|---|"]
     for noise, s in results["noise"].items():

@@ -10,7 +10,7 @@ from .. import bounds
 from ..experiment.context import RunContext, read_csv, write_csv
 from ..experiment.schema import Field
 from ..forward.gradients import GradientSettings, fd_jacobian
-from ..io import read_exr, write_exr, write_png
+from ..io import read_exr, write_exr
 from .bounds import crlb_log10
 from .plotting import _plt
 
@@ -76,6 +76,12 @@ def _figure(out: Path, labels: list[str], names: list[str], n_noise: int) -> Pat
     fig.savefig(out / "fisher_maps.png", dpi=110)
     plt.close(fig)
     return out / "fisher_maps.png"
+
+
+def smoke(block: dict) -> dict:
+    keep = block["at"][:2]
+    return {**block, "at": keep, "labels": block["labels"] and block["labels"][:2], "spp": min(block["spp"], 16),
+            "fd_rounds": 1}
 
 
 def report(study_dir: Path, results: dict) -> str:

@@ -234,6 +234,10 @@ def heat_maps(rows: list[dict], out: Path, summary: dict) -> list[Path]:
     return paths
 
 
+def smoke(block: dict) -> dict:
+    return {**block, "num": min(block["num"], 3), "spp": min(block["spp"], 16), "fd_rounds": 1}
+
+
 def report(study_dir: Path, results: dict) -> str:
     rows = read_csv(study_dir / "viewpoints.csv")
     paths = heat_maps(rows, study_dir, results)
