@@ -331,20 +331,22 @@ def test_visibility_boost_with_boost_1_is_the_plain_pass(paper_box):
 
 def _paper_block(**kw) -> dict:
     """A paper-scale `gradients` block (the paper: 4096 and 16384 spp; FD averaged over 16 rounds)."""
+    from nlosbench.experiment.config import study_schema
     from nlosbench.experiment.schema import validate_block
     from nlosbench.studies import gradients as study
 
     return validate_block({"id": "grad", "spp": [4096, 16384], "seeds": 8, "ad_options": {},
-                           "reference": {"spp": 65536, "rounds": 16}, **kw}, study.SCHEMA)
+                           "reference": {"spp": 65536, "rounds": 16}, **kw}, study_schema(study))
 
 
 def test_smoke_shrinks_a_paper_scale_block():
+    from nlosbench.experiment.config import study_schema
     from nlosbench.experiment.schema import validate_block
     from nlosbench.studies import gradients as study
 
     big = _paper_block(backends=[{"method": "fd", "step": 0.01, "rounds": 16},
                                  {"method": "ad", "integrator": "prb_projective", "sppi": 0}])
-    tiny = validate_block(study.smoke(big), study.SCHEMA)  # still a valid block
+    tiny = validate_block(study.smoke(big), study_schema(study))  # still a valid block
     assert (tiny["spp"], tiny["seeds"], tiny["reference"]) == ([4, 8], 2, {"spp": 32, "rounds": 2})
     assert tiny["remedies"]["k"] == 4 and tiny["remedies"]["boost"] == 2
     assert tiny["backends"][0] == big["backends"][0]

@@ -334,6 +334,7 @@ def test_smoke_reduces_a_paper_scale_block(tmp_path):
     from nlosbench.experiment import config as config_mod
     from nlosbench.experiment.context import read_csv
     from nlosbench.experiment.runner import run
+    from nlosbench.experiment.config import study_schema
     from nlosbench.experiment.schema import validate_block
     from nlosbench.studies import inexact
 
@@ -346,7 +347,7 @@ def test_smoke_reduces_a_paper_scale_block(tmp_path):
     assert s["theta"] == pytest.approx([0.7, 1.69]) and s["deltas"] == pytest.approx([-0.01, 0.01])
     assert s["levels"] == [4, 8] and s["replicates"] == 2 and s["n_eff"] == sum(s["levels"])
     assert s["bootstrap"] == 10 and s["decay_weights"] == 200
-    validate_block({k: v for k, v in s.items() if k != "type"}, inexact.SCHEMA, "studies[0]")
+    validate_block({k: v for k, v in s.items() if k != "type"}, study_schema(inexact), "studies[0]")
 
     import yaml
 

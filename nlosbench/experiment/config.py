@@ -12,6 +12,8 @@ NOISE = {"model": Field(str, help="noise model name", choices=("awgn", "poisson"
          "sigma": Field(float, None, "AWGN standard deviation (radiance units)", nullable=True),
          "scale": Field(float, None, "Poisson: expected photons per unit radiance", nullable=True)}
 
+STUDY = {"id": Field(str, None, "folder name of the study in the run directory (default: NN-type)", nullable=True)}
+
 TOP = {
     "name": Field(str, "experiment", "a short name for the run"),
     "seed": Field(int, 0, "experiment seed; every random draw derives from it"),
@@ -101,7 +103,7 @@ def resolve(raw: dict) -> dict:
             mod = studies.get(block["type"])
         except KeyError as e:
             raise ConfigError(f"{path}.type", e.args[0]) from None
-        body = validate_block({k: v for k, v in block.items() if k != "type"}, mod.SCHEMA, path)
+        body = validate_block({k: v for k, v in block.items() if k != "type"}, study_schema(mod), path)
         if hasattr(mod, "check"):  # checks beyond the schema (e.g. registered names), before anything runs
             mod.check(body, path)
         out.append({"type": block["type"], **body})
@@ -109,6 +111,11 @@ def resolve(raw: dict) -> dict:
         raise ConfigError("studies", "expected at least one study")
     cfg["studies"] = out
     return cfg
+
+
+def study_schema(mod) -> dict:
+    """The keys a study block may have: the common ones (`id`) and the study module's SCHEMA."""
+    return {**STUDY, **mod.SCHEMA}
 
 
 def grid_values(spec) -> list[float]:

@@ -19,7 +19,6 @@ from .plotting import bound_curves_plot
 
 NAME = "bounds"
 SCHEMA = {
-    "id": Field(str, None, "folder name for this study's files", nullable=True),
     "grid": GRID,
     "spp": Field(int, 1024, "samples per pixel of each grid render"),
     "seeds": Field(str, "independent", "render seeds across the grid: independent (the paper) or common "

@@ -51,7 +51,6 @@ from .plotting import _plt, finish
 NAME = "fidelity"
 KNOBS = ("spp", "bin", "max_depth", "gradient")
 SCHEMA = {
-    "id": Field(str, None, "folder name for this study's files", nullable=True),
     "grid": GRID,
     "spp": Field(list, [256, 1024, 4096], "samples per sensor pixel; the largest is the reference", items=int),
     "bins": Field(list, [1], "binning factors b (b×b pixels → one, photon budget fixed); 1 is the reference",

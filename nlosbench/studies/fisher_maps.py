@@ -16,7 +16,6 @@ from .plotting import _plt
 
 NAME = "fisher-maps"
 SCHEMA = {
-    "id": Field(str, None, "folder name for this study's files", nullable=True),
     "at": Field(list, help="θ values (a number per point for 1-D θ, else a list)"),
     "labels": Field(list, None, "a label per θ (e.g. LOS, NLOS)", items=str, nullable=True),
     "spp": Field(int, 1024, "samples per pixel of the renders"),

@@ -30,7 +30,6 @@ from ..io import write_exr
 
 NAME = "gradients"
 SCHEMA = {
-    "id": Field(str, None, "folder name for this study's files", nullable=True),
     "params": Field(list, None, "parameters to differentiate (default: all of the scene's)", items=str, nullable=True),
     "at": Field(dict, {}, "θ where gradients are taken, by parameter name (default: the scene's values)"),
     "spp": Field(list, [64, 256], "spp levels of the gradient images", items=int),

@@ -42,7 +42,6 @@ from .plotting import _plt
 NAME = "inexact"
 BUDGET_TOLERANCE = 0.1  # warn when N_eff and Σ N_i differ by more than this fraction
 SCHEMA = {
-    "id": Field(str, None, "folder name for this study's files", nullable=True),
     "theta": GRID,
     "deltas": Field("any", help="offsets Δ (parameter units): a list or {start, stop, num}; list ± for both "
                                 "sides; Δ = 0 and θ*+Δ outside Θ are skipped"),

@@ -58,7 +58,6 @@ ESTIMATOR = {
                                 "parameter from `verdicts` (a gradients study's verdicts.json) or the prior"),
 }
 SCHEMA = {
-    "id": Field(str, "trials", "folder of this study in the run directory"),
     "theta": Field("any", help="θ* values: numbers (or {start, stop, num}) for a 1-D θ, else a list of lists"),
     "n": Field(int, 30, "trials per θ* (fresh noise and fresh start each)"),
     "n_eff": Field(int, 4096, "spp of the clean image at θ* and of the bound renders"),
@@ -282,7 +281,7 @@ def run(ctx, cfg: dict) -> dict:
     The result's `renders` counts renders + AD passes in every process: all fits in trials.jsonl, and
     the clean and bound renders this call made (a resumed run reads those back)."""
     t0 = time.perf_counter()
-    sid = cfg.get("id", NAME)
+    sid = cfg.get("id") or NAME
     params = ctx.model.params
     thetas = parse_thetas(cfg["theta"], params, f"{sid}.theta")
     if cfg["n"] < 1:
@@ -516,14 +515,12 @@ def _fmt_log10(lg: float) -> str:
 def report(study_dir, results: dict) -> str:
     """Markdown: what was run, the paper-style MSE-vs-bounds table and the detailed MSE/bound table per
     noise model, flags, failures and the plots."""
-    sid = results["id"]
     rows, bounds = results["summary"], results["bounds"]
     failed = sum(r["n_failed"] for r in rows)
     nonconv = sum(r["n_nonconverged"] for r in rows)
     fit_s = sum(r["total_seconds"] for r in rows)
     fit_renders = sum(r["total_renders"] + r["total_grad_passes"] for r in rows)
-    lines = [f"## Trials ({sid}): estimators against the bounds", "",
-             f"{results['n']} trials per θ* at {len(results['theta'])} θ* of {results['params']} "
+    lines = [f"Estimators against the bounds: {results['n']} trials per θ* at {len(results['theta'])} θ* of {results['params']} "
              f"({', '.join(results['units'])}), estimators {results['estimators']}, noise "
              f"{', '.join(results['noise'].values())}; clean images at N_eff = {results['n_eff']} spp. "
              f"{results['trials']} fits recorded, {failed} failed, {nonconv} not converged; "

@@ -34,7 +34,6 @@ from .plotting import _plt
 
 NAME = "viewpoints"
 SCHEMA = {
-    "id": Field(str, None, "folder name for this study's files", nullable=True),
     "at": Field(list, None, "θ (one value per studied parameter) at which information is computed "
                 "(default: the parameters' defaults)", items=float, nullable=True),
     "num": Field(int, 3, "viewpoints per axis; odd, so the standard view is the centre (paper: 31)"),
