@@ -132,3 +132,14 @@ def test_restricted_colour_gradient_uses_prb(cornell):
     g = r.vjp([0.8], torch.ones(32, 32, 3), 64, 1)
     assert g.shape == (1,) and np.isfinite(g).all()
     assert [dict(k)["type"] for k in cornell._ad_cache] == ["prb"]
+
+
+def test_non_box_pixel_filter_warns_that_renders_are_not_bit_reproducible(tmp_path):
+    src = (nb.scenes.SCENE_DIR / "cornell_ball.xml").read_text()
+    assert '<rfilter type="box"/>' in src
+    (tmp_path / "g.xml").write_text(src.replace('<rfilter type="box"/>', '<rfilter type="gaussian"/>'))
+    spec = tmp_path / "g.yaml"
+    spec.write_text("file: g.xml\nparams:\n  - {name: x, kind: translate, object: ball, axis: [1, 0, 0], "
+                    "lower: -0.3, upper: 0.3, default: 0}\n")
+    with pytest.warns(UserWarning, match="GaussianFilter is not a box filter"):
+        nb.scenes.get(str(spec), defines={"res": 8})
