@@ -13,9 +13,9 @@ from .. import bounds
 from ..experiment.config import GRID, grid_values, smoke_grid
 from ..experiment.context import RunContext, read_csv, write_csv
 from ..experiment.schema import Field
-from ..forward.gradients import GradientSettings, fd_jacobian
 from ..io import write_exr
 from .plotting import bound_curves_plot
+from .tasks import jacobian_task, render_task, run_tasks
 
 NAME = "bounds"
 SCHEMA = {
@@ -42,32 +42,21 @@ def crlb_log10(L, J, noise) -> tuple[np.ndarray, str]:
         return np.log10(c.component), (c.reason if c.singular else "")
 
 
-def _grid_point(model, item: tuple) -> tuple:
-    """Worker task: (g, render (H, W, C) float32, FD Jacobian (P, H, W, C) or None) at one grid θ."""
-    g, theta, spp, seed, fd_seed, step = item
-    img = model.render([theta], spp, seed).numpy()
-    jac = None if step is None else fd_jacobian(model, [theta], spp, fd_seed, GradientSettings(step=step))
-    return g, img, jac
-
-
 def grid_renders(ctx: RunContext, thetas: list[float], spp: int, purpose: str, seeds: str = "independent",
                  fd_step: float | None = None) -> tuple[np.ndarray, list | None]:
     """Renders (G, H, W, C) float32 at each θ and, with `fd_step`, their FD Jacobians (CRN), through the
     run's executor. seeds: "independent" (a derived seed per point, as in the paper) or "common" (one
     seed for every point: common random numbers across θ, so differences L(θ+Δ) − L(θ) carry far less
     rendering noise and λ is inflated less, at the price of correlated errors along the curve)."""
-    from ..executors import SerialExecutor
-
-    executor = ctx.executor or SerialExecutor(ctx.model)
     idx = (lambda g: 0) if seeds == "common" else (lambda g: g)
-    items = [(g, t, spp, ctx.seed_for(purpose, idx(g)), ctx.seed_for(purpose + "-fd", idx(g)), fd_step)
-             for g, t in enumerate(thetas)]
-    out = {}
-    for g, img, jac in ctx.progress(executor.imap_unordered(_grid_point, items), total=len(items),
-                                    desc=f"{purpose} renders"):
-        out[g] = (img, jac)
-    renders = np.stack([out[g][0] for g in range(len(thetas))])
-    return renders, (None if fd_step is None else [out[g][1] for g in range(len(thetas))])
+    imgs, _ = run_tasks(ctx, render_task, [(g, [t], spp, ctx.seed_for(purpose, idx(g))) for g, t in enumerate(thetas)],
+                        f"{purpose} renders")
+    renders = np.stack([imgs[g].numpy() for g in range(len(thetas))])
+    if fd_step is None:
+        return renders, None
+    jac, _ = run_tasks(ctx, jacobian_task, [(g, [t], spp, ctx.seed_for(purpose + "-fd", idx(g)), fd_step)
+                                            for g, t in enumerate(thetas)], "FD Jacobians")
+    return renders, [jac[g] for g in range(len(thetas))]
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:

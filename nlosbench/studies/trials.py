@@ -33,8 +33,10 @@ from ..executors import SerialExecutor
 from ..experiment.config import grid_values, smoke_grid
 from ..experiment.context import read_csv, write_csv, write_json
 from ..experiment.schema import ConfigError, Field
-from ..forward.gradients import GradientSettings, fd_jacobian
+from ..forward.gradients import GradientSettings
 from ..trials import LOG_NAME, Setting, make_trials, run_trials, summarize
+from .plotting import _plt
+from .tasks import jacobian_task, render_task, run_tasks
 
 NAME = "trials"
 BOUNDS = ("hcr", "crlb", "barankin", "hcr_hat")
@@ -145,31 +147,7 @@ def parse_settings(specs: list, where: str, model) -> list[Setting]:
     return out
 
 
-# -- renders through the executor ---------------------------------------------------------------
-def _render_task(model, item):
-    """(tag, image, renders done) in whichever process runs it (cached renders count 0)."""
-    tag, theta, spp, seed = item
-    before = model.stats.snapshot()
-    img = model.render(theta, spp, seed)
-    return tag, img, model.stats.since(before).renders
-
-
-def _jacobian_task(model, item):
-    tag, theta, spp, seed, step = item
-    before = model.stats.snapshot()
-    jac = fd_jacobian(model, theta, spp, seed, GradientSettings(step=step))
-    return tag, jac, model.stats.since(before).renders
-
-
-def _run(ctx, executor, fn, items: list, desc: str) -> tuple[dict, int]:
-    """({tag: result}, renders done) of the tasks `items` through the executor, with a progress bar."""
-    out, renders = {}, 0
-    for tag, value, n in ctx.progress(executor.imap_unordered(fn, items), total=len(items), desc=desc):
-        out[tag] = value
-        renders += n
-    return out, renders
-
-
+# -- clean images and bounds ---------------------------------------------------------------------
 def offsets(params, theta: np.ndarray, count: int, step: float) -> np.ndarray:
     """Axis offsets θ* ± ξ·2^k e_j (k < count) inside Θ, as points (M, P)."""
     pts = []
@@ -194,7 +172,7 @@ def clean_images(ctx, executor, thetas: np.ndarray, cfg: dict, folder: Path) -> 
     files = {i: folder / "images" / f"clean_{i:03d}.exr" for i in range(len(thetas))}
     out = {i: torch.from_numpy(io.read_exr(f)) for i, f in files.items() if ctx.resume and f.exists()}
     todo = [(i, thetas[i], cfg["n_eff"], bound_seed(ctx, cfg, "clean", i)) for i in files if i not in out]
-    done, renders = _run(ctx, executor, _render_task, todo, "clean images")
+    done, renders = run_tasks(ctx, render_task, todo, "clean images", executor)
     for i, img in done.items():
         io.write_exr(files[i], img)
         out[i] = img
@@ -214,10 +192,10 @@ def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> tu
         jobs += [(("grid", g), t, n_eff, bound_seed(ctx, cfg, "hcr-grid", g)) for g, t in enumerate(grid)]
         jobs += [(("offset", i, q), t, n_eff, bound_seed(ctx, cfg, "hcr-offset", i, q))
                  for i in offs for q, t in enumerate(offs[i])]
-    renders, count = _run(ctx, executor, _render_task, jobs, "bound renders")
-    jac, jac_count = _run(ctx, executor, _jacobian_task, [(i, t, n_eff, ctx.seed_for("crlb", i), step)
-                                                           for i, t in enumerate(thetas)] if "crlb" in want else [],
-                          "CRLB Jacobians")
+    renders, count = run_tasks(ctx, render_task, jobs, "bound renders", executor)
+    jac, jac_count = run_tasks(ctx, jacobian_task, [(i, t, n_eff, ctx.seed_for("crlb", i), step)
+                                                    for i, t in enumerate(thetas)] if "crlb" in want else [],
+                               "CRLB Jacobians", executor)
     count += jac_count
     before = model.stats.snapshot()  # HCR-hat renders its spp levels in this process
     rows = []
@@ -394,15 +372,6 @@ def _num(v: str):
 
 
 # -- plots ------------------------------------------------------------------------------------------
-def _pyplot():
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
 def mse_units(units) -> str:
     """Units of the MSE of θ: the parameters' unit squared (or a note when they differ)."""
     return f"{units[0]}²" if len(set(units)) == 1 else "mixed units²"
@@ -410,7 +379,7 @@ def mse_units(units) -> str:
 
 def plot_mse(rows: list[dict], bound_rows: list[dict], bounds, params, noise_names: dict, path: Path) -> Path:
     """MSE (± SE) of every estimator and the bounds against θ*, log scale; one panel per noise model."""
-    plt = _pyplot()
+    plt = _plt()
     noises = sorted({r["noise"] for r in rows})
     fig, axes = plt.subplots(1, len(noises), figsize=(6 * len(noises), 4.2), squeeze=False)
     xname = params.names[0] if params.dim == 1 else "θ* index"
@@ -438,7 +407,7 @@ def plot_mse(rows: list[dict], bound_rows: list[dict], bounds, params, noise_nam
 def plot_speed(rows: list[dict], units: str, path: Path) -> Path:
     """Speed against error: per estimator setting (and noise model), mean wall seconds and renders
     (+ AD passes) per trial against the MSE averaged over θ*, log–log."""
-    plt = _pyplot()
+    plt = _plt()
     from matplotlib.ticker import NullFormatter
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
