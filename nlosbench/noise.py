@@ -47,6 +47,8 @@ class NoiseModel(ABC):
     """Observation model Y ~ p_L for an image of mean radiance L (shape *S, pixels independent)."""
 
     name: ClassVar[str] = ""
+    #: chi2_exponent(L0, L1) == chi2_exponent(L1, L0) for every pair (pairwise λ then computes half)
+    symmetric: ClassVar[bool] = False
 
     def validate(self, L: torch.Tensor, what: str) -> None:
         """Raise ValueError naming `what` if `L` is not a valid mean image (default: finite)."""
@@ -184,6 +186,7 @@ class AWGN(QuadraticNoise):
     """Additive white Gaussian noise Y = L + ε, ε ~ N(0, σ²), σ in radiance units."""
 
     sigma: float
+    symmetric: ClassVar[bool] = True  # λ = ‖L1 − L0‖² / σ²
 
     def __post_init__(self):
         if not (math.isfinite(self.sigma) and self.sigma > 0):

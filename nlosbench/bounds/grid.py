@@ -21,6 +21,7 @@ def pairwise_lambda(renders, noise: NoiseModel, chunk_bytes: int = 256 * 2**20) 
 
     renders: (G, *S) torch tensor (any device) or numpy array / memmap, any float dtype.
     chunk_bytes: float64 working memory per block (a block of columns and its differences).
+    For a symmetric noise model (AWGN) only j > i is computed, about half the work.
     Raises ValueError naming the render when one holds NaN/Inf (or is invalid for the model)."""
     G = len(renders)
     X = renders.reshape(G, -1)
@@ -36,9 +37,12 @@ def pairwise_lambda(renders, noise: NoiseModel, chunk_bytes: int = 256 * 2**20) 
             XJ = to_float64(X[j0:j1, c0:c1])
             for r in range(j1 - j0):
                 noise.validate(XJ[r], f"renders[{j0 + r}]")
-            for i in range(G):
+            for i in range(j1 - 1 if noise.symmetric else G):  # symmetric: the upper triangle j > i suffices
                 Xi = XJ[i - j0] if j0 <= i < j1 else to_float64(X[i, c0:c1])
-                lam[i, j0:j1] += noise.chi2_exponent(Xi, XJ, check=False)
+                k = max(i + 1 - j0, 0) if noise.symmetric else 0
+                lam[i, j0 + k:j1] += noise.chi2_exponent(Xi, XJ[k:], check=False)
+    if noise.symmetric:
+        lam = lam + lam.T
     return as_numpy(lam)
 
 
