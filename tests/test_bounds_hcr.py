@@ -184,3 +184,11 @@ def test_benchmark_reduced_agrees():
     assert {"hcr_curve", "pairwise_lambda"} <= names
     curve = next(r for r in rows if r["bench"] == "hcr_curve")
     assert curve["max_abs_log10_diff"] <= 1e-9 and curve["ratio"] > 0
+
+
+def test_all_unresolved_deltas_say_there_is_no_finite_bound():
+    """Identical images at every Δ (λ = 0): the functional is infinite there, so the −inf log10 must
+    not read as a bound of 0; the result says so and is flagged unresolved."""
+    r = B.hcr_from_lambda(np.zeros(3), np.array([-0.1, 0.1, 0.2]))
+    assert r.unresolved and r.index == -1 and r.log10 == -np.inf
+    assert "no finite bound" in r.reason and "infinite functional" in r.reason

@@ -93,7 +93,9 @@ def hcr_from_lambda(lam, deltas, lower=None, upper=None) -> HCRResult:
 
     reasons = []
     k = int(np.argmax(np.where(usable, logf, -np.inf))) if usable.any() else -1
-    if k < 0:
+    if k < 0 and unres.any():
+        reasons.append("no Δ with 0 < λ < inf: log10 = -inf stands for 'no finite bound', not a bound of 0")
+    elif k < 0:
         reasons.append("no usable Δ (every Δ has λ = +inf, Δ = 0 or lies outside the bounds)")
     at_edge = _edge(D, norm2, valid, k, scalar)
     if at_edge == "smallest":
