@@ -17,7 +17,7 @@ import torch
 
 def check_bin(b) -> int:
     """A binning factor b as an int ≥ 1, else ValueError."""
-    if isinstance(b, bool) or not isinstance(b, (int, np.integer, float)) or int(b) != b or b < 1:
+    if isinstance(b, bool) or not isinstance(b, (int, np.integer, float)) or not float(b).is_integer() or b < 1:
         raise ValueError(f"binning factor must be an integer >= 1, got {b!r}")
     return int(b)
 

@@ -1,6 +1,7 @@
 """Parameter space Θ: named scalar parameters with units, box bounds and defaults (θ as float64 (P,))."""
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -63,8 +64,8 @@ class ParamSpace:
     def subset(self, names: Sequence[str]) -> "ParamSpace":
         return ParamSpace([self.params[self.index(n)] for n in names])
 
-    def validate(self, theta, check_bounds: bool = True) -> np.ndarray:
-        """θ as float64 (P,), after checking its length, finiteness and (by default) Θ's bounds."""
+    def validate(self, theta) -> np.ndarray:
+        """θ as float64 (P,), after checking its length, finiteness and Θ's bounds."""
         if isinstance(theta, torch.Tensor):
             theta = theta.detach().cpu().double().numpy()
         t = np.atleast_1d(np.asarray(theta, dtype=np.float64))
@@ -72,11 +73,10 @@ class ParamSpace:
             raise ValueError(f"θ must have {self.dim} value(s) {list(self.names)}, got shape {np.shape(theta)}")
         if not np.all(np.isfinite(t)):
             raise ValueError(f"θ must be finite, got {t.tolist()}")
-        if check_bounds:
-            bad = [f"{n}={v:g} outside [{lo:g}, {hi:g}] {u}" for n, v, lo, hi, u in
-                   zip(self.names, t, self.lower, self.upper, self.units) if not lo <= v <= hi]
-            if bad:
-                raise ValueError("θ out of range: " + "; ".join(bad))
+        bad = [f"{n}={v:g} outside [{lo:g}, {hi:g}] {u}" for n, v, lo, hi, u in
+               zip(self.names, t, self.lower, self.upper, self.units) if not lo <= v <= hi]
+        if bad:
+            raise ValueError("θ out of range: " + "; ".join(bad))
         return t
 
     def contains(self, theta) -> bool:
@@ -86,3 +86,9 @@ class ParamSpace:
     def sample_uniform(self, generator: np.random.Generator) -> np.ndarray:
         """A uniform random point of Θ, float64 (P,)."""
         return generator.uniform(self.lower, self.upper)
+
+    def grid(self, num: int) -> np.ndarray:
+        """The tensor grid of `num` points per axis over Θ, ends included: (num^P, P) float64, the last
+        parameter varying fastest."""
+        axes = [np.linspace(lo, hi, num) for lo, hi in zip(self.lower, self.upper)]
+        return np.array(list(itertools.product(*axes)), dtype=np.float64).reshape(-1, self.dim)

@@ -70,6 +70,7 @@ class Trial:
 
 
 def record_key(rec: dict) -> tuple:
+    """(noise j, θ* index i, trial k, estimator label) of a logged record: its `Trial.key`."""
     return (rec["noise"], rec["theta_index"], rec["trial"], rec["estimator"])
 
 
@@ -216,7 +217,7 @@ def summarize(records: Sequence[dict], names: Sequence[str], bounds: dict | None
     MSE + 2 SE < bound (an unbiased estimator cannot do that: bias, too few trials, or a bound
     overestimated by rendering noise). Rows follow `labels` (default: sorted estimator labels)."""
     groups: dict[tuple, list[dict]] = {}
-    for r in sorted(records, key=lambda r: (r["noise"], r["theta_index"], r["trial"], r["estimator"])):
+    for r in sorted(records, key=record_key):
         groups.setdefault((r["noise"], r["theta_index"], r["estimator"]), []).append(r)
     labels = list(labels or sorted({k[2] for k in groups}))
     rows = []

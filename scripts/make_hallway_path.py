@@ -218,6 +218,7 @@ def spec_yaml(g: dict) -> str:
 # Path: start mid-hallway → turn at the door → room near its right wall → back wall.
 file: hallway_room.xml
 description: real hallway + room (paper, section 3), red ball on an 860-point 1 cm path; 256×512 at paper scale
+smoke: {{defines: {{width: 8, height: 16, max_depth: 4}}}}    # `nlosbench run --smoke`: a seconds-long run
 params:
   - name: ball_location
     kind: path

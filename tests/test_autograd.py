@@ -166,6 +166,19 @@ def test_mixed_jacobian_takes_each_component_from_its_backend():
     assert torch.equal(jacobian(m, [0.5, 0.4], 1, 0, s, [1])[0], J[1])
 
 
+def test_mixed_vjp_picks_the_ad_integrator_for_its_ad_parameters_only(small_box):
+    """Mixed with no AD `type`: the AD part (red_color) gets `prb` although red_x / red_radius move
+    geometry (they go by FD), also through a restriction; its value matches a plain `prb` reverse pass."""
+    m, w = small_box, torch.ones(16, 16, 3)
+    m._ad_cache.clear()
+    g = vjp(m, m.params.default, w, 16, 7, GradientSettings("mixed", ad_params=(2,)))
+    r = m.restrict(["red_x", "red_color"])
+    g_r = vjp(r, [m.params.default[0], m.params.default[2]], w, 16, 7, GradientSettings("mixed", ad_params=(1,)))
+    assert [dict(k)["type"] for k in m._ad_cache] == ["prb"]
+    ad = vjp(m, m.params.default, w, 16, 7, GradientSettings("ad", ad={"type": "prb"}))
+    assert abs(g[2] - ad[2]) < 1e-5 * abs(ad[2]) and abs(g_r[1] - ad[2]) < 1e-5 * abs(ad[2])
+
+
 def test_bad_auto_and_mixed_settings(tmp_path):
     m = nb.scenes.get("blob2d")
     with pytest.raises(ValueError, match="method 'mixed'"):

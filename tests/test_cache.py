@@ -49,3 +49,19 @@ def test_two_processes_writing_the_same_key(tmp_path):
     got = RenderCache(tmp_path).get("ab" * 32)
     assert got is not None and np.array_equal(got.numpy().ravel(), np.arange(3 * 64 * 64))
     assert not [f for f in tmp_path.rglob(".*") if f.is_file()]  # no temporary files left
+
+
+def test_scene_hash_covers_included_and_referenced_files(tmp_path):
+    """The cache key's scene hash changes when a file the scene includes or loads changes."""
+    from nlosbench.forward.mitsuba_model import _scene_hash
+
+    main = tmp_path / "main.xml"
+    main.write_text('<scene version="3.0.0"><include filename="part.xml"/>'
+                    '<shape type="obj"><string name="filename" value="mesh.obj"/></shape></scene>')
+    (tmp_path / "part.xml").write_text("<scene/>")
+    (tmp_path / "mesh.obj").write_text("v 0 0 0\n")
+    h0 = _scene_hash(main)
+    (tmp_path / "part.xml").write_text('<scene><bsdf type="diffuse"/></scene>')
+    h1 = _scene_hash(main)
+    (tmp_path / "mesh.obj").write_text("v 0 0 1\n")
+    assert len({h0, h1, _scene_hash(main)}) == 3

@@ -117,7 +117,7 @@ def test_binned_noise_models_and_bad_factors():
     assert nb.noise.AWGN(sigma=0.4).binned(2) == nb.noise.AWGN(sigma=0.2)
     assert nb.noise.Poisson(scale=3.0).binned(3) == nb.noise.Poisson(scale=27.0)
     assert bin_image(np.ones((4, 6, 3)), 1).shape == (4, 6, 3)
-    for b in (0, 1.5, True, "2"):
+    for b in (0, 1.5, True, "2", float("inf"), float("nan")):
         with pytest.raises(ValueError, match="binning factor"):
             bin_image(np.ones((4, 4, 3)), b)
     with pytest.raises(ValueError, match="cannot bin a 4×6 image by b = 4"):

@@ -136,6 +136,21 @@ def test_hallway_moving_the_ball_changes_the_image_far_more_in_los_than_in_nlos(
     assert los > 0.1 and los > 20 * nlos, (los, nlos)
 
 
+def test_hallway_files_are_what_the_generator_writes():
+    """scenes/hallway_room.{xml,yaml} equal the output of scripts/make_hallway_path.py (edit the script, not
+    the generated files: a hand edit would be lost on the next regeneration)."""
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("make_hallway_path", root / "scripts" / "make_hallway_path.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    g = gen.layout()
+    assert (root / "scenes" / "hallway_room.xml").read_text() == gen.scene_xml(g)
+    assert (root / "scenes" / "hallway_room.yaml").read_text() == gen.spec_yaml(g)
+
+
 # -- Π hallway ---------------------------------------------------------------------------------------
 def test_pi_hallway_loads_renders_and_the_object_slides(pi):
     assert pi.params.names == ("object_position",)

@@ -41,3 +41,11 @@ def test_uniform_samples_inside(rng):
     pts = np.array([s.sample_uniform(rng) for _ in range(200)])
     assert all(s.contains(p) for p in pts)
     assert pts[:, 0].min() < -0.8 and pts[:, 0].max() > 0.8
+
+
+def test_grid_is_the_tensor_product_over_theta():
+    g = space().grid(3)
+    assert g.shape == (9, 2) and g.dtype == np.float64
+    np.testing.assert_allclose(g[:3], [[-1.0, 0.1], [-1.0, 0.3], [-1.0, 0.5]], rtol=1e-15)  # last parameter fastest
+    s = space()
+    assert all(s.contains(t) for t in g) and (g.min(0) == s.lower).all() and (g.max(0) == s.upper).all()

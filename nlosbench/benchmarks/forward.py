@@ -12,20 +12,25 @@ import time
 
 import numpy as np
 
+from ..seeds import derive
+
 THETA = [0.0, 0.3, 0.8]
+SEED = 2024
 
 
 def _overhead(model, spp: int, reps: int) -> dict:
     import mitsuba as mi
 
-    model.render(THETA, spp, 0), mi.render(model.scene, spp=spp, seed=0)  # compile both
+    warmup = derive(SEED, "bench-overhead-warmup")
+    model.render(THETA, spp, warmup), mi.render(model.scene, spp=spp, seed=warmup)  # compile both
     t_ours = t_raw = 0.0
     for i in range(reps):  # interleaved, so machine noise hits both alike
+        s = derive(SEED, "bench-overhead", i)
         t = time.perf_counter()
-        model.render(THETA, spp, 1000 + i)
+        model.render(THETA, spp, s)
         t_ours += time.perf_counter() - t
         t = time.perf_counter()
-        np.asarray(mi.render(model.scene, spp=spp, seed=1000 + i))
+        np.asarray(mi.render(model.scene, spp=spp, seed=s))
         t_raw += time.perf_counter() - t
     return {"bench": "forward_overhead", "spp": spp, "reps": reps, "ours_s": t_ours / reps, "raw_s": t_raw / reps,
             "ratio": t_raw / t_ours}
@@ -38,9 +43,9 @@ def _fd_variance(model, spp: int, reps: int) -> list[dict]:
     out = {}
     for crn in (True, False):
         s = GradientSettings(step=0.02, crn=crn)
-        t = time.perf_counter()
-        vals = [float(fd_jacobian(model, THETA, spp, 500 + r, s, indices=[j]).double().sum()) for r in range(reps)]
-        out[crn] = (np.var(vals, ddof=1), np.mean(vals), (time.perf_counter() - t) / reps)
+        vals = [float(fd_jacobian(model, THETA, spp, derive(SEED, "bench-fd", r), s, indices=[j]).double().sum())
+                for r in range(reps)]
+        out[crn] = (np.var(vals, ddof=1), np.mean(vals))
     return [{"bench": "fd_crn_vs_independent", "spp": spp, "reps": reps, "renders_per_gradient": 2,
              "var_crn": out[True][0], "var_independent": out[False][0], "mean_crn": out[True][1],
              "mean_independent": out[False][1], "ratio": out[False][0] / out[True][0]}]
@@ -48,13 +53,13 @@ def _fd_variance(model, spp: int, reps: int) -> list[dict]:
 
 def _ad_cost(model, spp: int, reps: int, ad: dict) -> dict:
     j = model.params.index("ball_x")
-    model.jvp(THETA, j, spp, 0, **ad)  # compile
+    model.jvp(THETA, j, spp, derive(SEED, "bench-ad-warmup"), **ad)  # compile
     t = time.perf_counter()
-    vals = [float(model.jvp(THETA, j, spp, 700 + r, **ad).double().sum()) for r in range(reps)]
+    vals = [float(model.jvp(THETA, j, spp, derive(SEED, "bench-ad", r), **ad).double().sum()) for r in range(reps)]
     t_ad = (time.perf_counter() - t) / reps
     t = time.perf_counter()
     for r in range(reps):
-        model.render(THETA, spp, 900 + r)
+        model.render(THETA, spp, derive(SEED, "bench-ad-forward", r))
     t_fwd = (time.perf_counter() - t) / reps
     return {"bench": "ad_prb_projective", "spp": spp, "reps": reps, "ad": str(ad), "var_ad": float(np.var(vals, ddof=1)),
             "mean_ad": float(np.mean(vals)), "ad_s": t_ad, "forward_s": t_fwd, "ratio": t_ad / t_fwd}

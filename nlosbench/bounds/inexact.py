@@ -121,13 +121,15 @@ def quadratic(noise: NoiseModel) -> QuadraticNoise:
 
 def replicate_grams(X0, XD, weight_image, noise: NoiseModel) -> np.ndarray:
     """Gram matrices (K, R, R) float64 of replicate differences, G_rs = Σ_ω w D_r D_s with
-    D_r = XD[r, k] − X0[r] (direct differences in float64) and w = noise.weight(weight_image).
+    D_r = XD[r, k] − X0[r] (direct differences in float64, XD taken to float64 one Δ at a time) and
+    w = noise.weight(weight_image).
 
     X0: (R, *S) replicates at θ*; XD: (R, K, *S) replicates at θ*+Δ_k; weight_image: (*S).
     A Δ whose difference is non-zero at a pixel of infinite weight (Poisson, L0 = 0) gets G = +inf
     (λ = +inf: that Δ gives no bound), as in `noise.chi2_exponent`."""
     noise = quadratic(noise)
-    X0, XD, Lw = to_float64(X0, "X0"), to_float64(XD, "XD"), to_float64(weight_image, "weight_image")
+    X0, Lw = to_float64(X0, "X0"), to_float64(weight_image, "weight_image")
+    XD = XD if isinstance(XD, torch.Tensor) else torch.as_tensor(np.asarray(XD))
     R, S = X0.shape[0], tuple(X0.shape[1:])
     if tuple(XD.shape[:1]) != (R,) or tuple(XD.shape[2:]) != S or tuple(Lw.shape) != S:
         raise ValueError(f"expected X0 (R, *S), XD (R, K, *S), weight_image (*S); got {tuple(X0.shape)}, "
@@ -138,12 +140,13 @@ def replicate_grams(X0, XD, weight_image, noise: NoiseModel) -> np.ndarray:
     w = noise.weight(Lw).expand(S).reshape(-1)
     inf = torch.isinf(w)
     wf = torch.where(inf, torch.zeros_like(w), w)
+    any_inf = bool(inf.any())
     K = XD.shape[1]
     G = np.empty((K, R, R))
     for k in range(K):
-        D = (XD[:, k] - X0).reshape(R, -1)
+        D = (to_float64(XD[:, k], "XD") - X0).reshape(R, -1)
         G[k] = as_numpy((D * wf) @ D.T)
-        if bool(inf.any()) and bool((D[:, inf] != 0).any()):
+        if any_inf and bool((D[:, inf] != 0).any()):
             G[k] = np.inf
     return G
 
@@ -248,7 +251,7 @@ def inexact_hcr(X0, XD, deltas, levels: Sequence[int], noise: NoiseModel, X0_eff
     limits on Δ as in `hcr`; power: decay rate p of the fit; bootstrap: resamples over the
     replicates (0: none; needs R ≥ 2); seed: the bootstrap's random stream (derive it)."""
     X0, X0_eff = to_float64(X0, "X0"), to_float64(X0_eff, "X0_eff")
-    # the Δ renders stay in their dtype: `replicate_grams` takes them to float64 one level at a time
+    # the Δ renders stay in their dtype: `replicate_grams` takes them to float64 one Δ at a time
     XD, XD_eff = (x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x)) for x in (XD, XD_eff))
     k, R = X0.shape[:2]
     lv = check_levels(levels, R)

@@ -201,7 +201,11 @@ def image_metrics(images, ref: Reference, threshold: float = THRESHOLD, min_area
     """One dict per seed: outlier pixels, clusters (count, total and largest area), largest score,
     total derivative, RMSE against the reference image."""
     a = as_stack(images)
-    z = outlier_scores(a, ref)
+    return _seed_rows(a, outlier_scores(a, ref), ref, threshold, min_area)
+
+
+def _seed_rows(a: np.ndarray, z: np.ndarray, ref: Reference, threshold: float, min_area: int) -> list[dict]:
+    """image_metrics from the stack a (S, H, W, C) and its scores z (S, H, W)."""
     rows = []
     for s in range(a.shape[0]):
         cl = clusters(z[s], threshold, min_area)
@@ -215,8 +219,9 @@ def summarize(images, ref: Reference, threshold: float = THRESHOLD, min_area: in
     """Metrics of S seeds of one backend: mean clusters and outlier pixels per image, persistence,
     total-derivative agreement, mean per-pixel variance across seeds, image RMSE."""
     a = as_stack(images)
-    per = image_metrics(a, ref, threshold, min_area)
-    masks = outlier_mask(outlier_scores(a, ref), threshold, min_area)
+    z = outlier_scores(a, ref)
+    per = _seed_rows(a, z, ref, threshold, min_area)
+    masks = outlier_mask(z, threshold, min_area)
     out = {"seeds": a.shape[0],
            "clusters_per_image": float(np.mean([r["clusters"] for r in per])),
            "outlier_pixels_per_image": float(np.mean([r["outlier_pixels"] for r in per])),

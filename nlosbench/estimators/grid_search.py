@@ -9,7 +9,6 @@ for a scalar θ the refinement is Brent's bounded search, which stops on the θ 
 """
 from __future__ import annotations
 
-import itertools
 import json
 
 import numpy as np
@@ -48,7 +47,7 @@ class GridSearch(Estimator):
         if num < 2 or not xtol > 0:
             raise ValueError(f"grid-search: need num >= 2 and xtol > 0, got num={num}, xtol={xtol}")
         self.num, self.spp, self.refine = int(num), int(spp), bool(refine)
-        self.refine_spp = int(refine_spp or spp)
+        self.refine_spp = int(ints["refine_spp"])
         self.refine_evals, self.xtol, self.max_grid = int(refine_evals), float(xtol), int(max_grid)
         self._grids: dict[str, tuple[np.ndarray, list[torch.Tensor]]] = {}
 
@@ -61,8 +60,7 @@ class GridSearch(Estimator):
         key = json.dumps([problem.model.content_key(), p.names, self.num, self.spp, problem.seed],
                          sort_keys=True, default=repr)
         if key not in self._grids:
-            axes = [np.linspace(lo, hi, self.num) for lo, hi in zip(p.lower, p.upper)]
-            thetas = np.array(list(itertools.product(*axes)), dtype=np.float64)
+            thetas = p.grid(self.num)
             renders = [problem.model.render(t, self.spp, derive(problem.seed, "grid-search", g))
                        for g, t in enumerate(thetas)]
             self._grids[key] = (thetas, renders)

@@ -6,7 +6,7 @@ from pathlib import Path
 import yaml
 
 from .. import studies
-from .schema import ConfigError, Field, validate, validate_block
+from .schema import ConfigError, Field, validate_block
 
 NOISE = {"model": Field(str, help="noise model name", choices=("awgn", "poisson")),
          "sigma": Field(float, None, "AWGN standard deviation (radiance units)", nullable=True),

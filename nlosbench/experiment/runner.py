@@ -9,7 +9,7 @@ from pathlib import Path
 
 import yaml
 
-from .. import studies
+from .. import executors, studies
 from . import config as config_mod
 from .context import RunContext, write_json
 from .report import make_report
@@ -27,7 +27,7 @@ def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | No
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     results = json.loads(results_path.read_text()) if resume and results_path.exists() else {"studies": {}}
-    ctx.executor = _executor(cfg, ctx)
+    ctx.executor = executors.create(cfg["executor"], ctx.model_spec, ctx.model)
     try:
         for i, study in enumerate(cfg["studies"]):
             study["id"] = study.get("id") or f"{i:02d}-{study['type']}"
@@ -47,18 +47,8 @@ def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | No
                                                "render_seconds_in_process": spent.seconds}
             write_json(results_path, results)
     finally:
-        if hasattr(ctx.executor, "close"):
-            ctx.executor.close()
+        ctx.executor.close()
     results["seconds_total"] = sum(s.get("seconds", 0) for s in results["studies"].values())
     write_json(results_path, results)
     make_report(run_dir)
     return run_dir
-
-
-def _executor(cfg: dict, ctx: RunContext):
-    """The configured executor (nlosbench.executors), or None when that module is not installed."""
-    try:
-        from .. import executors
-    except ImportError:
-        return None
-    return executors.create(cfg["executor"], ctx.model_spec, ctx.model)

@@ -2,6 +2,7 @@
 messages that name the key path, what was expected, what was given, and a likely misspelling."""
 from __future__ import annotations
 
+import copy
 import difflib
 from dataclasses import dataclass
 from typing import Any
@@ -84,8 +85,8 @@ def validate_block(block, schema: dict, path: str = "") -> dict:
             out[key] = validate_block({}, field.type, p)
         elif field.default is REQUIRED:
             raise ConfigError(p, f"missing required key ({field.help or _NAMES.get(field.type, field.type)})")
-        else:
-            out[key] = field.default
+        else:  # a copy: a study that edits its block must not change the schema's default
+            out[key] = copy.deepcopy(field.default)
     return out
 
 

@@ -79,8 +79,6 @@ class Binding:
 
     def path_point(self, s):
         """Point on the polyline at arc length s (a Dr.Jit Float; the segment is chosen from its value)."""
-        import mitsuba as mi
-
         i = int(np.clip(np.searchsorted(self._arclen, float(s[0] if hasattr(s, "__len__") else s), "right") - 1,
                         0, len(self.points) - 2))
         d = (self.points[i + 1] - self.points[i]) / (self._arclen[i + 1] - self._arclen[i])
@@ -146,10 +144,6 @@ class SceneBinder:
                     near = [k for k in params.keys() if k.endswith((".value", "radiance.value"))]
                     raise ValueError(f"parameter {b.param.name!r}: no scene parameter {b.key!r}; colour keys: {near}")
                 self.colors[b.key] = np.array(mi.Color3f(params[b.key]), dtype=np.float64).reshape(-1)[:3]
-
-    @property
-    def moves_geometry(self) -> bool:
-        return bool(self.objects)
 
     def apply(self, params, theta: list) -> None:
         """Write θ (a list of Dr.Jit Floats, one per binding) into `params` and update the scene."""

@@ -162,7 +162,9 @@ def vjp(model: ForwardModel, theta, grad_out: torch.Tensor, spp: int, seed: int,
     ad_idx = [j for j in range(P) if _uses_ad(settings, j)]
     fd_idx = [j for j in range(P) if j not in ad_idx]
     if ad_idx:
-        out[ad_idx] = np.asarray(model.vjp(theta, grad_out, spp, derive(seed, "ad-vjp"), **settings.ad))[ad_idx]
+        # `indices`: a colour-only AD part gets `prb` even when the FD parameters move geometry
+        out[ad_idx] = np.asarray(model.vjp(theta, grad_out, spp, derive(seed, "ad-vjp"), indices=ad_idx,
+                                           **settings.ad))[ad_idx]
     if fd_idx:
         J = fd_jacobian(model, theta, spp, seed, settings, fd_idx)
         out[fd_idx] = torch.einsum("p...,...->p", J.double(), grad_out.double()).numpy()

@@ -42,8 +42,9 @@ def split_spp(spp: int, pixels: int, max_pass_samples: int) -> list[int]:
 
 def _scene_hash(path: Path) -> str:
     """SHA-256 of a scene file and the files it references (meshes, textures, includes)."""
-    h = hashlib.sha256(path.read_bytes())
-    for ref in sorted(set(re.findall(rb'value="([^"$]+\.(?:obj|ply|serialized|exr|png|jpg|xml))"', path.read_bytes()))):
+    text = path.read_bytes()
+    h = hashlib.sha256(text)
+    for ref in sorted(set(re.findall(rb'(?:value|filename)="([^"$]+\.(?:obj|ply|serialized|exr|png|jpg|xml))"', text))):
         f = path.parent / ref.decode()
         if f.is_file():
             h.update(f.read_bytes())

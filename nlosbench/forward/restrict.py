@@ -38,8 +38,9 @@ class Restricted(ForwardModel):
     def jvp(self, theta, index: int, spp: int, seed: int, **ad) -> torch.Tensor:
         return self.base.jvp(self.expand(theta), self.index[index], spp, seed, **ad)
 
-    def vjp(self, theta, grad_out, spp: int, seed: int, **ad) -> np.ndarray:
-        return self.base.vjp(self.expand(theta), grad_out, spp, seed, indices=self.index, **ad)[self.index]
+    def vjp(self, theta, grad_out, spp: int, seed: int, indices=None, **ad) -> np.ndarray:
+        wanted = self.index if indices is None else [self.index[j] for j in indices]
+        return self.base.vjp(self.expand(theta), grad_out, spp, seed, indices=wanted, **ad)[self.index]
 
     def content_key(self) -> dict:
         return {"base": self.base.content_key(), "index": self.index, "fixed": self.full.tolist()}

@@ -47,13 +47,12 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             for j, name in enumerate(m.params.names):
                 rows.append({"label": label, "theta": t.tolist(), "noise": str(noise), "param": name,
                              "fisher_total": float(maps[j].sum()), "log10_crlb": float(log10_crlb[j]), "flag": flag})
-    write_csv(out / "fisher.csv", rows)
-    _figure(out, labels, list(m.params.names), len(ctx.noises))
+    write_csv(out / "fisher.csv", rows)  # the figure: report() draws it from the saved EXRs
     return {"points": labels, "params": list(m.params.names), "noises": [str(n) for n in ctx.noises],
             "renders": len(labels) * (1 + 2 * m.params.dim * cfg["fd_rounds"]), "spp": cfg["spp"]}
 
 
-def _figure(out: Path, labels: list[str], names: list[str], n_noise: int) -> Path:
+def _figure(out: Path, labels: list[str], names: list[str]) -> Path:
     """One row per point: the RGB render, then the log-scale FI map of each parameter (first noise)."""
     plt = _plt()
     cols = 1 + len(names)
@@ -85,7 +84,7 @@ def smoke(block: dict) -> dict:
 
 def report(study_dir: Path, results: dict) -> str:
     rows = read_csv(study_dir / "fisher.csv")
-    _figure(study_dir, results["points"], results["params"], len(results["noises"]))
+    _figure(study_dir, results["points"], results["params"])
     lines = [f"Per-pixel Fisher information from central FD (common random numbers) at {results['spp']} spp; "
              f"{results['renders']} renders.", "", f"![Fisher maps]({study_dir.name}/fisher_maps.png)", "",
              "| point | θ | noise | parameter | total FI | log10 CRLB | flag |", "|---|---|---|---|---|---|---|"]

@@ -11,7 +11,8 @@ Resume. The work unit is a render point (a θ* or a θ*+Δ; for a grid-aligned �
 its k·R level renders and R N_eff renders go through `ctx.executor` as one task and are kept as
 points/NNNNN.npz (float32, written atomically), beside plan.json (points, levels, N_eff, replicates,
 seed, scene). A resumed run (`--resume`) reads the finished points, renders the rest and repeats the
-analysis (fits, bootstrap, decay check: seconds to minutes), so its numbers equal an uninterrupted
+analysis (Gram matrices, fits, bootstrap, decay check: seconds on small grids; estimated ≈ 3.5 h
+at paper scale with 6 noise models, recomputed per noise model), so its numbers equal an uninterrupted
 run's; a changed plan is a config error. Seeds derive from (experiment seed, set, level, replicate,
 point), so results do not depend on the executor. Disk: 4·(k + 1)·R·H·W·C bytes per point (20 MB at
 the paper's 160 × 120 RGB, 10 levels, 8 replicates).
@@ -38,6 +39,7 @@ from ..experiment.config import GRID, grid_values
 from ..experiment.context import RunContext, read_csv, write_csv, write_json
 from ..experiment.schema import Field
 from .plotting import _plt
+from .trials import parse_noises
 
 NAME = "inexact"
 BUDGET_TOLERANCE = 0.1  # warn when N_eff and Σ N_i differ by more than this fraction
@@ -81,10 +83,7 @@ def _slug(s: str) -> str:
 
 def _noises(ctx: RunContext, spec) -> list:
     """The selected noise models (all when spec is None), each checked to be quadratic."""
-    idx = list(range(len(ctx.noises))) if spec is None else [spec] if isinstance(spec, int) else spec
-    if not isinstance(idx, list) or not all(isinstance(i, int) and 0 <= i < len(ctx.noises) for i in idx):
-        raise ValueError(f"noise: expected an index or list of indices in [0, {len(ctx.noises) - 1}], got {spec!r}")
-    return [quadratic(ctx.noises[i]) for i in idx]
+    return [quadratic(n) for n in parse_noises("all" if spec is None else spec, ctx.noises, "noise").values()]
 
 
 def _power(spec) -> float | str:

@@ -26,7 +26,7 @@ import numpy as np
 import torch
 
 from .. import estimators, io
-from ..bounds import barankin, crlb, fisher_matrix, hcr
+from ..bounds import barankin, crlb, fisher_matrix, hcr, inexact_hcr, render_replicates
 from ..diagnostics.images import label as gradient_label
 from ..estimators import Budget
 from ..executors import SerialExecutor
@@ -184,8 +184,7 @@ def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> tu
     renders done)."""
     model, params = ctx.model, ctx.model.params
     want, n_eff, step = cfg["bounds"], cfg["n_eff"], cfg["fd_step"]
-    axes = [np.linspace(lo, hi, cfg["hcr_grid"]) for lo, hi in zip(params.lower, params.upper)]
-    grid = np.array(list(itertools.product(*axes)))
+    grid = params.grid(cfg["hcr_grid"])
     offs = {i: offsets(params, t, cfg["hcr_offsets"], step) for i, t in enumerate(thetas)}
     jobs = []
     if {"hcr", "barankin", "hcr_hat"} & set(want):
@@ -198,9 +197,8 @@ def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> tu
                                "CRLB Jacobians", executor)
     count += jac_count
     before = model.stats.snapshot()  # HCR-hat renders its spp levels in this process
-    rows = []
-    for (j, noise), (i, theta) in itertools.product(noises.items(), enumerate(thetas)):
-        row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(params.names, theta)}}
+    rows = {}
+    for i, theta in enumerate(thetas):
         # grid points that coincide with θ* (up to rounding) are not test points
         near = np.flatnonzero(np.abs((grid - theta) / (params.upper - params.lower)).max(axis=1) > 1e-9)
         pts = np.concatenate([grid[near], offs[i]])
@@ -208,33 +206,30 @@ def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> tu
             if jobs else None
         lower, upper = params.lower - theta, params.upper - theta
         deltas = pts - theta if params.dim > 1 else (pts - theta)[:, 0]
-        if "hcr" in want:
-            h = hcr(cleans[i], alt, deltas, noise, lower, upper)
-            delta = None if h.delta is None else np.atleast_1d(h.delta).tolist()
-            row.update(hcr=h.value, hcr_log10=h.log10, hcr_delta=json.dumps(delta), hcr_at_edge=h.at_edge or "",
-                       hcr_reason=h.reason)
-        if "crlb" in want:
-            c = crlb(fisher_matrix(cleans[i], jac[i], noise))
-            with np.errstate(divide="ignore"):
-                row.update(crlb=c.trace, crlb_log10=float(np.log10(c.trace)), crlb_reason=c.reason)
-        if "barankin" in want:
-            b = barankin(cleans[i], alt, deltas, noise, lower=lower, upper=upper)
-            row.update(barankin=b.value, barankin_log10=b.log10, barankin_points=len(b.points), barankin_reason=b.reason)
-        if "hcr_hat" in want:
-            row.update(_hcr_hat(ctx, model, theta, pts, cleans[i], alt, deltas, noise, cfg, i, lower, upper))
-        rows.append(row)
-    return rows, count + model.stats.since(before).renders
-
-
-def _hcr_hat(ctx, model, theta, pts, clean, alt, deltas, noise, cfg, i, lower, upper) -> dict:
-    """HCR-hat at θ* from renders at the spp levels (one replicate each), via bounds.inexact."""
-    from ..bounds.inexact import inexact_hcr, render_replicates
-
-    X = render_replicates(model, np.concatenate([theta[None], pts]), cfg["levels"], 1, ctx.seed_for("hcr-hat", i),
-                          progress=ctx.progress)
-    r = inexact_hcr(X[:, :, 0], X[:, :, 1:], deltas, cfg["levels"], noise, clean[None], alt[None],
-                    cfg["n_eff"], lower, upper)
-    return {"hcr_hat": r.hcr_hat.value, "hcr_hat_log10": r.hcr_hat.log10, "hcr_hat_reason": r.hcr_hat.reason}
+        # the spp-level renders do not depend on the noise model: once per θ*
+        levels = render_replicates(model, np.concatenate([theta[None], pts]), cfg["levels"], 1,
+                                   ctx.seed_for("hcr-hat", i), progress=ctx.progress) if "hcr_hat" in want else None
+        for j, noise in noises.items():
+            row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(params.names, theta)}}
+            if "hcr" in want:
+                h = hcr(cleans[i], alt, deltas, noise, lower, upper)
+                delta = None if h.delta is None else np.atleast_1d(h.delta).tolist()
+                row.update(hcr=h.value, hcr_log10=h.log10, hcr_delta=json.dumps(delta), hcr_at_edge=h.at_edge or "",
+                           hcr_reason=h.reason)
+            if "crlb" in want:
+                c = crlb(fisher_matrix(cleans[i], jac[i], noise))
+                with np.errstate(divide="ignore"):
+                    row.update(crlb=c.trace, crlb_log10=float(np.log10(c.trace)), crlb_reason=c.reason)
+            if "barankin" in want:
+                b = barankin(cleans[i], alt, deltas, noise, lower=lower, upper=upper)
+                row.update(barankin=b.value, barankin_log10=b.log10, barankin_points=len(b.points),
+                           barankin_reason=b.reason)
+            if "hcr_hat" in want:
+                r = inexact_hcr(levels[:, :, 0], levels[:, :, 1:], deltas, cfg["levels"], noise, cleans[i][None],
+                                alt[None], n_eff, lower, upper).hcr_hat
+                row.update(hcr_hat=r.value, hcr_hat_log10=r.log10, hcr_hat_reason=r.reason)
+            rows[j, i] = row
+    return [rows[j, i] for j in noises for i in range(len(thetas))], count + model.stats.since(before).renders
 
 
 def bounds_map(rows: list[dict], want) -> dict:
