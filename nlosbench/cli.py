@@ -62,8 +62,8 @@ def _render(args) -> None:
     out = Path(args.out)
     stem = f"{model.name}_spp{args.spp}_seed{args.seed}"
     io.write_exr(out / f"{stem}.exr", img)
-    io.write_png(out / f"{stem}.png", img, title=f"{model.name} at {dict(zip(model.params.names, np.round(theta, 4).tolist()))}")
-    print(f"{model.name}: θ = {dict(zip(model.params.names, theta.tolist()))}, {args.spp} spp, "
+    io.write_png(out / f"{stem}.png", img, title=f"{model.name} at {dict(zip(model.params.names, np.round(theta, 4).tolist(), strict=True))}")
+    print(f"{model.name}: θ = {dict(zip(model.params.names, theta.tolist(), strict=True))}, {args.spp} spp, "
           f"{model.stats.seconds:.3f} s → {out / stem}.exr, .png")
 
 
@@ -89,7 +89,7 @@ def _list(what: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    from .experiment.schema import ConfigError
+    from .schema import ConfigError
 
     try:
         if args.command == "run":

@@ -1,6 +1,6 @@
 """One interface for independent work (trials, grid renders): `executor.imap_unordered(fn, items)`
 yields `fn(model, item)` for every item, in completion order, where `model` is the worker's forward
-model — built once per worker process from a picklable model spec (`experiment.context.build_model`).
+model — built once per worker process from a picklable model spec (`scenes.build`).
 
 * `SerialExecutor`: in this process, with a model already loaded (no reload).
 * `LocalPoolExecutor` (the default): a process pool with the spawn start method (no fork of a
@@ -21,6 +21,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 
+from . import scenes
 from .forward.model import ForwardModel
 
 # -- the worker side -------------------------------------------------------------------------
@@ -35,13 +36,11 @@ def worker_model(spec: dict, threads: int | None = None) -> ForwardModel:
     global builds
     key = json.dumps(spec, sort_keys=True, default=repr)
     if key not in _MODELS:
-        from .experiment.context import build_model
-
         if threads:
             import torch
 
             torch.set_num_threads(threads)
-        _MODELS[key] = build_model(spec)
+        _MODELS[key] = scenes.build(spec)
         builds += 1
         if threads and "drjit" in sys.modules:
             import drjit
@@ -65,10 +64,10 @@ class Executor(ABC):
     def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
         """Results of fn(model, item), yielded as they finish (any order)."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - a concrete no-op default: a serial executor holds no workers
         """Release workers (a no-op for the serial executor)."""
 
-    def __enter__(self) -> "Executor":
+    def __enter__(self) -> Executor:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -1,6 +1,9 @@
-"""Image files: EXR for data (float32, lossless), PNG for people (matplotlib, optional log scale)."""
+"""Files a run writes, each atomically: EXR images for data (float32, lossless), PNG for people
+(matplotlib, optional log scale), CSV tables and JSON."""
 from __future__ import annotations
 
+import csv
+import json
 import os
 import uuid
 from collections.abc import Iterator
@@ -98,3 +101,38 @@ def write_png(path: str | Path, array, log: bool = False, title: str | None = No
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def write_csv(path: Path, rows: list[dict]) -> Path:
+    """Rows of dicts as CSV, written atomically (header from the first row's keys in order, plus any later new keys)."""
+    keys: list = []
+    for r in rows:
+        keys += [k for k in r if k not in keys]
+    with atomic(path) as tmp, open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=keys)
+        w.writeheader()
+        w.writerows(rows)
+    return path
+
+
+def read_csv(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def write_json(path: Path, data) -> Path:
+    with atomic(path) as tmp:
+        tmp.write_text(json.dumps(data, indent=2, default=_json_default))
+    return path
+
+
+def _json_default(o):
+    import numpy as np
+
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")

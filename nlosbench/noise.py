@@ -14,8 +14,9 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, ClassVar
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -79,7 +80,7 @@ class NoiseModel(ABC):
         """Per-pixel Fisher information, float64. dL = ∂L/∂θ with the shape of L → (*S);
         dL of shape (P, *S) → (P, P, *S)."""
 
-    def binned(self, b: int) -> "NoiseModel":
+    def binned(self, b: int) -> NoiseModel:
         """The model of one b×b-binned pixel whose value is the mean of the block's b² independent
         observations (radiance units; see `nlosbench.binning`). Models that support binning override this."""
         raise NotImplementedError(f"noise model {type(self).__name__} does not define binned(b)")
@@ -87,7 +88,7 @@ class NoiseModel(ABC):
     def _inputs(self, check: bool, **arrays) -> list[torch.Tensor]:
         out = [to_float64(a, k) for k, a in arrays.items()]
         if check:
-            for k, a in zip(arrays, out):
+            for k, a in zip(arrays, out, strict=True):
                 self.validate(a, k)
         return out
 
@@ -195,7 +196,7 @@ class AWGN(QuadraticNoise):
     def weight(self, L0: torch.Tensor) -> torch.Tensor:
         return torch.tensor(1.0 / self.sigma**2, dtype=torch.float64, device=L0.device)
 
-    def binned(self, b: int) -> "AWGN":
+    def binned(self, b: int) -> AWGN:
         """Mean of b² pixels with independent N(0, σ²) noise: σ/b (the block's sum carries b·σ)."""
         return AWGN(self.sigma / check_bin(b))
 
@@ -233,7 +234,7 @@ class Poisson(QuadraticNoise):
     def weight(self, L0: torch.Tensor) -> torch.Tensor:
         return self.scale / L0  # +inf where L0 = 0
 
-    def binned(self, b: int) -> "Poisson":
+    def binned(self, b: int) -> Poisson:
         """Counts of b² pixels summed (a b² larger pixel): Poisson(scale·Σ L) = b²·scale photons per unit
         of the block's mean radiance."""
         return Poisson(self.scale * check_bin(b) ** 2)

@@ -2,8 +2,8 @@
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 import torch
@@ -61,7 +61,7 @@ class ParamSpace:
         except ValueError:
             raise KeyError(f"unknown parameter {name!r}; this model has {list(self.names)}") from None
 
-    def subset(self, names: Sequence[str]) -> "ParamSpace":
+    def subset(self, names: Sequence[str]) -> ParamSpace:
         return ParamSpace([self.params[self.index(n)] for n in names])
 
     def validate(self, theta) -> np.ndarray:
@@ -74,7 +74,7 @@ class ParamSpace:
         if not np.all(np.isfinite(t)):
             raise ValueError(f"θ must be finite, got {t.tolist()}")
         bad = [f"{n}={v:g} outside [{lo:g}, {hi:g}] {u}" for n, v, lo, hi, u in
-               zip(self.names, t, self.lower, self.upper, self.units) if not lo <= v <= hi]
+               zip(self.names, t, self.lower, self.upper, self.units, strict=True) if not lo <= v <= hi]
         if bad:
             raise ValueError("θ out of range: " + "; ".join(bad))
         return t
@@ -90,5 +90,5 @@ class ParamSpace:
     def grid(self, num: int) -> np.ndarray:
         """The tensor grid of `num` points per axis over Θ, ends included: (num^P, P) float64, the last
         parameter varying fastest."""
-        axes = [np.linspace(lo, hi, num) for lo, hi in zip(self.lower, self.upper)]
+        axes = [np.linspace(lo, hi, num) for lo, hi in zip(self.lower, self.upper, strict=True)]
         return np.array(list(itertools.product(*axes)), dtype=np.float64).reshape(-1, self.dim)

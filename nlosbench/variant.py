@@ -14,7 +14,7 @@ MIN_LLVM = 16
 _SEARCH = ["/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib",
            "/usr/local/lib", "/usr/lib/llvm-*/lib", "/opt/homebrew/opt/llvm/lib", "/usr/local/opt/llvm/lib"]
 _FIX = ("install a newer libLLVM (Debian/Ubuntu: `apt-get install libllvm19`; macOS: `brew install llvm`) "
-        "or set DRJIT_LIBLLVM_PATH to a libLLVM of version >= %d; `make setup` does this when run as root" % MIN_LLVM)
+        f"or set DRJIT_LIBLLVM_PATH to a libLLVM of version >= {MIN_LLVM}; `make setup` does this when run as root")
 
 
 class VariantError(RuntimeError):

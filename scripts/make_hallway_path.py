@@ -91,8 +91,8 @@ def _f(v: float) -> str:
 
 
 def _box(ident: str, lo, hi, bsdf: str) -> str:
-    c = [(a + b) / 2 for a, b in zip(lo, hi)]
-    h = [(b - a) / 2 for a, b in zip(lo, hi)]
+    c = [(a + b) / 2 for a, b in zip(lo, hi, strict=True)]
+    h = [(b - a) / 2 for a, b in zip(lo, hi, strict=True)]
     return (f'    <shape type="cube" id="{ident}"><transform name="to_world">'
             f'<scale x="{_f(h[0])}" y="{_f(h[1])}" z="{_f(h[2])}"/>'
             f'<translate x="{_f(c[0])}" y="{_f(c[1])}" z="{_f(c[2])}"/></transform><ref id="{bsdf}"/></shape>')

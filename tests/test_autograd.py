@@ -135,7 +135,7 @@ def test_auto_is_resolved_once_and_says_what_it_chose(small_box, verdicts_file, 
             opt.step()
     assert len(calls) == 1
     assert len([r for r in caplog.records if r.name == "nlosbench.gradients"]) == 1
-    chosen = settings.resolve(m)
+    chosen = nb.resolve_gradient(m, settings)
     assert (chosen.method, chosen.ad_params, chosen.step) == ("mixed", (2,), 0.02)
     assert "red_x → fd(ξ=0.02" in chosen.chosen and "verdict: AD artifact-prone" in chosen.chosen
     assert "red_radius → fd" in chosen.chosen and "prior: radius" in chosen.chosen
@@ -150,7 +150,7 @@ def test_auto_without_verdicts_and_inside_an_estimator():
     from nlosbench.estimators.base import Problem
 
     m = nb.scenes.get("blob2d", width=0.15)
-    assert GradientSettings("auto").resolve(m) == GradientSettings("ad")
+    assert nb.resolve_gradient(m, GradientSettings("auto")) == GradientSettings("ad")
     y = m.render([0.45, 0.6], 1, 0)
     problem = Problem(m, nb.noise.AWGN(0.02), GradientSettings("auto"), seed=1)
     est = estimators.get("gauss-newton", spp=1).fit(problem, y, [0.5, 0.5], np.random.default_rng(0))

@@ -8,8 +8,9 @@ import pytest
 import torch
 
 import nlosbench as nb
+from nlosbench.bank import RenderBank
 from nlosbench.bounds.decay import decay_check, pixel_variances
-from nlosbench.bounds.inexact import fit_lambda, render_replicates
+from nlosbench.bounds.inexact import fit_lambda
 from nlosbench.noise import AWGN
 
 LEVELS = [64, 128, 256, 512, 1024]
@@ -17,7 +18,7 @@ LEVELS = [64, 128, 256, 512, 1024]
 
 def _toy_variances(power: float, repeats: int = 16, seed: int = 1) -> np.ndarray:
     model = nb.scenes.get("blob2d", render_noise=0.2, render_noise_power=power)
-    X = render_replicates(model, [model.params.default], [n * repeats for n in LEVELS], repeats, seed)
+    X = RenderBank(model).replicates([model.params.default], [n * repeats for n in LEVELS], repeats, seed)
     return pixel_variances(X[:, :, 0])  # renders of n spp each, `repeats` per level
 
 
@@ -84,7 +85,7 @@ def test_mitsuba_path_tracer_decays_as_one_over_N(cornell):
     of 1. (Few repeats bias p_opt low on a renderer with fireflies; more pixels or repeats fix it.)"""
     model = cornell.restrict(["ball_x"])
     R = 8
-    X = render_replicates(model, [-0.2, -0.07, 0.07, 0.2], [8 * R, 16 * R, 32 * R, 64 * R], R, seed=3)
+    X = RenderBank(model).replicates([-0.2, -0.07, 0.07, 0.2], [8 * R, 16 * R, 32 * R, 64 * R], R, seed=3)
     r = decay_check(pixel_variances(X.reshape(4, R, -1)), [8, 16, 32, 64], n_weights=2000, seed=1)
     assert abs(r.p - 1.0) < 0.1, (r.p, r.q05, r.q95)
 
@@ -99,7 +100,7 @@ def test_lambda_hat_uses_measured_power():
     lam = noise.chi2_exponent(model.clean(torch.tensor(pts[0])), torch.stack([model.clean(torch.tensor(p)) for p in pts[1:]]))
     measured, assumed = [], []
     for run in range(30):
-        X = render_replicates(model, pts, levels, R, seed=run)
+        X = RenderBank(model).replicates(pts, levels, R, seed=run)
         Xm = X.double().mean(1)
         lt = np.stack([noise.chi2_exponent(Xm[i, 0], Xm[i, 1:]).numpy() for i in range(len(levels))])  # (k, K)
         p = decay_check(pixel_variances(X.reshape(len(levels), R, -1)), np.array(levels) // R, n_weights=200,

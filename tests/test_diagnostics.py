@@ -332,7 +332,7 @@ def test_visibility_boost_with_boost_1_is_the_plain_pass(paper_box):
 def _paper_block(**kw) -> dict:
     """A paper-scale `gradients` block (the paper: 4096 and 16384 spp; FD averaged over 16 rounds)."""
     from nlosbench.experiment.config import study_schema
-    from nlosbench.experiment.schema import validate_block
+    from nlosbench.schema import validate_block
     from nlosbench.studies import gradients as study
 
     return validate_block({"id": "grad", "spp": [4096, 16384], "seeds": 8, "ad_options": {},
@@ -341,7 +341,7 @@ def _paper_block(**kw) -> dict:
 
 def test_smoke_shrinks_a_paper_scale_block():
     from nlosbench.experiment.config import study_schema
-    from nlosbench.experiment.schema import validate_block
+    from nlosbench.schema import validate_block
     from nlosbench.studies import gradients as study
 
     big = _paper_block(backends=[{"method": "fd", "step": 0.01, "rounds": 16},
@@ -360,8 +360,8 @@ def test_gradients_study_end_to_end(tmp_path, paper_box):
     """The smoke copy of a paper-scale `gradients` study on the 16×16 box (2 spp levels, 2 seeds,
     median reference, two remedies): files, a verdict per parameter that `choose_backend` accepts,
     and the report's tables."""
-    from nlosbench.experiment.context import RunContext
     from nlosbench.studies import gradients as study
+    from nlosbench.studies.context import RunContext
 
     model = nb.scenes.get("cornell_paper", defines={"res": 16})
     big = _paper_block(params=["red_color", "red_x"], reference=None,

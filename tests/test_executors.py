@@ -11,7 +11,7 @@ import nlosbench as nb
 from nlosbench import executors
 from nlosbench.executors import DaskExecutor, LocalPoolExecutor, SerialExecutor
 from nlosbench.forward import GradientSettings
-from nlosbench.trials import LOG_NAME, Setting, make_trials, run_trials
+from nlosbench.montecarlo import LOG_NAME, Setting, make_trials, run_trials
 
 CORNELL = {"name": "cornell_ball", "params": ["ball_x"]}
 BLOB = {"name": "blob2d", "options": {"width": 0.15, "render_noise": 0.05}}

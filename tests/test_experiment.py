@@ -1,6 +1,5 @@
 """Config validation, the CLI and the runner end to end (real renders on cornell_ball, tiny sizes)."""
 import json
-import shutil
 from pathlib import Path
 
 import pytest
@@ -8,7 +7,7 @@ import yaml
 
 from nlosbench.cli import main
 from nlosbench.experiment import config
-from nlosbench.experiment.schema import ConfigError, Field, validate_block
+from nlosbench.schema import ConfigError, Field, validate_block
 
 CFG = Path(__file__).parent / "configs" / "cornell_bounds.yaml"
 

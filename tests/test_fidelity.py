@@ -11,13 +11,15 @@ import yaml
 import nlosbench as nb
 from nlosbench import bounds
 from nlosbench.binning import bin_image
+from nlosbench.bounds import crlb_log10
 from nlosbench.cli import main
 from nlosbench.experiment import config
-from nlosbench.experiment.context import RunContext, read_csv
-from nlosbench.fidelity import Point, aggregate, recommend, relative_error, settled
 from nlosbench.forward.gradients import GradientSettings, fd_jacobian
+from nlosbench.io import read_csv
+from nlosbench.schema import grid_values
 from nlosbench.studies import fidelity as study
-from nlosbench.studies.bounds import crlb_log10
+from nlosbench.studies.context import RunContext
+from nlosbench.tradeoff import Point, aggregate, recommend, relative_error, settled
 
 NOISES = [nb.noise.AWGN(sigma=0.3), nb.noise.Poisson(scale=5.0)]
 
@@ -94,7 +96,7 @@ def test_binning_an_image_constant_within_bins_keeps_every_bound(noise, rng):
     R, J = up(coarse), up(rng.normal(0, 1, (G, 1, 4, 5, 3)))
     full = _bound_set(R, J, noise, thetas)
     binned = _bound_set(bin_image(R, b), bin_image(J, b), noise.binned(b), thetas)
-    for f, g in zip(full, binned):
+    for f, g in zip(full, binned, strict=True):
         np.testing.assert_allclose(g, f, rtol=1e-12)
 
 
@@ -109,7 +111,7 @@ def test_binning_a_generic_image_never_lowers_a_bound(noise, rng):
     assert np.all(lam_b <= lam * (1 + 1e-12)) and np.any(lam_b < 0.9 * lam)
     full = _bound_set(R, J, noise, thetas)
     binned = _bound_set(bin_image(R, b), bin_image(J, b), noise.binned(b), thetas)
-    for f, g in zip(full, binned):
+    for f, g in zip(full, binned, strict=True):
         assert np.all(g >= f - 1e-12)
 
 
@@ -169,7 +171,7 @@ def test_toy_study_picks_the_settings_of_its_known_cost_curve(tmp_path):
     expected = {}
     for b in (2, 3, 4, 6):
         got = _bound_set(sums(R, b), sums(J, b), nb.noise.AWGN(2.0 * b), thetas)
-        expected[b] = max(relative_error(g, r).max() for g, r in zip(got, ref))
+        expected[b] = max(relative_error(g, r).max() for g, r in zip(got, ref, strict=True))
     points = {p["value"]: p for p in k["bin"]["points"]}
     for b, e in expected.items():
         assert points[b]["error"] == pytest.approx(e, rel=1e-9)
@@ -256,4 +258,4 @@ def test_smoke_shrinks_the_paper_config_and_stays_valid():
     cfg = config.load(Path(__file__).parents[1] / "configs" / "paper_fidelity.yaml", smoke=True)
     s = cfg["studies"][0]
     assert s["spp"] == [4, 16] and s["bins"] == [1, 2] and len(s["max_depth"]) == 2 and len(s["prune"]) <= 1
-    assert config.grid_values(s["grid"]).__len__() <= 3
+    assert len(grid_values(s["grid"])) <= 3

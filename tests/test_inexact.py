@@ -10,9 +10,16 @@ import pytest
 import torch
 
 import nlosbench as nb
+from nlosbench.bank import RenderBank
 from nlosbench.bounds.hcr import hcr_from_lambda
-from nlosbench.bounds.inexact import (check_levels, fit_lambda, half_sample_lambda, inexact_hcr, lambda_from_grams,
-                                      render_replicates, replicate_grams)
+from nlosbench.bounds.inexact import (
+    check_levels,
+    fit_lambda,
+    half_sample_lambda,
+    inexact_hcr,
+    lambda_from_grams,
+    replicate_grams,
+)
 from nlosbench.noise import AWGN, Poisson
 
 S_RENDER = 0.15  # synthetic rendering noise: per-pixel variance S² L / N
@@ -28,8 +35,8 @@ REPS = 40
 def _sets(model, seed):
     """(X (k, R, 1+K, H, W, 1), Xe (1, R, 1+K, ...)) for θ* and θ*+Δ_x, level and N_eff renders."""
     pts = np.vstack([THETA, THETA + np.stack([DX, 0 * DX], 1)])
-    return (render_replicates(model, pts, LEVELS, R, seed, "levels"),
-            render_replicates(model, pts, [N_EFF], R, seed, "n-eff"))
+    return (RenderBank(model).replicates(pts, LEVELS, R, seed, "levels"),
+            RenderBank(model).replicates(pts, [N_EFF], R, seed, "n-eff"))
 
 
 def _analyse(X, Xe, noise, **kw):
@@ -116,7 +123,7 @@ def test_interval_brackets_true_hcr(toy, noise):
     print(f"{noise}: coverage of [HCR_Neff, HCR-hat] {cover:.3f}, with bootstrap ends {cover_ci:.3f} ({REPS} runs)")
     assert cover_ci >= max(cover, 0.9)
     # the bootstrap intervals' width against the run-to-run spread (5–95 % range over the 40 runs)
-    for end, ci in ((neff, [r.ci_neff for r in rs]), (hat[resolved], [r.ci_hat for r, ok in zip(rs, resolved) if ok])):
+    for end, ci in ((neff, [r.ci_neff for r in rs]), (hat[resolved], [r.ci_hat for r, ok in zip(rs, resolved, strict=True) if ok])):
         width = np.median(np.diff(np.array(ci), axis=1))
         spread = np.subtract(*np.quantile(end, [0.95, 0.05]))
         print(f"  bootstrap 90 % width / run-to-run 5–95 % range: {width / spread:.2f}")
@@ -195,8 +202,8 @@ def test_noise_dominated_delta_gives_unresolved_hcr_hat():
     model = nb.scenes.get("blob2d", render_noise=S_RENDER)
     pts = np.vstack([THETA, THETA + [1e-6, 0.0], THETA + [0.02, 0.0]])
     for seed in range(20):
-        X = render_replicates(model, pts, LEVELS[:3], R, seed, "levels")
-        Xe = render_replicates(model, pts, [sum(LEVELS[:3])], R, seed, "n-eff")
+        X = RenderBank(model).replicates(pts, LEVELS[:3], R, seed, "levels")
+        Xe = RenderBank(model).replicates(pts, [sum(LEVELS[:3])], R, seed, "n-eff")
         r = inexact_hcr(X[:, :, 0], X[:, :, 1:], [1e-6, 0.02], LEVELS[:3], NOISES[0], Xe[0, :, 0], Xe[0, :, 1:],
                         sum(LEVELS[:3]), bootstrap=20, seed=seed)
         assert r.fit.noise_dominated[0] and not r.fit.noise_dominated[1]
@@ -236,8 +243,8 @@ def test_mitsuba_rendering_noise_decays_as_one_over_N(cornell):
     model = cornell.restrict(["ball_x"])
     before = model.stats.snapshot()
     pts = [0.1, 0.1]
-    X = render_replicates(model, pts, [32, 128], 4, seed=7, purpose="levels")
-    Xe = render_replicates(model, pts, [160], 4, seed=7, purpose="n-eff")
+    X = RenderBank(model).replicates(pts, [32, 128], 4, seed=7, purpose="levels")
+    Xe = RenderBank(model).replicates(pts, [160], 4, seed=7, purpose="n-eff")
     assert model.stats.since(before).renders == 2 * 4 * 2 + 4 * 2
     flat = X.reshape(-1, X[0, 0, 0].numel())
     assert len({tuple(v[:64].tolist()) for v in flat}) == flat.shape[0]  # no two renders share a seed
@@ -292,8 +299,8 @@ def test_study_end_to_end_then_resumed_per_point(tmp_path):
     per-point render files deleted and one earlier file corrupted, the run resumed on a 2-worker local
     pool instead of the serial executor gives identical CSVs (seeds per point, whatever the executor)
     and renders only the missing/corrupt points. A changed render plan is refused on resume."""
-    from nlosbench.experiment.context import read_csv
     from nlosbench.experiment.runner import run
+    from nlosbench.io import read_csv
 
     cfg = _study_config(tmp_path)
     d = run(cfg, out=tmp_path / "run", quiet=True)
@@ -331,14 +338,14 @@ def test_smoke_reduces_a_paper_scale_block(tmp_path):
     """smoke() of the paper config's block: 2 θ*, the smallest Δ each side, 2 levels × 2 replicates,
     equal budget, few resamples, the original untouched and the result valid under SCHEMA; a
     paper-sized blob2d block so reduced runs end to end (6 render points, 36 renders, 2 θ* × 2 noises)."""
-    from nlosbench.experiment import config as config_mod
-    from nlosbench.experiment.context import read_csv
-    from nlosbench.experiment.runner import run
-    from nlosbench.experiment.config import study_schema
-    from nlosbench.experiment.schema import validate_block
-    from nlosbench.studies import inexact
-
     from pathlib import Path
+
+    from nlosbench.experiment import config as config_mod
+    from nlosbench.experiment.config import study_schema
+    from nlosbench.experiment.runner import run
+    from nlosbench.io import read_csv
+    from nlosbench.schema import validate_block
+    from nlosbench.studies import inexact
 
     block = config_mod.load(Path(__file__).resolve().parents[1] / "configs" / "paper_pi_inexact.yaml")["studies"][0]
     before = json.dumps(block)

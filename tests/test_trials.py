@@ -19,11 +19,12 @@ from nlosbench.estimators import Estimator
 from nlosbench.executors import SerialExecutor
 from nlosbench.experiment.config import load as load_config
 from nlosbench.experiment.config import resolve
-from nlosbench.experiment.context import RunContext, read_csv
-from nlosbench.experiment.schema import ConfigError
 from nlosbench.forward import GradientSettings, ad_jacobian
+from nlosbench.io import read_csv
+from nlosbench.montecarlo import LOG_NAME, Setting, make_trials, read_log, run_trials, summarize
+from nlosbench.schema import ConfigError
 from nlosbench.studies import trials as study
-from nlosbench.trials import LOG_NAME, Setting, make_trials, read_log, run_trials, summarize
+from nlosbench.studies.context import RunContext
 
 TIMING = ("mean_seconds", "total_seconds")
 
@@ -123,7 +124,7 @@ RESUME_SCRIPT = """
 import json, sys
 from pathlib import Path
 from nlosbench.experiment.config import resolve
-from nlosbench.experiment.context import RunContext
+from nlosbench.studies.context import RunContext
 from nlosbench.studies import trials as study
 raw = json.loads(sys.argv[1])
 cfg = resolve(raw)

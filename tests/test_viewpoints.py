@@ -10,8 +10,8 @@ import torch
 
 import nlosbench as nb
 from nlosbench.experiment import config
-from nlosbench.experiment.context import RunContext
 from nlosbench.studies import viewpoints
+from nlosbench.studies.context import RunContext
 
 STUDY = {"type": "viewpoints", "num": 3, "step": 0.3, "spp": 64, "at": [0.9], "id": "vp"}
 

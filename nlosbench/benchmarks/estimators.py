@@ -28,12 +28,12 @@ import numpy as np
 from .. import estimators
 from ..estimators import Problem
 from ..executors import LocalPoolExecutor, SerialExecutor
-from ..experiment.context import build_model
 from ..forward.gradients import GradientSettings
 from ..forward.model import ForwardModel
+from ..montecarlo import LOG_NAME, Setting, make_trials, run_trials, summarize
 from ..noise import AWGN
+from ..scenes import build
 from ..seeds import derive
-from ..trials import LOG_NAME, Setting, make_trials, run_trials, summarize
 
 SEED = 2024
 
@@ -43,10 +43,10 @@ class Reloading(ForwardModel):
 
     def __init__(self, spec: dict):
         self.spec = spec
-        super().__init__(spec["name"], build_model(spec).params)
+        super().__init__(spec["name"], build(spec).params)
 
     def _render(self, theta, spp, seed):
-        return build_model(self.spec).render(theta, spp, seed)
+        return build(self.spec).render(theta, spp, seed)
 
     def jvp(self, theta, index, spp, seed, **ad):
         raise NotImplementedError("the paper's recipe uses FD gradients only")
@@ -60,7 +60,7 @@ class Reloading(ForwardModel):
 
 def _per_trial(spec: dict, label: str, theta, noise, settings: list[Setting], n: int, n_eff: int) -> list[dict]:
     """Rows of per-trial cost and RMSE for each setting on one scene (serial, one process)."""
-    model = build_model(spec)
+    model = build(spec)
     theta = np.atleast_2d(np.asarray(theta, dtype=np.float64))
     cleans = {i: model.render(t, n_eff, derive(SEED, "bench-clean", i)) for i, t in enumerate(theta)}
     trials = make_trials(theta, n, settings, {0: noise}, cleans, SEED)
@@ -78,7 +78,7 @@ def _per_trial(spec: dict, label: str, theta, noise, settings: list[Setting], n:
 def _pool_speedup(spec: dict, theta: float, n: int) -> dict:
     """The same n trials through a local pool of 1 and of 2 workers: total wall time (spawn and scene
     loads included) and steady-state throughput (trials per second after the w-th result)."""
-    model = build_model(spec)
+    model = build(spec)
     clean = model.render([theta], 256, derive(SEED, "bench-clean", 0))
     settings = [Setting("mle-adam", {"lr": 0.1, "iterations": 10, "spp": 32}, gradient=GradientSettings(step=0.02))]
     trials = make_trials(np.array([[theta]]), n, settings, {0: AWGN(0.05)}, {0: clean}, SEED)
@@ -86,7 +86,7 @@ def _pool_speedup(spec: dict, theta: float, n: int) -> dict:
     for w in (1, 2):
         stamps: list[float] = []
 
-        def stamp(results, total=None, desc=""):
+        def stamp(results, total=None, desc="", stamps=stamps):  # this worker count's list, bound now
             for r in results:
                 stamps.append(time.perf_counter())
                 yield r
@@ -118,7 +118,7 @@ def _rms_by_iteration(traces: list[list[dict]], truth: np.ndarray) -> np.ndarray
 def _recipe(spec: dict, truth, starts, options: dict, n_eff: int) -> dict:
     """Cost of the paper's recipe (independent-seed FD, reload per render) and of ours (CRN FD, one
     load) to reach the recipe's final RMS error. truth: θ* (P,); starts: (S, P)."""
-    ours_model = build_model(spec)
+    ours_model = build(spec)
     t = np.asarray(truth, dtype=np.float64)
     s = np.asarray(starts, dtype=np.float64)
     y = ours_model.render(t, n_eff, derive(SEED, "bench-clean", 1))
@@ -146,7 +146,7 @@ def _recipe(spec: dict, truth, starts, options: dict, n_eff: int) -> dict:
 
 def _warm_up() -> None:
     """One tiny AD fit, so torch's first-use costs do not land on the first timed estimator."""
-    model = build_model({"name": "edge1d"})
+    model = build({"name": "edge1d"})
     problem = Problem(model, AWGN(0.1), GradientSettings("ad"), SEED)
     estimators.get("mle-adam", iterations=3).fit(problem, model.render([0.5], 1, 0), [0.4],
                                                  np.random.default_rng(derive(SEED, "warm-up")))

@@ -1,19 +1,26 @@
 """Information bounds from renders: HCR (single offsets and grid curves), CRLB, Barankin, and
 per-pixel Fisher information maps."""
 from nlosbench.bounds.barankin import BarankinResult, barankin
-from nlosbench.bounds.crlb import CRLBResult, crlb, crlb_from_hcr_limit, fisher_matrix
+from nlosbench.bounds.crlb import CRLBResult, crlb, crlb_from_hcr_limit, crlb_log10, fisher_matrix
 from nlosbench.bounds.fisher_maps import fisher_maps, save_fisher_maps
 from nlosbench.bounds.grid import HCRCurve, hcr_curve, hcr_curve_from_lambda, pairwise_lambda
 from nlosbench.bounds.hcr import HCRResult, hcr, hcr_from_lambda
 
 __all__ = [
     "BarankinResult", "CRLBResult", "HCRCurve", "HCRResult", "barankin", "crlb",
-    "crlb_from_hcr_limit", "fisher_maps", "fisher_matrix", "hcr", "hcr_curve",
+    "crlb_from_hcr_limit", "crlb_log10", "fisher_maps", "fisher_matrix", "hcr", "hcr_curve",
     "hcr_curve_from_lambda", "hcr_from_lambda", "pairwise_lambda", "save_fisher_maps",
 ]
 from nlosbench.bounds.decay import DecayResult, decay_check, pixel_variances  # noqa: E402
-from nlosbench.bounds.inexact import (InexactHCR, LambdaFit, check_levels, check_spp, fit_lambda,  # noqa: E402
-                                      half_sample_lambda, inexact_hcr, render_replicates, replicate_grams)
+from nlosbench.bounds.inexact import (  # noqa: E402
+    InexactHCR,
+    LambdaFit,
+    check_levels,
+    fit_lambda,
+    half_sample_lambda,
+    inexact_hcr,
+    replicate_grams,
+)
 
-__all__ += ["DecayResult", "decay_check", "pixel_variances", "InexactHCR", "LambdaFit", "check_levels", "check_spp",
-            "fit_lambda", "half_sample_lambda", "inexact_hcr", "render_replicates", "replicate_grams"]
+__all__ += ["DecayResult", "decay_check", "pixel_variances", "InexactHCR", "LambdaFit", "check_levels",
+            "fit_lambda", "half_sample_lambda", "inexact_hcr", "replicate_grams"]

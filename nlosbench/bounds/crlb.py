@@ -75,6 +75,18 @@ def crlb(F, rcond: float = 1e-12) -> CRLBResult:
                       singular=singular, reason="; ".join(reasons))
 
 
+def crlb_log10(L, J, noise: NoiseModel) -> tuple[np.ndarray, str]:
+    """log10 CRLB per parameter (P,) from an image L (*S) and its Jacobian J (P, *S), and a flag.
+    Infinite Fisher information (a Poisson pixel rendered as exactly 0 whose neighbours are not) gives
+    −inf, flagged; a singular F gives +inf for the non-identifiable components, flagged."""
+    F = fisher_matrix(L, J, noise)
+    if not np.all(np.isfinite(F)):
+        return np.full(F.shape[0], -np.inf), "infinite Fisher information (Poisson pixel with L = 0 that changes)"
+    c = crlb(F)
+    with np.errstate(divide="ignore"):
+        return np.log10(c.component), (c.reason if c.singular else "")
+
+
 def crlb_from_hcr_limit(L0, L_alt, deltas, noise: NoiseModel, n_points: int = 3,
                         degree: int = 2) -> CRLBResult:
     """CRLB of a scalar θ as the Δ → 0 limit of Δ²/λ(Δ), from images at θ* + Δ_k (no derivative).

@@ -41,7 +41,7 @@ def save_fisher_maps(maps: np.ndarray, names: Sequence[str], outdir: str | Path,
         raise ValueError(f"need maps (P, H, W) and P names, got {maps.shape} and {len(names)} names")
     outdir = Path(outdir)
     paths = []
-    for m, name in zip(maps, names):
+    for m, name in zip(maps, names, strict=True):
         paths.append(io.write_exr(outdir / f"{prefix}_{name}.exr", m))
         paths.append(io.write_png(outdir / f"{prefix}_{name}.png", m, log=True,
                                   title=f"Fisher information per pixel: {name}",

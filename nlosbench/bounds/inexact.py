@@ -12,7 +12,7 @@ and biases the HCR low, most where the sup sits at small Δ (NLOS). The paper's 
   one render set at N_eff ≈ Σ N_i (equal budget), is typically a lower one (`inexact_hcr`).
 
 Replicates. Each level (and the N_eff set) is rendered as R independent replicates of N/R spp; their
-mean is statistically a render at N spp (`render_replicates`). A (θ*, Δ) pair reduces to the R×R Gram
+mean is statistically a render at N spp (`RenderBank.replicates`). A (θ*, Δ) pair reduces to the R×R Gram
 matrix G_rs = Σ_ω w D_r D_s of replicate differences D_r = L̃_r(θ*+Δ) − L̃_r(θ*) (`replicate_grams`):
 λ̃ of the replicate means is 1ᵀG1/R², and λ̃ of the mean over any subset of replicates follows from
 G too, so resampling costs no renders.
@@ -36,31 +36,15 @@ a relative O(Var/(L0² N_total)) amount. HCR_Neff weighs by the N_eff set's own 
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from nlosbench.bank import check_spp
 from nlosbench.bounds.hcr import HCRResult, as_numpy, hcr_from_lambda
 from nlosbench.noise import NoiseModel, QuadraticNoise, check_finite, to_float64
-from nlosbench.seeds import derive
-
-
-def check_spp(levels: Sequence[int], replicates: int = 1) -> np.ndarray:
-    """spp levels as int64 (k,) after checking they are positive integers divisible by `replicates`
-    (every replicate renders N/R spp)."""
-    lv = np.asarray(levels)
-    if lv.ndim != 1 or lv.size == 0 or not np.all(np.isfinite(lv)) or np.any(lv != np.round(lv)) or np.any(lv < 1):
-        raise ValueError(f"levels must be a list of positive integer spp, got {levels!r}")
-    if isinstance(replicates, bool) or int(replicates) != replicates or replicates < 1:
-        raise ValueError(f"replicates must be a positive integer, got {replicates!r}")
-    lv = lv.astype(np.int64)
-    bad = lv[lv % int(replicates) != 0]
-    if bad.size:
-        raise ValueError(f"spp {bad.tolist()} not divisible by replicates = {replicates} "
-                         "(each replicate renders N/R spp)")
-    return lv
 
 
 def check_levels(levels: Sequence[int], replicates: int = 1) -> np.ndarray:
@@ -70,45 +54,6 @@ def check_levels(levels: Sequence[int], replicates: int = 1) -> np.ndarray:
         raise ValueError(f"levels {lv.tolist()}: the fit λ̃ = λ + C/N^p needs at least 2 distinct spp levels "
                          f"(got k = {lv.size} level(s), {np.unique(lv).size} distinct)")
     return lv
-
-
-def render_point(model, theta, levels: Sequence[int], replicates: int, seed: int, purpose: str = "levels",
-                 index: int = 0) -> torch.Tensor:
-    """Renders (k, R, *S) float32 of one θ point: level i, replicate r with levels[i] // R spp and seed
-    derive(seed, "inexact-" + purpose, i, r, index) — independent renders (distinct seeds). Use a
-    different `purpose` for each independent render set (e.g. "levels", "n-eff": the same seed at
-    another spp shares samples) and a different `index` for each point."""
-    spp = check_spp(levels, replicates) // replicates
-    imgs = [model.render(theta, int(n), derive(seed, f"inexact-{purpose}", i, r, index))
-            for i, n in enumerate(spp) for r in range(replicates)]
-    return torch.stack(imgs).reshape(len(spp), replicates, *imgs[0].shape)
-
-
-def render_replicates(model, points, levels: Sequence[int], replicates: int, seed: int, purpose: str = "levels",
-                      progress: Callable | None = None, executor=None) -> torch.Tensor:
-    """Renders (k, R, Q, *S) float32: `render_point` for every θ point q (points (Q,) or (Q, P),
-    index q). `executor` (an `nlosbench.executors.Executor`, e.g. RunContext.executor) spreads the
-    points over its workers; without one they run here with `model`. `progress(iterable, total,
-    desc)` wraps the loop over points."""
-    from nlosbench.executors import SerialExecutor
-
-    check_spp(levels, replicates)
-    pts = np.asarray(points, dtype=np.float64)
-    pts = pts.reshape(pts.shape[0], -1) if pts.ndim else pts.reshape(1, 1)
-    jobs = [(q, pts[q], list(levels), replicates, seed, purpose) for q in range(pts.shape[0])]
-    done = (executor or SerialExecutor(model=model)).imap_unordered(_point_job, jobs)
-    out = None
-    for q, imgs in (progress(done, total=len(jobs), desc=f"inexact {purpose} points") if progress else done):
-        if out is None:
-            out = torch.empty((imgs.shape[0], replicates, pts.shape[0], *imgs.shape[2:]), dtype=torch.float32)
-        out[:, :, q] = imgs
-    return out
-
-
-def _point_job(model, job):
-    """Executor task: (q, θ, levels, R, seed, purpose) → (q, `render_point` renders (k, R, *S))."""
-    q, theta, levels, replicates, seed, purpose = job
-    return q, render_point(model, theta, levels, replicates, seed, purpose, q)
 
 
 def quadratic(noise: NoiseModel) -> QuadraticNoise:

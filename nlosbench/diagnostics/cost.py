@@ -60,7 +60,7 @@ def _reset_peak() -> bool:
 
 
 #: open "vmhwm" blocks, outermost first: an inner block's reset must not lose an outer block's peak
-_OPEN: list["measure"] = []
+_OPEN: list[measure] = []
 
 
 class measure:

@@ -13,8 +13,8 @@ term. With octree guiding a 32×32 pass takes ~20 s on 2 CPU cores (guiding cons
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Sequence
 
 import numpy as np
 

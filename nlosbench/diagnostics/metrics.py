@@ -63,7 +63,7 @@ class Reference:
     center: str
 
     @classmethod
-    def from_stack(cls, images, center: str = "mean") -> "Reference":
+    def from_stack(cls, images, center: str = "mean") -> Reference:
         """From R independent estimates (R, H, W, C): e.g. R rounds of a high-spp FD gradient
         (center="mean"), or the seeds of one backend when no reference is affordable
         (center="median": robust to outliers in a minority of seeds)."""

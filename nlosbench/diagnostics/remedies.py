@@ -16,8 +16,8 @@ pixels 5–10× smaller than in the full film's derivative), so it is not offere
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
-from typing import Sequence
 
 import numpy as np
 
@@ -77,7 +77,7 @@ def visibility_boost(model: ForwardModel, theta, index: int, settings: GradientS
     vis = replace(settings, ad={**settings.ad, "sppc": 0})
     a = gradient_images(model, theta, index, cont, spp, seeds)
     b = gradient_images(model, theta, index, vis, boost * spp, seeds)
-    costs = [_sum_costs([x, y]) for x, y in zip(a.costs, b.costs)]
+    costs = [_sum_costs([x, y]) for x, y in zip(a.costs, b.costs, strict=True)]
     return GradientRun(a.images + b.images, list(seeds), costs, a.renders + b.renders, a.grad_passes + b.grad_passes)
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import difflib
 import importlib.metadata
-from typing import Callable
+from collections.abc import Callable
 
 from .base import Budget, Estimate, Estimator, Outcome, Problem, Tracker
 from .gauss_newton import GaussNewton

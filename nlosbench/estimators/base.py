@@ -17,6 +17,7 @@ from typing import ClassVar
 import numpy as np
 import torch
 
+from ..diagnostics import resolve_gradient
 from ..forward.gradients import GradientSettings
 from ..forward.model import ForwardModel, RenderStats
 from ..noise import NoiseModel, check_finite
@@ -28,13 +29,16 @@ class Problem:
     """An estimation problem: observations y ~ noise(model.render(θ*)), θ* ∈ model.params.
 
     gradient: how estimators that need ∂L/∂θ get it (forward.GradientSettings: FD with CRN, AD, mixed,
-    or auto — resolved once per model by GradientSettings.resolve);
+    or auto — resolved here, once per model, by `diagnostics.resolve_gradient`);
     seed: seed for renders that are the same for every fit (derive it from the experiment seed)."""
 
     model: ForwardModel
     noise: NoiseModel
     gradient: GradientSettings = field(default_factory=GradientSettings)
     seed: int = 0
+
+    def __post_init__(self):
+        object.__setattr__(self, "gradient", resolve_gradient(self.model, self.gradient))
 
     @property
     def params(self) -> ParamSpace:

@@ -6,7 +6,7 @@ from pathlib import Path
 import yaml
 
 from .. import studies
-from .schema import ConfigError, Field, validate_block
+from ..schema import ConfigError, Field, validate_block
 
 NOISE = {"model": Field(str, help="noise model name", choices=("awgn", "poisson")),
          "sigma": Field(float, None, "AWGN standard deviation (radiance units)", nullable=True),
@@ -116,29 +116,3 @@ def resolve(raw: dict) -> dict:
 def study_schema(mod) -> dict:
     """The keys a study block may have: the common ones (`id`) and the study module's SCHEMA."""
     return {**STUDY, **mod.SCHEMA}
-
-
-def grid_values(spec) -> list[float]:
-    """θ values from a list, from {start, stop, num} (inclusive, like numpy.linspace), or from a list of
-    such segments (merged and sorted: e.g. 1 cm steps where θ is well determined, coarser elsewhere)."""
-    import numpy as np
-
-    if isinstance(spec, dict):
-        return np.linspace(spec["start"], spec["stop"], int(spec["num"])).tolist()
-    if any(isinstance(v, dict) for v in spec):
-        return sorted({round(t, 12) for seg in spec for t in grid_values(seg if isinstance(seg, dict) else [seg])})
-    return [float(v) for v in spec]
-
-
-def smoke_grid(spec, num: int = 3):
-    """A grid spec shrunk to about `num` points over the same range (a list keeps its first and last
-    values; each segment of a segment list keeps 2 points)."""
-    if isinstance(spec, dict):
-        return {**spec, "num": min(int(spec["num"]), num)}
-    spec = list(spec)
-    if any(isinstance(v, dict) for v in spec):
-        return [smoke_grid(v, 2) if isinstance(v, dict) else v for v in spec]
-    return spec if len(spec) <= num else spec[:num - 1] + spec[-1:]
-
-
-GRID = Field("any", help="θ values: a list, {start, stop, num}, or a list of {start, stop, num} segments")

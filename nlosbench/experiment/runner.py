@@ -9,9 +9,10 @@ from pathlib import Path
 
 import yaml
 
-from .. import executors, studies
+from .. import studies
+from ..io import write_json
+from ..studies.context import RunContext
 from . import config as config_mod
-from .context import RunContext, write_json
 from .report import make_report
 
 
@@ -27,7 +28,7 @@ def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | No
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     results = json.loads(results_path.read_text()) if resume and results_path.exists() else {"studies": {}}
-    ctx.executor = executors.create(cfg["executor"], ctx.model_spec, ctx.model)
+    ctx.start()
     try:
         for i, study in enumerate(cfg["studies"]):
             study["id"] = study.get("id") or f"{i:02d}-{study['type']}"
@@ -47,7 +48,7 @@ def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | No
                                                "render_seconds_in_process": spent.seconds}
             write_json(results_path, results)
     finally:
-        ctx.executor.close()
+        ctx.close()
     results["seconds_total"] = sum(s.get("seconds", 0) for s in results["studies"].values())
     write_json(results_path, results)
     make_report(run_dir)

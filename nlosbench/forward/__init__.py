@@ -1,8 +1,8 @@
 """The forward model θ ↦ image, its gradients, and the differentiable `render` function."""
 from .autograd import render
 from .cache import RenderCache
-from .gradients import GradientSettings, ad_jacobian, fd_jacobian, jacobian, resolve, vjp
-from .model import ForwardModel, RenderError, RenderStats
+from .gradients import GradientSettings, ad_jacobian, check_concrete, fd_jacobian, jacobian, vjp
+from .model import ForwardModel, RenderError, RenderStats, Restricted
 
-__all__ = ["render", "RenderCache", "GradientSettings", "fd_jacobian", "ad_jacobian", "jacobian", "resolve", "vjp",
-           "ForwardModel", "RenderError", "RenderStats"]
+__all__ = ["render", "RenderCache", "GradientSettings", "check_concrete", "fd_jacobian", "ad_jacobian", "jacobian", "vjp",
+           "ForwardModel", "RenderError", "RenderStats", "Restricted"]

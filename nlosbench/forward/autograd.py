@@ -1,15 +1,15 @@
 """`render(model, θ, spp, seed, grad=...)`: the forward model as a differentiable torch function.
 
 The forward pass is `model.render(θ, spp, seed)`; the backward pass contracts the incoming image
-gradient with ∂L/∂θ by FD (common random numbers), AD, both ("mixed") or whichever the gradient
-diagnostics chose ("auto") — see `gradients.py`. Gradient renders use seeds derived from `seed`, so a
-whole optimisation step is reproducible.
+gradient with ∂L/∂θ by FD (common random numbers), AD or both ("mixed") — see `gradients.py`.
+Gradient renders use seeds derived from `seed`, so a whole optimisation step is reproducible.
+`grad="auto"` is resolved above this layer (`nlosbench.render`, `nlosbench.diagnostics.resolve_gradient`).
 """
 from __future__ import annotations
 
 import torch
 
-from .gradients import GradientSettings, resolve, vjp
+from .gradients import GradientSettings, check_concrete, vjp
 from .model import ForwardModel
 
 
@@ -31,10 +31,8 @@ def render(model: ForwardModel, theta, spp: int = 64, seed: int = 0, grad: str |
            **options) -> torch.Tensor:
     """L_θ (H, W, C) float32, differentiable w.r.t. θ (a torch tensor with requires_grad).
 
-    grad: "fd" | "ad" | "auto" or a GradientSettings; options (step, rounds, crn, spp, ad, verdicts)
-    build the settings when grad is a string, e.g. `render(m, θ, 64, 0, grad="fd", step=0.005, rounds=4)`
-    or `render(m, θ, 64, 0, grad="auto", verdicts="runs/x/gradients")`. "auto" is resolved here, once
-    per (model, settings) — `GradientSettings("auto").resolve(model).chosen` says what it picked.
+    grad: "fd" | "ad" | "mixed" or a GradientSettings; options (step, rounds, crn, spp, ad, ad_params)
+    build the settings when grad is a string, e.g. `render(m, θ, 64, 0, grad="fd", step=0.005, rounds=4)`.
     """
     if isinstance(grad, GradientSettings):
         if options:
@@ -42,7 +40,7 @@ def render(model: ForwardModel, theta, spp: int = 64, seed: int = 0, grad: str |
         settings = grad
     else:
         settings = GradientSettings(method=grad, **options)
-    settings = resolve(model, settings)
+    check_concrete(settings)
     if not isinstance(theta, torch.Tensor):
         theta = torch.as_tensor(theta, dtype=torch.float64)
     return _Render.apply(theta, model, spp, seed, settings)

@@ -36,7 +36,7 @@ class Binding:
     _arclen: np.ndarray | None = field(default=None, repr=False)
 
     @classmethod
-    def from_spec(cls, spec: dict) -> "Binding":
+    def from_spec(cls, spec: dict) -> Binding:
         spec = dict(spec)
         where = f"parameter {spec.get('name', '?')!r}"
         kind = spec.pop("kind", None)
@@ -153,7 +153,7 @@ class SceneBinder:
         offsets = {o: mi.Vector3f(0.0) for o in self.objects}
         scales = {o: mi.Float(1.0) for o in self.objects}
         colors = {k: [mi.Float(float(c)) for c in base] for k, base in self.colors.items()}
-        for b, t in zip(self.bindings, theta):
+        for b, t in zip(self.bindings, theta, strict=True):
             if b.kind == "translate":
                 offsets[b.object] = offsets[b.object] + _vec(b.axis) * t
             elif b.kind == "path":

@@ -4,14 +4,13 @@ FD is central, ∂L/∂θ_j ≈ (L(θ+ξe_j) − L(θ−ξe_j)) / 2ξ, with comm
 stencil use the same render seed, so the rendering noise largely cancels. R rounds with independent
 seeds are averaged. Where θ ± ξ leaves Θ the stencil becomes one-sided (θ and the inside neighbour,
 same seed). AD asks the model (Mitsuba reverse/forward mode, or exact torch autograd for the toys).
-"mixed" differentiates the parameters `ad_params` by AD and the others by FD. "auto" is resolved once
-per (model, settings) into one of those three by `nlosbench.diagnostics.choose_backend`, from measured
-verdicts (a `gradients` study's verdicts.json) or the paper's prior (colour → AD, geometry → FD).
+"mixed" differentiates the parameters `ad_params` by AD and the others by FD. "auto" is a request,
+not a method this layer runs: it is resolved above the forward layer (`nlosbench.diagnostics.
+resolve_gradient`, from measured verdicts or the paper's prior) into one of the other three, which is
+what reaches `jacobian` and `vjp`.
 """
 from __future__ import annotations
 
-import logging
-import weakref
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from os import PathLike
@@ -23,7 +22,6 @@ from ..seeds import derive
 from .model import ForwardModel
 
 METHODS = ("fd", "ad", "mixed", "auto")
-log = logging.getLogger("nlosbench.gradients")
 
 
 @dataclass(frozen=True)
@@ -36,7 +34,8 @@ class GradientSettings:
     of gradient renders (None: the primal spp); ad: options for the AD integrator (type, max_depth,
     ...); ad_params: with "mixed", the parameter indices differentiated by AD (the others by FD);
     verdicts: with "auto", a `gradients` study's verdicts.json (or its folder) or a mapping
-    {parameter: Verdict}; None uses the prior. chosen: set by `resolve`, what "auto" chose and why.
+    {parameter: Verdict}; None uses the prior. chosen: set when "auto" is resolved
+    (`nlosbench.diagnostics.resolve_gradient`): what it chose and why.
     """
 
     method: str = "fd"
@@ -72,29 +71,12 @@ class GradientSettings:
         s = np.broadcast_to(np.asarray(self.step, dtype=np.float64), (dim,))
         return s.copy()
 
-    def resolve(self, model: ForwardModel) -> "GradientSettings":
-        """These settings with "auto" resolved for `model` (see module docstring); others as they are."""
-        return resolve(model, self)
 
-
-#: model → {repr(auto settings): resolved settings}; weak, so a model's entries go with it
-_RESOLVED: "weakref.WeakKeyDictionary[ForwardModel, dict]" = weakref.WeakKeyDictionary()
-
-
-def resolve(model: ForwardModel, settings: GradientSettings) -> GradientSettings:
-    """Concrete settings for `model` ("fd", "ad" or "mixed"). "auto" is resolved through
-    `diagnostics.choose_backend` once per (model, settings) and cached; the choice is in `.chosen`
-    and logged (logger `nlosbench.gradients`, INFO)."""
-    if settings.method != "auto":
-        return settings
-    per_model = _RESOLVED.setdefault(model, {})
-    key = repr(settings)
-    if key not in per_model:
-        from ..diagnostics.verdict import choose_backend
-
-        per_model[key] = choose_backend(model, settings.verdicts, base=settings)
-        log.info("grad='auto' on %s: %s", model.name, per_model[key].chosen)
-    return per_model[key]
+def check_concrete(settings: GradientSettings) -> None:
+    """ValueError unless `settings` names a method this layer runs (fd, ad, mixed)."""
+    if settings.method == "auto":
+        raise ValueError("grad='auto' is a policy resolved above the forward layer: pass the settings through "
+                         "nlosbench.diagnostics.resolve_gradient(model, settings) (nb.render does this)")
 
 
 def fd_jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: GradientSettings = GradientSettings(),
@@ -139,8 +121,8 @@ def _check_ad_params(model: ForwardModel, settings: GradientSettings) -> None:
 
 
 def jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: GradientSettings, indices=None) -> torch.Tensor:
-    """Image Jacobian (P', H, W, C) with the method in `settings` ("auto" resolved, see `resolve`)."""
-    settings = resolve(model, settings)
+    """Image Jacobian (P', H, W, C) with the method in `settings` (fd, ad or mixed)."""
+    check_concrete(settings)
     _check_ad_params(model, settings)
     spp = settings.spp or spp
     idx = list(range(len(model.params))) if indices is None else list(indices)
@@ -153,8 +135,8 @@ def jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: Gradient
 
 def vjp(model: ForwardModel, theta, grad_out: torch.Tensor, spp: int, seed: int, settings: GradientSettings) -> np.ndarray:
     """Σ_ω grad_out(ω) ∂L(ω)/∂θ, float64 (P,). FD contracts the FD Jacobian of its parameters; AD runs
-    one reverse pass; "mixed" does both; "auto" is resolved first (see `resolve`)."""
-    settings = resolve(model, settings)
+    one reverse pass; "mixed" does both."""
+    check_concrete(settings)
     _check_ad_params(model, settings)
     spp = settings.spp or spp
     P = len(model.params)

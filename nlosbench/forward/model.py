@@ -30,14 +30,14 @@ class RenderStats:
     samples: int = 0
     seconds: float = 0.0
 
-    def snapshot(self) -> "RenderStats":
+    def snapshot(self) -> RenderStats:
         return RenderStats(self.renders, self.grad_passes, self.samples, self.seconds)
 
-    def __add__(self, o: "RenderStats") -> "RenderStats":
+    def __add__(self, o: RenderStats) -> RenderStats:
         return RenderStats(self.renders + o.renders, self.grad_passes + o.grad_passes, self.samples + o.samples,
                            self.seconds + o.seconds)
 
-    def since(self, before: "RenderStats") -> "RenderStats":
+    def since(self, before: RenderStats) -> RenderStats:
         return RenderStats(self.renders - before.renders, self.grad_passes - before.grad_passes,
                            self.samples - before.samples, self.seconds - before.seconds)
 
@@ -108,13 +108,50 @@ class ForwardModel(ABC):
         if not bool(torch.isfinite(img).all()):
             n = int((~torch.isfinite(img)).sum())
             raise RenderError(f"{what} of scene {self.name!r} has {n} NaN/Inf value(s) at "
-                              f"θ={dict(zip(self.params.names, np.asarray(theta).tolist()))}, spp={spp}, seed={seed}")
+                              f"θ={dict(zip(self.params.names, np.asarray(theta).tolist(), strict=True))}, spp={spp}, seed={seed}")
 
-    def restrict(self, names, fixed: dict | None = None) -> "ForwardModel":
+    def restrict(self, names, fixed: dict | None = None) -> ForwardModel:
         """This model seen through parameters `names` only; the others held at `fixed` or their defaults."""
-        from .restrict import Restricted
-
         return Restricted(self, names, fixed)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, {self.params!r})"
+
+
+class Restricted(ForwardModel):
+    """`base` seen through the parameters `names` only; the rest stay at `fixed` (default: defaults).
+
+    Renders, derivatives and stats go to the base model (one scene load, one render counter)."""
+
+    def __init__(self, base: ForwardModel, names, fixed: dict | None = None):
+        self.base = base
+        self.index = [base.params.index(n) for n in names]
+        full = base.params.default.copy()
+        for k, v in (fixed or {}).items():
+            full[base.params.index(k)] = v
+        self.full = base.params.validate(full)
+        super().__init__(base.name, base.params.subset(names), None)
+        self.stats = base.stats
+        self.exact = base.exact
+
+    def expand(self, theta) -> np.ndarray:
+        """Full θ (float64) from the restricted θ."""
+        t = self.full.copy()
+        t[self.index] = self.params.validate(theta)
+        return t
+
+    def render(self, theta, spp: int, seed: int) -> torch.Tensor:
+        return self.base.render(self.expand(theta), spp, seed)
+
+    def _render(self, theta, spp, seed):  # render() is delegated whole, with the base's cache
+        raise NotImplementedError
+
+    def jvp(self, theta, index: int, spp: int, seed: int, **ad) -> torch.Tensor:
+        return self.base.jvp(self.expand(theta), self.index[index], spp, seed, **ad)
+
+    def vjp(self, theta, grad_out, spp: int, seed: int, indices=None, **ad) -> np.ndarray:
+        wanted = self.index if indices is None else [self.index[j] for j in indices]
+        return self.base.vjp(self.expand(theta), grad_out, spp, seed, indices=wanted, **ad)[self.index]
+
+    def content_key(self) -> dict:
+        return {"base": self.base.content_key(), "index": self.index, "fixed": self.full.tolist()}

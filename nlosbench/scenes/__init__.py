@@ -7,8 +7,8 @@ Built in: the analytic toys `blob2d` and `edge1d` (torch, exact gradients) and e
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import yaml
 
@@ -89,3 +89,17 @@ def get(name: str, **options) -> ForwardModel:
     close = difflib.get_close_matches(name, available(), n=1)
     hint = f"; did you mean {close[0]!r}?" if close else ""
     raise KeyError(f"unknown scene {name!r}{hint} (available: {', '.join(available())})")
+
+
+def build(spec: dict) -> ForwardModel:
+    """The forward model from a picklable spec {name, options, params, fixed, variant, cache}: loaded once
+    per process (workers call this in their initialiser), restricted to `params` when given."""
+    opts = dict(spec.get("options") or {})
+    if spec.get("variant"):
+        opts["variant"] = spec["variant"]
+    if spec.get("cache"):
+        opts["cache"] = spec["cache"]
+    model = get(spec["name"], **opts)
+    if spec.get("params"):
+        model = model.restrict(spec["params"], spec.get("fixed") or {})
+    return model

@@ -10,12 +10,11 @@ from pathlib import Path
 import numpy as np
 
 from .. import bounds
-from ..experiment.config import GRID, grid_values, smoke_grid
-from ..experiment.context import RunContext, read_csv, write_csv
-from ..experiment.schema import Field
-from ..io import write_exr
-from .plotting import bound_curves_plot
-from .tasks import jacobian_task, render_task, run_tasks
+from ..bank import JacobianRequest, Request
+from ..io import read_csv, write_csv, write_exr
+from ..schema import GRID, Field, grid_values, smoke_grid
+from .context import RunContext
+from .plots import bound_curves_plot
 
 NAME = "bounds"
 SCHEMA = {
@@ -31,32 +30,20 @@ SCHEMA = {
 }
 
 
-def crlb_log10(L, J, noise) -> tuple[np.ndarray, str]:
-    """log10 CRLB per parameter (P,) from an image and its Jacobian, and a flag. Infinite Fisher
-    information (a Poisson pixel rendered as exactly 0 whose neighbours are not) gives −inf, flagged."""
-    F = bounds.fisher_matrix(L, J, noise)
-    if not np.all(np.isfinite(F)):
-        return np.full(F.shape[0], -np.inf), "infinite Fisher information (Poisson pixel with L = 0 that changes)"
-    c = bounds.crlb(F)
-    with np.errstate(divide="ignore"):
-        return np.log10(c.component), (c.reason if c.singular else "")
-
-
 def grid_renders(ctx: RunContext, thetas: list[float], spp: int, purpose: str, seeds: str = "independent",
                  fd_step: float | None = None) -> tuple[np.ndarray, list | None]:
-    """Renders (G, H, W, C) float32 at each θ and, with `fd_step`, their FD Jacobians (CRN), through the
-    run's executor. seeds: "independent" (a derived seed per point, as in the paper) or "common" (one
+    """Renders (G, H, W, C) float32 at each θ and, with `fd_step`, their FD Jacobians (CRN), from the
+    run's render bank. seeds: "independent" (a derived seed per point, as in the paper) or "common" (one
     seed for every point: common random numbers across θ, so differences L(θ+Δ) − L(θ) carry far less
     rendering noise and λ is inflated less, at the price of correlated errors along the curve)."""
     idx = (lambda g: 0) if seeds == "common" else (lambda g: g)
-    imgs, _ = run_tasks(ctx, render_task, [(g, [t], spp, ctx.seed_for(purpose, idx(g))) for g, t in enumerate(thetas)],
-                        f"{purpose} renders")
-    renders = np.stack([imgs[g].numpy() for g in range(len(thetas))])
+    renders = ctx.bank.images([Request.of([t], spp, ctx.seed_for(purpose, idx(g))) for g, t in enumerate(thetas)],
+                              f"{purpose} renders").numpy()
     if fd_step is None:
         return renders, None
-    jac, _ = run_tasks(ctx, jacobian_task, [(g, [t], spp, ctx.seed_for(purpose + "-fd", idx(g)), fd_step)
-                                            for g, t in enumerate(thetas)], "FD Jacobians")
-    return renders, [jac[g] for g in range(len(thetas))]
+    jac = ctx.bank.jacobians([JacobianRequest.of([t], spp, ctx.seed_for(purpose + "-fd", idx(g)), fd_step)
+                              for g, t in enumerate(thetas)], "FD Jacobians")
+    return renders, list(jac)
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:
@@ -80,7 +67,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             row = {"noise": str(noise), "theta": t, "log10_hcr": curve.log10[g], "delta": curve.delta[g],
                    "at_edge": curve.at_edge[g] or "", "unresolved": bool(curve.unresolved[g]), "reason": curve.reason[g]}
             if jac is not None:
-                log10_crlb, row["crlb_flag"] = crlb_log10(renders[g], jac[g], noise)
+                log10_crlb, row["crlb_flag"] = bounds.crlb_log10(renders[g], jac[g], noise)
                 row["log10_crlb"] = float(log10_crlb[0])
             if cfg["barankin"]:
                 others = [j for j in range(len(thetas)) if j != g]

@@ -38,15 +38,15 @@ import numpy as np
 
 from .. import bounds
 from ..binning import bin_image, check_bin
-from ..experiment.config import GRID, grid_values, smoke_grid
-from ..experiment.context import RunContext, build_model, read_csv, write_csv
-from ..experiment.schema import Field
-from ..fidelity import AGGREGATES, Point, aggregate, check_tolerance, recommend, relative_error, settled
 from ..forward.gradients import METHODS, GradientSettings, jacobian
 from ..forward.mitsuba_model import MitsubaModel, pruned_xml
 from ..forward.model import RenderStats
-from .bounds import crlb_log10
-from .plotting import _plt, finish
+from ..io import read_csv, write_csv
+from ..scenes import build
+from ..schema import GRID, Field, grid_values, smoke_grid
+from ..tradeoff import AGGREGATES, Point, aggregate, check_tolerance, recommend, relative_error, settled
+from .context import RunContext
+from .plots import _plt, finish
 
 NAME = "fidelity"
 KNOBS = ("spp", "bin", "max_depth", "gradient")
@@ -134,7 +134,7 @@ class _Sweep:
                     opts["defines"] = {**(opts.get("defines") or {}), "max_depth": depth}
                 if prune is not None:
                     opts["remove"] = [*(opts.get("remove") or []), prune]
-                m = build_model({**ctx.model_spec, "options": opts, "cache": None})
+                m = build({**ctx.model_spec, "options": opts, "cache": None})
                 if depth is not None and _integrator_depth(m) != depth:
                     raise ValueError(f"max_depth: scene {m.name!r} does not take its integrator's max_depth from "
                                      f"the define $max_depth (asked {depth}, loaded {_integrator_depth(m)})")
@@ -179,7 +179,7 @@ class _Sweep:
         for noise in self.ctx.noises:
             nz = noise.binned(b) if b > 1 else noise
             curve = bounds.hcr_curve(R, np.array(self.thetas), nz, self.lo, self.hi)
-            crlb = [crlb_log10(R[g], J[g], nz) for g in range(len(self.thetas))]
+            crlb = [bounds.crlb_log10(R[g], J[g], nz) for g in range(len(self.thetas))]
             out[str(noise)] = _Bounds(curve.log10, np.array([c[0][0] for c in crlb]), [c[1] for c in crlb],
                                       int(sum(e == "smallest" for e in curve.at_edge)))
         return out
@@ -284,7 +284,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             rec = recommend(knob, [Point(p["value"], p["cost"], p["error"]) for p in points], ref_value, tol)
             summary[knob]["recommendation"] = {"value": rec.value, "error": rec.error, "cost": rec.cost,
                                                "speedup": rec.speedup}
-        for (v, s), p in zip(pts, points):
+        for (v, s), p in zip(pts, points, strict=True):
             res = sweep.done[s][0]
             for noise, r in res.items():
                 e_h, e_c = relative_error(r.hcr, ref_res[noise].hcr), relative_error(r.crlb, ref_res[noise].crlb)
@@ -364,7 +364,7 @@ def _knob_plot(knobs: dict, results: dict, path: Path) -> Path:
 
     tol = results["tolerance"]
     fig, axes = plt.subplots(1, len(knobs), figsize=(4 * len(knobs), 3.6), squeeze=False)
-    for ax, (knob, s) in zip(axes[0], knobs.items()):
+    for ax, (knob, s) in zip(axes[0], knobs.items(), strict=True):
         shown = [p["error"] for p in s["points"] if 0 < p["error"] < 100]
         floor, top = tol / 100, max([tol * 10] + [2 * e for e in shown])
         for p in s["points"]:

@@ -7,12 +7,11 @@ from pathlib import Path
 import numpy as np
 
 from .. import bounds
-from ..experiment.context import RunContext, read_csv, write_csv
-from ..experiment.schema import Field
-from ..forward.gradients import GradientSettings, fd_jacobian
-from ..io import read_exr, write_exr
-from .bounds import crlb_log10
-from .plotting import _plt
+from ..bank import JacobianRequest, Request
+from ..io import read_csv, read_exr, write_csv, write_exr
+from ..schema import Field
+from .context import RunContext
+from .plots import _plt
 
 NAME = "fisher-maps"
 SCHEMA = {
@@ -31,19 +30,20 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     labels = cfg["labels"] or [f"p{i}" for i in range(len(cfg["at"]))]
     if len(labels) != len(cfg["at"]):
         raise ValueError(f"fisher-maps: {len(cfg['at'])} points but {len(labels)} labels")
-    settings = GradientSettings(step=cfg["fd_step"], rounds=cfg["fd_rounds"])
+    ts = [m.params.validate(np.atleast_1d(theta)) for theta in cfg["at"]]
+    Ls = ctx.bank.images([Request.of(t, cfg["spp"], ctx.seed_for("fisher-render", i)) for i, t in enumerate(ts)],
+                         "Fisher-map renders")
+    Js = ctx.bank.jacobians([JacobianRequest.of(t, cfg["spp"], ctx.seed_for("fisher-fd", i), cfg["fd_step"],
+                                                cfg["fd_rounds"]) for i, t in enumerate(ts)], "Fisher-map FD Jacobians")
     rows = []
-    for i, (theta, label) in enumerate(ctx.progress(list(zip(cfg["at"], labels)), desc="Fisher maps")):
-        t = m.params.validate(np.atleast_1d(theta))
-        L = m.render(t, cfg["spp"], ctx.seed_for("fisher-render", i))
-        J = fd_jacobian(m, t, cfg["spp"], ctx.seed_for("fisher-fd", i), settings)
+    for t, label, L, J in zip(ts, labels, Ls, Js, strict=True):
         write_exr(out / f"{label}_rgb.exr", L)
         for j, name in enumerate(m.params.names):
             write_exr(out / f"{label}_dL_d{name}.exr", J[j])
         for k, noise in enumerate(ctx.noises):
             maps = bounds.fisher_maps(L, J, noise, cfg["reduce"])
             bounds.save_fisher_maps(maps, list(m.params.names), out, prefix=f"{label}_noise{k}_fisher")
-            log10_crlb, flag = crlb_log10(L, J, noise)
+            log10_crlb, flag = bounds.crlb_log10(L, J, noise)
             for j, name in enumerate(m.params.names):
                 rows.append({"label": label, "theta": t.tolist(), "noise": str(noise), "param": name,
                              "fisher_total": float(maps[j].sum()), "log10_crlb": float(log10_crlb[j]), "flag": flag})

@@ -16,17 +16,32 @@ import json
 import math
 from pathlib import Path
 
-from ..diagnostics import (REMEDIES, Reference, applicable_integrators, backend, forward_cost, gradient_images,
-                           image_metrics, judge, label, load_verdicts, outlier_mask, outlier_scores, param_kind,
-                           remedy_run, save_verdicts, spec_of)
+from ..diagnostics import (
+    REMEDIES,
+    Reference,
+    applicable_integrators,
+    backend,
+    forward_cost,
+    gradient_images,
+    image_metrics,
+    judge,
+    label,
+    load_verdicts,
+    outlier_mask,
+    outlier_scores,
+    param_kind,
+    remedy_run,
+    save_verdicts,
+    spec_of,
+)
 from ..diagnostics.evaluate import fd_reference, result_row
 from ..diagnostics.figures import gradient_grid
 from ..diagnostics.metrics import THRESHOLD, spp_trend
-from ..experiment.context import RunContext, read_csv, write_csv
-from ..experiment.schema import Field
 from ..forward.gradients import GradientSettings
 from ..forward.mitsuba_model import AD_INTEGRATORS
-from ..io import write_exr
+from ..io import read_csv, write_csv, write_exr
+from ..schema import Field
+from .context import RunContext
 
 NAME = "gradients"
 SCHEMA = {
@@ -137,7 +152,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     save_verdicts(out / "verdicts.json", verdicts)
     gradient_grid(images, masks, grid_rows, [(p, s) for p in names for s in spps], out / "gradient_grid.png",
                   {n: model.params.units[model.params.index(n)] for n in names})
-    return {"params": names, "theta": dict(zip(model.params.names, theta.tolist())), "spp": spps, "seeds": S,
+    return {"params": names, "theta": dict(zip(model.params.names, theta.tolist(), strict=True)), "spp": spps, "seeds": S,
             "reference": (f"FD ξ={cfg['fd_step']:g}, {cfg['reference']['spp']} spp × {cfg['reference']['rounds']} rounds"
                           if cfg["reference"] else "per-pixel median of the FD (CRN) seeds"),
             "target_rel_error": cfg["target_rel_error"], "threshold": cfg["threshold"],

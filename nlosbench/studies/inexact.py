@@ -8,7 +8,7 @@ one render set per grid point. The θ* replicates also feed the 1/N decay check 
 appendix), whose measured p the fit can use (`power: measured`).
 
 Resume. The work unit is a render point (a θ* or a θ*+Δ; for a grid-aligned Δ set, the θ* grid):
-its k·R level renders and R N_eff renders go through `ctx.executor` as one task and are kept as
+its k·R level renders and R N_eff renders go through the run's render bank as one executor task and are kept as
 points/NNNNN.npz (float32, written atomically), beside plan.json (points, levels, N_eff, replicates,
 seed, scene). A resumed run (`--resume`) reads the finished points, renders the rest and repeats the
 analysis (Gram matrices, fits, bootstrap, decay check: seconds on small grids; estimated ≈ 3.5 h
@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 import re
 import time
 import warnings
@@ -31,15 +30,13 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ..bank import check_spp, level_requests
 from ..bounds.decay import decay_check, pixel_variances
-from ..bounds.inexact import check_levels, check_spp, inexact_hcr, quadratic, render_point
-from ..executors import SerialExecutor
-from ..io import atomic
-from ..experiment.config import GRID, grid_values
-from ..experiment.context import RunContext, read_csv, write_csv, write_json
-from ..experiment.schema import Field
-from .plotting import _plt
-from .trials import parse_noises
+from ..bounds.inexact import check_levels, inexact_hcr, quadratic
+from ..io import atomic, read_csv, write_csv, write_json
+from ..schema import GRID, Field, grid_values
+from .context import RunContext
+from .plots import _plt
 
 NAME = "inexact"
 BUDGET_TOLERANCE = 0.1  # warn when N_eff and Σ N_i differ by more than this fraction
@@ -83,7 +80,7 @@ def _slug(s: str) -> str:
 
 def _noises(ctx: RunContext, spec) -> list:
     """The selected noise models (all when spec is None), each checked to be quadratic."""
-    return [quadratic(n) for n in parse_noises("all" if spec is None else spec, ctx.noises, "noise").values()]
+    return [quadratic(n) for n in ctx.select_noises("all" if spec is None else spec, "noise").values()]
 
 
 def _power(spec) -> float | str:
@@ -129,7 +126,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     if power == "measured" and not (cfg["decay_weights"] > 0 and R >= 2):
         raise ValueError("power: measured needs the decay check (decay_weights > 0 and replicates >= 2)")
     points, plan = _points(thetas, deltas, lo, hi)
-    for t, (_, d, _) in zip(thetas, plan):
+    for t, (_, d, _) in zip(thetas, plan, strict=True):
         if d.size == 0:
             raise ValueError(f"no Δ in {deltas.tolist()} keeps θ* = {t:g} + Δ inside [{lo:g}, {hi:g}]")
 
@@ -177,7 +174,7 @@ def _render_plan(ctx: RunContext, points: np.ndarray, levels: np.ndarray, n_eff:
 def render_points(ctx: RunContext, out: Path, points: np.ndarray, levels: np.ndarray, n_eff: int,
                   R: int) -> tuple[torch.Tensor, torch.Tensor, int]:
     """Level renders X (k, R, Q, *S) and N_eff renders Xe (R, Q, *S), float32, of the Q render points,
-    one executor task per point, each finished point saved to out/points/ at once; with ctx.resume
+    one render-bank group (executor task) per point, each finished point saved to out/points/ at once; with ctx.resume
     the saved points are read back instead of rendered. Returns (X, Xe, number of points read back)."""
     folder, plan_file = out / "points", out / "plan.json"
     plan = _render_plan(ctx, points, levels, n_eff, R)
@@ -207,21 +204,17 @@ def render_points(ctx: RunContext, out: Path, points: np.ndarray, levels: np.nda
             todo.append(q)
         else:
             place(q, *got)
-    seed = ctx.seed_for("inexact")
-    jobs = [(q, float(points[q]), levels.tolist(), n_eff, R, seed) for q in todo]
-    executor = ctx.executor or SerialExecutor(model=ctx.model)
-    for q, Xq, Xeq in ctx.progress(executor.imap_unordered(_render_point_sets, jobs), total=len(jobs),
-                                   desc="inexact render points"):
+    seed, k = ctx.seed_for("inexact"), len(levels)
+    groups = {q: level_requests([points[q]], levels, R, seed, "levels", q)
+              + level_requests([points[q]], [n_eff], R, seed, "n-eff", q) for q in todo}
+
+    def done(q: int, imgs: torch.Tensor) -> None:
+        Xq, Xeq = imgs[:k * R].reshape(k, R, *imgs.shape[1:]), imgs[k * R:]
         _save_point(folder / f"{q:05d}.npz", points[q], Xq, Xeq)
         place(q, Xq, Xeq)
-    return X, Xe, len(points) - len(jobs)
 
-
-def _render_point_sets(model, job) -> tuple[int, torch.Tensor, torch.Tensor]:
-    """Executor task: (q, θ, levels, n_eff, R, seed) → (q, level renders (k, R, *S), N_eff renders (R, *S))."""
-    q, theta, levels, n_eff, R, seed = job
-    return (q, render_point(model, [theta], levels, R, seed, "levels", q),
-            render_point(model, [theta], [n_eff], R, seed, "n-eff", q)[0])
+    ctx.bank.groups(groups, "inexact render points", on_done=done)
+    return X, Xe, len(points) - len(todo)
 
 
 def _save_point(path: Path, theta: float, X: torch.Tensor, Xe: torch.Tensor) -> None:
@@ -252,10 +245,10 @@ def _decay(ctx: RunContext, cfg: dict, X, levels: np.ndarray, out: Path) -> dict
                         p_grid=tuple(cfg["p_range"]), seed=ctx.seed_for("inexact-decay"), tolerance=cfg["p_tolerance"])
     for w in caught:
         ctx.log(f"warning: {w.message}")
-    write_csv(out / "decay.csv", [{"p": p, "fit_error": e} for p, e in zip(d.p_grid, d.fit_error)])
+    write_csv(out / "decay.csv", [{"p": p, "fit_error": e} for p, e in zip(d.p_grid, d.fit_error, strict=True)])
     vals, counts = np.unique(d.p_opt, return_counts=True)
-    write_csv(out / "decay_popt.csv", [{"p_opt": v, "count": int(c)} for v, c in zip(vals, counts)])
-    write_csv(out / "decay_gamma.csv", [{"spp": int(n), "gamma": g} for n, g in zip(levels // R, d.gamma_example)])
+    write_csv(out / "decay_popt.csv", [{"p_opt": v, "count": int(c)} for v, c in zip(vals, counts, strict=True)])
+    write_csv(out / "decay_gamma.csv", [{"spp": int(n), "gamma": g} for n, g in zip(levels // R, d.gamma_example, strict=True)])
     ip = int(np.argmin(np.abs(d.p_grid - 1.0)))
     return {"p": d.p, "mean": d.mean, "std": d.std, "mode": d.mode, "q05": d.q05, "q95": d.q95, "at_edge": d.at_edge,
             "n_weights": int(d.p_opt.size), "fit_error_at_1": float(d.fit_error[ip]),
@@ -267,7 +260,7 @@ def _analyse(ctx: RunContext, cfg: dict, m: int, noise, X, Xe, thetas, plan, lev
     """inexact_hcr at every θ* for noise model m → (its summary, hcr.csv rows, lambda.csv rows)."""
     n_unres = n_inv = 0
     widths, hcr_rows, lam_rows = [], [], []
-    for t, (theta, (q0, d, qd)) in enumerate(zip(thetas, plan)):
+    for t, (theta, (q0, d, qd)) in enumerate(zip(thetas, plan, strict=True)):
         r = inexact_hcr(X[:, :, q0], X[:, :, qd], d, levels, noise, Xe[:, q0], Xe[:, qd], n_eff,
                         power=p, bootstrap=cfg["bootstrap"], confidence=cfg["confidence"],
                         seed=ctx.seed_for("inexact-bootstrap", m, t))

@@ -8,9 +8,9 @@ numbers), optionally the Barankin bound (scalar θ) and HCR-hat (bias-corrected 
 levels, `bounds.inexact`); then n trials per θ* for every estimator setting (`trials.py`), resumable
 from trials.jsonl. Outputs: summary.csv, bounds.csv, plots/mse_vs_theta.png, plots/speed_vs_error.png.
 
-An estimator's `gradient: {method: auto}` is resolved once, before any render (GradientSettings.resolve:
-`diagnostics.choose_backend` from a gradients study's verdicts, `verdicts: PATH`, or the prior: colour →
-AD, geometry → FD); workers get the concrete settings, and the choice is in the results and the report.
+An estimator's `gradient: {method: auto}` is resolved once, before any render (`diagnostics.
+resolve_gradient`: `choose_backend` from a gradients study's verdicts, `verdicts: PATH`, or the prior:
+colour → AD, geometry → FD); workers get the concrete settings, and the choice is in the results and the report.
 """
 from __future__ import annotations
 
@@ -26,17 +26,16 @@ import numpy as np
 import torch
 
 from .. import estimators, io
-from ..bounds import barankin, crlb, fisher_matrix, hcr, inexact_hcr, render_replicates
+from ..bank import JacobianRequest, Request
+from ..bounds import barankin, crlb, fisher_matrix, hcr, inexact_hcr
+from ..diagnostics import resolve_gradient
 from ..diagnostics.images import label as gradient_label
 from ..estimators import Budget
-from ..executors import SerialExecutor
-from ..experiment.config import grid_values, smoke_grid
-from ..experiment.context import read_csv, write_csv, write_json
-from ..experiment.schema import ConfigError, Field
 from ..forward.gradients import GradientSettings
-from ..trials import LOG_NAME, Setting, make_trials, run_trials, summarize
-from .plotting import _plt
-from .tasks import jacobian_task, render_task, run_tasks
+from ..io import read_csv, write_csv, write_json
+from ..montecarlo import LOG_NAME, Setting, make_trials, run_trials, summarize
+from ..schema import ConfigError, Field, grid_values, smoke_grid
+from .plots import _plt
 
 NAME = "trials"
 BOUNDS = ("hcr", "crlb", "barankin", "hcr_hat")
@@ -102,15 +101,6 @@ def parse_thetas(spec, params, where: str) -> np.ndarray:
     return np.array(out)
 
 
-def parse_noises(spec, noises: list, where: str) -> dict:
-    """index → noise model for `spec` = 'all', an index or a list of indices."""
-    idx = range(len(noises)) if spec == "all" else [spec] if isinstance(spec, int) else spec
-    if not isinstance(idx, (list, range)) or not all(isinstance(j, int) and 0 <= j < len(noises) for j in idx) \
-            or not len(idx):
-        raise ConfigError(where, f"expected 'all' or indices into the {len(noises)} noise model(s), got {spec!r}")
-    return {j: noises[j] for j in idx}
-
-
 def check(block: dict, path: str) -> None:
     """Config-time check (before anything is written): every estimator exists and takes its options."""
     check_estimators(block["estimators"], f"{path}.estimators")
@@ -136,7 +126,7 @@ def parse_settings(specs: list, where: str, model) -> list[Setting]:
     out = []
     for k, s in enumerate(specs):
         try:
-            grad = GradientSettings(**s["gradient"]).resolve(model)
+            grad = resolve_gradient(model, GradientSettings(**s["gradient"]))
         except (TypeError, ValueError, FileNotFoundError) as e:
             raise ConfigError(f"{where}[{k}].gradient", str(e)) from None
         out.append(Setting(s["name"], s["options"], s["label"] or s["name"], grad))
@@ -165,52 +155,51 @@ def bound_seed(ctx, cfg: dict, purpose: str, *idx: int) -> int:
     return ctx.seed_for("bounds-common") if cfg["seeds"] == "common" else ctx.seed_for(purpose, *idx)
 
 
-def clean_images(ctx, executor, thetas: np.ndarray, cfg: dict, folder: Path) -> tuple[dict[int, torch.Tensor], int]:
+def clean_images(ctx, thetas: np.ndarray, cfg: dict, folder: Path) -> tuple[dict[int, torch.Tensor], int]:
     """(θ index → clean image at n_eff, renders done). Each is rendered once and kept as
     images/clean_<i>.exr (a resumed run reads them back: float32 EXR is lossless; files are renamed
     into place once complete)."""
     files = {i: folder / "images" / f"clean_{i:03d}.exr" for i in range(len(thetas))}
     out = {i: torch.from_numpy(io.read_exr(f)) for i, f in files.items() if ctx.resume and f.exists()}
-    todo = [(i, thetas[i], cfg["n_eff"], bound_seed(ctx, cfg, "clean", i)) for i in files if i not in out]
-    done, renders = run_tasks(ctx, render_task, todo, "clean images", executor)
-    for i, img in done.items():
+    todo = [i for i in files if i not in out]
+    before = ctx.bank.renders
+    imgs = ctx.bank.images([Request.of(thetas[i], cfg["n_eff"], bound_seed(ctx, cfg, "clean", i)) for i in todo],
+                           "clean images") if todo else []
+    for i, img in zip(todo, imgs, strict=True):
         io.write_exr(files[i], img)
         out[i] = img
-    return out, renders
+    return out, ctx.bank.renders - before
 
 
-def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> tuple[list[dict], int]:
+def compute_bounds(ctx, thetas, cleans, noises: dict, cfg: dict) -> tuple[list[dict], int]:
     """(one row per (noise j, θ* i) with every requested bound: value, log10 (units²) and diagnostics;
     renders done)."""
-    model, params = ctx.model, ctx.model.params
+    params = ctx.model.params
     want, n_eff, step = cfg["bounds"], cfg["n_eff"], cfg["fd_step"]
     grid = params.grid(cfg["hcr_grid"])
     offs = {i: offsets(params, t, cfg["hcr_offsets"], step) for i, t in enumerate(thetas)}
-    jobs = []
-    if {"hcr", "barankin", "hcr_hat"} & set(want):
-        jobs += [(("grid", g), t, n_eff, bound_seed(ctx, cfg, "hcr-grid", g)) for g, t in enumerate(grid)]
-        jobs += [(("offset", i, q), t, n_eff, bound_seed(ctx, cfg, "hcr-offset", i, q))
-                 for i in offs for q, t in enumerate(offs[i])]
-    renders, count = run_tasks(ctx, render_task, jobs, "bound renders", executor)
-    jac, jac_count = run_tasks(ctx, jacobian_task, [(i, t, n_eff, ctx.seed_for("crlb", i), step)
-                                                    for i, t in enumerate(thetas)] if "crlb" in want else [],
-                               "CRLB Jacobians", executor)
-    count += jac_count
-    before = model.stats.snapshot()  # HCR-hat renders its spp levels in this process
+    before = ctx.bank.renders
+    need_alt = bool({"hcr", "barankin", "hcr_hat"} & set(want))
+    grid_imgs = ctx.bank.images([Request.of(t, n_eff, bound_seed(ctx, cfg, "hcr-grid", g)) for g, t in enumerate(grid)],
+                                "bound renders") if need_alt else None
+    off_imgs = {i: ctx.bank.images([Request.of(t, n_eff, bound_seed(ctx, cfg, "hcr-offset", i, q))
+                                    for q, t in enumerate(offs[i])], "bound renders")
+                for i in offs if len(offs[i])} if need_alt else {}
+    jac = ctx.bank.jacobians([JacobianRequest.of(t, n_eff, ctx.seed_for("crlb", i), step) for i, t in enumerate(thetas)],
+                             "CRLB Jacobians") if "crlb" in want else None
     rows = {}
     for i, theta in enumerate(thetas):
         # grid points that coincide with θ* (up to rounding) are not test points
         near = np.flatnonzero(np.abs((grid - theta) / (params.upper - params.lower)).max(axis=1) > 1e-9)
         pts = np.concatenate([grid[near], offs[i]])
-        alt = torch.stack([renders[("grid", g)] for g in near] + [renders[("offset", i, q)] for q in range(len(offs[i]))]) \
-            if jobs else None
+        alt = torch.cat([grid_imgs[near]] + ([off_imgs[i]] if i in off_imgs else [])) if need_alt else None
         lower, upper = params.lower - theta, params.upper - theta
         deltas = pts - theta if params.dim > 1 else (pts - theta)[:, 0]
         # the spp-level renders do not depend on the noise model: once per θ*
-        levels = render_replicates(model, np.concatenate([theta[None], pts]), cfg["levels"], 1,
-                                   ctx.seed_for("hcr-hat", i), progress=ctx.progress) if "hcr_hat" in want else None
+        levels = ctx.bank.replicates(np.concatenate([theta[None], pts]), cfg["levels"], 1, ctx.seed_for("hcr-hat", i),
+                                     desc="HCR-hat level points") if "hcr_hat" in want else None
         for j, noise in noises.items():
-            row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(params.names, theta)}}
+            row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(params.names, theta, strict=True)}}
             if "hcr" in want:
                 h = hcr(cleans[i], alt, deltas, noise, lower, upper)
                 delta = None if h.delta is None else np.atleast_1d(h.delta).tolist()
@@ -229,7 +218,7 @@ def compute_bounds(ctx, executor, thetas, cleans, noises: dict, cfg: dict) -> tu
                                 alt[None], n_eff, lower, upper).hcr_hat
                 row.update(hcr_hat=r.value, hcr_hat_log10=r.log10, hcr_hat_reason=r.reason)
             rows[j, i] = row
-    return [rows[j, i] for j in noises for i in range(len(thetas))], count + model.stats.since(before).renders
+    return [rows[j, i] for j in noises for i in range(len(thetas))], ctx.bank.renders - before
 
 
 def bounds_map(rows: list[dict], want) -> dict:
@@ -261,7 +250,7 @@ def run(ctx, cfg: dict) -> dict:
         raise ConfigError(f"{sid}.n", f"expected at least 1 trial per θ*, got {cfg['n']}")
     if cfg["n_eff"] < 1:
         raise ConfigError(f"{sid}.n_eff", f"expected a positive spp, got {cfg['n_eff']}")
-    noises = parse_noises(cfg["noise"], ctx.noises, f"{sid}.noise")
+    noises = ctx.select_noises(cfg["noise"], f"{sid}.noise")
     settings = parse_settings(cfg["estimators"], f"{sid}.estimators", ctx.model)
     for s in settings:
         if s.gradient.chosen:
@@ -280,19 +269,17 @@ def run(ctx, cfg: dict) -> dict:
         raise ConfigError(sid, f"the config differs from the one {folder} was started with; resume with the same "
                                "config or start a new run directory")
     write_json(plan_file, plan)
-    executor = ctx.executor or SerialExecutor(ctx.model)
-
-    cleans, renders = clean_images(ctx, executor, thetas, cfg, folder)
+    cleans, renders = clean_images(ctx, thetas, cfg, folder)
     bounds_file = folder / "bounds.csv"
     if ctx.resume and bounds_file.exists():
         bound_rows = [{k: _num(v) for k, v in r.items()} for r in read_csv(bounds_file)]
     else:
-        bound_rows, bound_renders = compute_bounds(ctx, executor, thetas, cleans, noises, cfg)
+        bound_rows, bound_renders = compute_bounds(ctx, thetas, cleans, noises, cfg)
         renders += bound_renders
         write_csv(bounds_file, bound_rows)
 
     trials = make_trials(thetas, cfg["n"], settings, noises, cleans, ctx.seed, budget, cfg["start_width"], cfg["traces"])
-    records = run_trials(executor, trials, folder / LOG_NAME, resume=ctx.resume, progress=ctx.progress)
+    records = run_trials(ctx.bank.executor, trials, folder / LOG_NAME, resume=ctx.resume, progress=ctx.progress)
     rows = summarize(records, params.names, bounds_map(bound_rows, cfg["bounds"]), cfg["far_above"], cfg["bootstrap"],
                      ctx.seed_for("summary"), labels=[s.label for s in settings])
     write_csv(folder / "summary.csv", rows)
@@ -379,7 +366,7 @@ def plot_mse(rows: list[dict], bound_rows: list[dict], bounds, params, noise_nam
     fig, axes = plt.subplots(1, len(noises), figsize=(6 * len(noises), 4.2), squeeze=False)
     xname = params.names[0] if params.dim == 1 else "θ* index"
     xkey = f"theta_{params.names[0]}" if params.dim == 1 else "theta_index"
-    for ax, j in zip(axes[0], noises):
+    for ax, j in zip(axes[0], noises, strict=True):
         for label in dict.fromkeys(r["estimator"] for r in rows):
             rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r["mse"] > 0]
             ax.errorbar([r[xkey] for r in rs], [r["mse"] for r in rs], yerr=[r["mse_se"] for r in rs], marker="o",
@@ -415,12 +402,12 @@ def plot_speed(rows: list[dict], units: str, path: Path) -> Path:
         mse = float(np.mean([r["mse"] for r in rs]))
         secs = float(np.mean([r["mean_seconds"] for r in rs]))
         rend = float(np.mean([r["mean_renders"] + r["mean_grad_passes"] for r in rs]))
-        for ax, x, seen in zip(axes, (secs, rend), xs):
+        for ax, x, seen in zip(axes, (secs, rend), xs, strict=True):
             seen.append(x)
             ax.scatter([x], [mse], s=40)
             ax.annotate(f"{label} (noise {j})" if several else label, (x, mse), fontsize=8, xytext=(4, 4),
                         textcoords="offset points")
-    for ax, xl, seen in zip(axes, ("wall seconds per trial", "renders + AD passes per trial"), xs):
+    for ax, xl, seen in zip(axes, ("wall seconds per trial", "renders + AD passes per trial"), xs, strict=True):
         if seen and min(seen) > 0:  # a log axis needs positive data (cached renders count 0)
             ax.set_xscale("log")
             ax.set_yscale("log")
@@ -517,7 +504,7 @@ def report(study_dir, results: dict) -> str:
     lines += ["", f"**Far above the bound** (MSE > {results['far_above']:g} × bound): "
               + ("; ".join(f"{r['estimator']} at θ* #{r['theta_index']} (noise {r['noise']}; {r['far_above']})"
                            for r in far) or "none.")]
-    lines += [f"**Below the bound** (MSE + 2 SE < bound: biased, too few trials, or the bound is off): "
+    lines += ["**Below the bound** (MSE + 2 SE < bound: biased, too few trials, or the bound is off): "
               + ("; ".join(f"{r['estimator']} at θ* #{r['theta_index']} (noise {r['noise']}; {r['below']})"
                            for r in below) or "none.")]
     if results["errors"]:

@@ -23,14 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from .. import bounds
-from ..executors import SerialExecutor
-from ..experiment.context import RunContext, read_csv, write_csv
-from ..experiment.schema import Field
 from ..forward.gradients import GradientSettings, fd_jacobian
 from ..forward.model import ForwardModel
-from ..io import write_exr, write_png
+from ..io import read_csv, write_csv, write_exr, write_png
+from ..schema import Field
 from ..seeds import derive
-from .plotting import _plt
+from .context import RunContext
+from .plots import _plt
 
 NAME = "viewpoints"
 SCHEMA = {
@@ -131,9 +130,10 @@ def _saved_views(num: int) -> dict[tuple[int, int], str]:
     return {(0, num - 1): "corner_minus_plus", (num - 1, 0): "corner_plus_minus", (c, c): "center"}
 
 
-def _viewpoint_task(model: ForwardModel, item: dict) -> dict:
-    """Executor task (module level, picklable): one viewpoint → its record; with the render and the
-    Fisher maps under "images" when item["keep"]."""
+def _viewpoint_task(model: ForwardModel, item: dict) -> tuple:
+    """Render-bank task (module level, picklable): one viewpoint → ((i, j), its record, renders made);
+    the record holds the render and the Fisher maps under "images" when item["keep"]."""
+    before = model.stats.snapshot()
     rig = CameraRig(model, item["target"])
     with rig.at(item["offset"]):
         L, _, maps = viewpoint_information(model, item["theta"], item["spp"], item["seed"], item["settings"],
@@ -143,7 +143,7 @@ def _viewpoint_task(model: ForwardModel, item: dict) -> dict:
            "infinite_pixels": [[int(np.isinf(mp).sum()) for mp in nm] for nm in maps]}
     if item["keep"]:
         rec["images"] = (L.numpy(), maps)
-    return rec
+    return (item["i"], item["j"]), rec, model.stats.since(before).renders
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:
@@ -166,9 +166,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
               "spp": cfg["spp"], "seed": ctx.seed_for("viewpoint", i, j), "settings": settings, "noises": ctx.noises,
               "reduce": cfg["reduce"], "keep": (i, j) in saved}
              for i in range(cfg["num"]) for j in range(cfg["num"]) if (i, j) not in done]
-    executor = ctx.executor if ctx.executor is not None else SerialExecutor(model=m)
     with open(log, "a") as f:
-        for rec in ctx.progress(executor.imap_unordered(_viewpoint_task, items), total=len(items), desc="viewpoints"):
+        for _, rec in ctx.bank.map(_viewpoint_task, items, "viewpoints"):
             images = rec.pop("images", None)
             if images is not None:
                 _save_view(out, saved[(rec["i"], rec["j"])], *images, list(m.params.names))
@@ -245,7 +244,7 @@ def report(study_dir: Path, results: dict) -> str:
              f"({s * 100:.3g} cm steps, ±{(n - 1) / 2 * s * 100:.3g} cm along {results['axes']}), camera aimed at "
              f"{[round(v, 3) for v in results['target']]}, θ = {results['theta']}, {results['spp']} spp, "
              f"{results['renders']} renders (image + central FD with common random numbers per viewpoint).", ""]
-    lines += [f"![viewpoints {noise}]({study_dir.name}/{p.name})" for noise, p in zip(results["noises"], paths)]
+    lines += [f"![viewpoints {noise}]({study_dir.name}/{p.name})" for noise, p in zip(results["noises"], paths, strict=True)]
     lines += ["", "| noise | parameter | min mean FI | centre | max mean FI | argmax offset [cm] |", "|---|---|---|---|---|---|"]
     c = str((n - 1) // 2)
     for noise in results["noises"]:

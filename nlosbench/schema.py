@@ -1,5 +1,6 @@
 """A small config schema: typed fields with defaults, choices and nested blocks, validated with
-messages that name the key path, what was expected, what was given, and a likely misspelling."""
+messages that name the key path, what was expected, what was given, and a likely misspelling; and
+the θ-grid specs that config blocks share (`GRID`, `grid_values`, `smoke_grid`)."""
 from __future__ import annotations
 
 import copy
@@ -92,3 +93,29 @@ def validate_block(block, schema: dict, path: str = "") -> dict:
 
 def _join(path: str, key) -> str:
     return f"{path}.{key}" if path else str(key)
+
+
+def grid_values(spec) -> list[float]:
+    """θ values from a list, from {start, stop, num} (inclusive, like numpy.linspace), or from a list of
+    such segments (merged and sorted: e.g. 1 cm steps where θ is well determined, coarser elsewhere)."""
+    import numpy as np
+
+    if isinstance(spec, dict):
+        return np.linspace(spec["start"], spec["stop"], int(spec["num"])).tolist()
+    if any(isinstance(v, dict) for v in spec):
+        return sorted({round(t, 12) for seg in spec for t in grid_values(seg if isinstance(seg, dict) else [seg])})
+    return [float(v) for v in spec]
+
+
+def smoke_grid(spec, num: int = 3):
+    """A grid spec shrunk to about `num` points over the same range (a list keeps its first and last
+    values; each segment of a segment list keeps 2 points)."""
+    if isinstance(spec, dict):
+        return {**spec, "num": min(int(spec["num"]), num)}
+    spec = list(spec)
+    if any(isinstance(v, dict) for v in spec):
+        return [smoke_grid(v, 2) if isinstance(v, dict) else v for v in spec]
+    return spec if len(spec) <= num else spec[:num - 1] + spec[-1:]
+
+
+GRID = Field("any", help="θ values: a list, {start, stop, num}, or a list of {start, stop, num} segments")

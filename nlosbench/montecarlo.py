@@ -197,7 +197,7 @@ def _se(values) -> float:
 def _ratio(mse: float, bound_log10: float) -> float:
     """MSE / bound through logs (a bound may underflow to 0 while its log10 stays exact); NaN when
     the MSE is unknown or the bound is unavailable (log10 = ±inf)."""
-    if not (math.isfinite(bound_log10) and mse == mse):
+    if not math.isfinite(bound_log10) or math.isnan(mse):
         return math.nan
     if mse <= 0:
         return 0.0
@@ -224,7 +224,7 @@ def summarize(records: Sequence[dict], names: Sequence[str], bounds: dict | None
     for (j, i, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], labels.index(kv[0][2]))):
         truth = np.array(rs[0]["theta_true"])
         ok = [r for r in rs if r["error"] is None]
-        row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(names, truth)},
+        row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(names, truth, strict=True)},
                "estimator": label, "name": rs[0]["name"], "n": len(rs), "n_failed": len(rs) - len(ok),
                "n_nonconverged": sum(1 for r in ok if not r["converged"])}
         E = np.array([r["theta_hat"] for r in ok], dtype=np.float64).reshape(len(ok), len(truth)) - truth
@@ -234,7 +234,7 @@ def summarize(records: Sequence[dict], names: Sequence[str], bounds: dict | None
             boot = [_stats(E[rng.integers(0, len(E), len(E))]) for _ in range(bootstrap)]
             row.update(mse=mse, mse_se=_se([b[0] for b in boot]), var=var, var_se=_se([b[1] for b in boot]),
                        bias=float(np.linalg.norm(bias)), bias_se=_se([np.linalg.norm(b[2]) for b in boot]),
-                       **{f"bias_{n}": float(b) for n, b in zip(names, bias)})
+                       **{f"bias_{n}": float(b) for n, b in zip(names, bias, strict=True)})
         else:
             row.update(mse=math.nan, mse_se=math.nan, var=math.nan, var_se=math.nan, bias=math.nan, bias_se=math.nan,
                        **{f"bias_{n}": math.nan for n in names})

@@ -1,0 +1,57 @@
+"""The gradient policy `grad="auto"`, resolved here, above the forward layer, into concrete settings.
+
+`resolve_gradient(model, settings)` turns a `GradientSettings("auto", verdicts=...)` request into "fd",
+"ad" or "mixed" through `verdict.choose_backend` (measured verdicts of a `gradients` study, or the
+paper's prior: colour → AD, geometry → FD), once per (model, settings); other settings pass through.
+`render` is the public differentiable render (`nlosbench.render`): it resolves the policy, then calls
+`forward.render`, which runs only concrete settings.
+"""
+from __future__ import annotations
+
+import logging
+import weakref
+
+import torch
+
+from ..forward import GradientSettings
+from ..forward import render as forward_render
+from ..forward.model import ForwardModel
+from . import verdict
+
+log = logging.getLogger("nlosbench.gradients")
+
+#: model → {repr(auto settings): resolved settings}; weak, so a model's entries go with it
+_RESOLVED: weakref.WeakKeyDictionary[ForwardModel, dict] = weakref.WeakKeyDictionary()
+
+
+def resolve_gradient(model: ForwardModel, settings: GradientSettings) -> GradientSettings:
+    """Concrete settings for `model` ("fd", "ad" or "mixed"). "auto" is resolved through
+    `verdict.choose_backend` once per (model, settings) and cached; the choice is in `.chosen` and logged
+    (logger `nlosbench.gradients`, INFO)."""
+    if settings.method != "auto":
+        return settings
+    per_model = _RESOLVED.setdefault(model, {})
+    key = repr(settings)
+    if key not in per_model:
+        per_model[key] = verdict.choose_backend(model, settings.verdicts, base=settings)
+        log.info("grad='auto' on %s: %s", model.name, per_model[key].chosen)
+    return per_model[key]
+
+
+def render(model: ForwardModel, theta, spp: int = 64, seed: int = 0, grad: str | GradientSettings = "fd",
+           **options) -> torch.Tensor:
+    """L_θ (H, W, C) float32, differentiable w.r.t. θ (a torch tensor with requires_grad).
+
+    grad: "fd" | "ad" | "mixed" | "auto" or a GradientSettings; options (step, rounds, crn, spp, ad,
+    ad_params, verdicts) build the settings when grad is a string, e.g.
+    `render(m, θ, 64, 0, grad="fd", step=0.005, rounds=4)` or
+    `render(m, θ, 64, 0, grad="auto", verdicts="runs/x/gradients")`. "auto" is resolved once per
+    (model, settings) — `resolve_gradient(model, GradientSettings("auto")).chosen` says what it picked.
+    """
+    if isinstance(grad, GradientSettings):
+        if options:
+            raise ValueError(f"options {sorted(options)} go with a string `grad`; put them in the GradientSettings")
+        settings = grad
+    else:
+        settings = GradientSettings(method=grad, **options)
+    return forward_render(model, theta, spp, seed, resolve_gradient(model, settings))

@@ -1,0 +1,81 @@
+"""RunContext: what a study gets — the run directory, the forward model, noise models, seeds, the
+executor and the render bank (`start`), progress bars and a log."""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .. import executors, scenes
+from .. import noise as noise_models
+from ..bank import RenderBank
+from ..forward.model import ForwardModel
+from ..schema import ConfigError
+from ..seeds import derive
+
+
+@dataclass
+class RunContext:
+    dir: Path
+    config: dict
+    model_spec: dict
+    model: ForwardModel
+    noises: list
+    seed: int
+    resume: bool = False
+    executor: object = None
+    bank: RenderBank | None = None
+    quiet: bool = False
+    started: float = field(default_factory=time.perf_counter)
+
+    def __post_init__(self):
+        if self.bank is None:  # until `start`: renders run serially in this process
+            self.bank = RenderBank(self.model, self.executor, self.progress)
+
+    @classmethod
+    def create(cls, cfg: dict, run_dir: Path, resume: bool = False, quiet: bool = False) -> RunContext:
+        sc = cfg["scene"]
+        spec = {"name": sc["name"], "options": sc["options"], "params": sc["params"], "fixed": sc["fixed"],
+                "variant": sc["variant"], "cache": cfg["cache"]}
+        noises = [noise_models.get(n["model"], **{k: v for k, v in n.items() if k != "model" and v is not None})
+                  for n in cfg["noise"]]
+        return cls(dir=run_dir, config=cfg, model_spec=spec, model=scenes.build(spec), noises=noises,
+                   seed=cfg["seed"], resume=resume, quiet=quiet)
+
+    def start(self) -> None:
+        """Start the run's executor (the config's `executor` block) and its render bank."""
+        self.executor = executors.create(self.config["executor"], self.model_spec, self.model)
+        self.bank = RenderBank(self.model, self.executor, self.progress)
+
+    def close(self) -> None:
+        """Release the executor's workers."""
+        if self.executor is not None:
+            self.executor.close()
+
+    def study_dir(self, cfg: dict) -> Path:
+        d = self.dir / (cfg.get("id") or cfg["type"])
+        d.mkdir(parents=True, exist_ok=True)
+        return d
+
+    def select_noises(self, spec, where: str) -> dict:
+        """index → noise model for `spec` = 'all', an index or a list of indices into the run's noise models
+        (ConfigError naming `where` otherwise)."""
+        idx = range(len(self.noises)) if spec == "all" else [spec] if isinstance(spec, int) else spec
+        if not isinstance(idx, (list, range)) or not idx or not all(
+                isinstance(j, int) and not isinstance(j, bool) and 0 <= j < len(self.noises) for j in idx):
+            raise ConfigError(where, f"expected 'all' or indices into the {len(self.noises)} noise model(s), got {spec!r}")
+        return {j: self.noises[j] for j in idx}
+
+    def seed_for(self, purpose: str, *indices: int) -> int:
+        return derive(self.seed, purpose, *indices)
+
+    def progress(self, iterable, total: int | None = None, desc: str = ""):
+        """A tqdm progress bar with ETA on stderr (silent when quiet)."""
+        from tqdm import tqdm
+
+        return tqdm(iterable, total=total, desc=desc, disable=self.quiet, file=sys.stderr, dynamic_ncols=True)
+
+    def log(self, msg: str) -> None:
+        if not self.quiet:
+            print(msg, file=sys.stderr, flush=True)
