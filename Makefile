@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 CONFIG ?= configs/quick.yaml
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test lint bench clean
 
 setup:
 	@bash scripts/setup.sh
@@ -13,8 +13,13 @@ demo: setup
 	$(PY) -m nlosbench.cli run $(CONFIG) --out runs/demo
 	@echo "report: runs/demo/report.md"
 
-test: setup
+test: setup lint
 	$(PY) -m pytest -q
+
+# the layers contract (import-linter) and the rule set (ruff), both configured in pyproject.toml
+lint: setup
+	$(VENV)/bin/lint-imports
+	$(VENV)/bin/ruff check nlosbench tests scripts
 
 bench: setup
 	$(PY) -m nlosbench.cli bench

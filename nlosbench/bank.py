@@ -1,11 +1,29 @@
-"""The render bank: the one place where a run's renders are made, counted and kept.
+"""The render bank: the one place where a run's renders are planned, made, counted and kept.
 
 A render is fixed by (θ, spp, seed) on a given model (the model's `content_key` holds the rest:
-scene content, defines, variant, integrator, pass size). Studies and the bound service describe what
-they need as requests; the bank looks each up in its memory, renders the missing ones through the
-run's executor (one task per request or per group, so worker processes share the load), and counts
-every render once, worker processes included (a render served from memory or from the model's disk
-cache counts 0). FD Jacobians (central, common random numbers inside each stencil) are requests too.
+scene content, defines, variant, integrator, pass size). Studies and the bound service ask for *render
+sets*: images (or FD Jacobians, or spp levels × replicates) of a list of θ for a named purpose. The
+bank derives every seed itself (`seed`), looks each render up in its memory, renders the missing ones
+through the run's executor (one task per request or per group, so worker processes share the load),
+and counts every render once, worker processes included (a render served from memory or from the
+model's disk cache counts 0). FD Jacobians (central, common random numbers inside each stencil) are
+requests too.
+
+Seed policy. seed = derive(run seed, "bank/" + purpose, spp, replicate[, key of θ]):
+- a render set is (purpose, spp, replicate); two sets never share a seed, so independent render sets,
+  each spp level and each replicate included, are independent (whether two spp counts of one seed
+  share samples depends on how they split into passes, so they are never given one seed);
+- `common=True` leaves θ out: every θ of the set gets the same seed (common random numbers across θ,
+  so differences L(θ+Δ) − L(θ) carry far less rendering noise); otherwise the seed also depends on θ
+  itself (not on its position in a list), so the same θ asked for by two studies is one render;
+- purposes name what a set is for; the observation's mean (`TRUTH`) has its own purpose, so an
+  estimator, which only ever sees other sets, never fits its own data's rendering noise.
+Seeds are 32-bit (Mitsuba's), so two distinct sets collide with probability 2⁻³² per pair.
+
+Store. With a `store` (a RenderCache, e.g. the run directory's renders/), every image and Jacobian the
+bank makes is also kept on disk (atomic, checksummed), keyed by the model's content key and the
+request: a resumed run reads them back instead of rendering, and a changed scene or setting can never
+be served an old image (its key differs).
 
 Executor tasks are module-level functions `fn(model, item)` (pickled by reference into spawned
 workers); each returns its result with the number of renders it made in that process.
@@ -20,9 +38,21 @@ import numpy as np
 import torch
 
 from .executors import Executor, SerialExecutor
-from .forward.gradients import GradientSettings, fd_jacobian
+from .forward.cache import RenderCache, render_key
+from .forward.gradients import GradientSettings, jacobian
 from .forward.model import ForwardModel
 from .seeds import derive
+
+#: purpose of the renders that make an observation's mean (what noise is added to in a trial)
+TRUTH = "truth"
+
+
+def theta_key(theta) -> int:
+    """A 64-bit integer naming θ (rounded to 1e-12 of its units) for seed derivation."""
+    import hashlib
+
+    t = np.round(np.atleast_1d(np.asarray(theta, dtype=np.float64)), 12) + 0.0  # + 0.0: −0 → 0
+    return int.from_bytes(hashlib.blake2b(repr(t.tolist()).encode(), digest_size=8).digest(), "little")
 
 
 @dataclass(frozen=True)
@@ -40,19 +70,27 @@ class Request:
 
 @dataclass(frozen=True)
 class JacobianRequest:
-    """One central-FD image Jacobian at θ with step ξ, both sides of each stencil with `seed`'s derived
-    seeds (common random numbers), `rounds` independent rounds averaged."""
+    """One image Jacobian at θ: central FD with step ξ, both sides of each stencil with `seed`'s derived
+    seeds (common random numbers), `rounds` independent rounds averaged; or, with method "ad", Mitsuba's
+    forward-mode AD with the integrator options `ad` (sorted (key, value) pairs)."""
 
     theta: tuple
     spp: int
     seed: int
     step: float
     rounds: int = 1
+    method: str = "fd"
+    ad: tuple = ()
 
     @classmethod
-    def of(cls, theta, spp: int, seed: int, step: float, rounds: int = 1) -> JacobianRequest:
+    def of(cls, theta, spp: int, seed: int, step: float, rounds: int = 1, method: str = "fd",
+           ad: dict | None = None) -> JacobianRequest:
         t = tuple(float(v) for v in np.atleast_1d(np.asarray(theta, dtype=np.float64)))
-        return cls(t, int(spp), int(seed), float(step), int(rounds))
+        return cls(t, int(spp), int(seed), float(step), int(rounds), method, tuple(sorted((ad or {}).items())))
+
+    def settings(self) -> GradientSettings:
+        """The forward layer's GradientSettings for this request."""
+        return GradientSettings(self.method, step=self.step, rounds=self.rounds, ad=dict(self.ad))
 
 
 def check_spp(levels: Sequence[int], replicates: int = 1) -> np.ndarray:
@@ -71,19 +109,8 @@ def check_spp(levels: Sequence[int], replicates: int = 1) -> np.ndarray:
     return lv
 
 
-def level_requests(theta, levels: Sequence[int], replicates: int, seed: int, purpose: str = "levels",
-                   index: int = 0) -> list[Request]:
-    """Requests (k·R, level-major) for one θ point at k spp levels × R replicates: level i, replicate r
-    renders levels[i] // R spp with seed derive(seed, "inexact-" + purpose, i, r, index) — independent
-    renders (distinct seeds). Use a different `purpose` for each independent render set (e.g. "levels",
-    "n-eff": the same seed at another spp shares samples) and a different `index` for each point."""
-    spp = check_spp(levels, replicates) // replicates
-    return [Request.of(theta, int(n), derive(seed, f"inexact-{purpose}", i, r, index))
-            for i, n in enumerate(spp) for r in range(replicates)]
-
-
 def render_task(model: ForwardModel, item: tuple) -> tuple:
-    """Executor task: (tag, [Request, ...]) → (tag, images (N, H, W, C) float32, renders made here)."""
+    """Executor task: (tag, [Request, ...]) → (tag, images (n, H, W, C) float32, renders made here)."""
     tag, requests = item
     before = model.stats.snapshot()
     imgs = torch.stack([model.render(list(r.theta), r.spp, r.seed) for r in requests])
@@ -91,23 +118,28 @@ def render_task(model: ForwardModel, item: tuple) -> tuple:
 
 
 def jacobian_task(model: ForwardModel, item: tuple) -> tuple:
-    """Executor task: (tag, JacobianRequest) → (tag, FD Jacobian (P, H, W, C) float32, renders made here)."""
+    """Executor task: (tag, JacobianRequest) → (tag, Jacobian (P, H, W, C) float32, renders + AD passes made here)."""
     tag, r = item
     before = model.stats.snapshot()
-    jac = fd_jacobian(model, list(r.theta), r.spp, r.seed, GradientSettings(step=r.step, rounds=r.rounds))
-    return tag, jac, model.stats.since(before).renders
+    jac = jacobian(model, list(r.theta), r.spp, r.seed, r.settings())
+    used = model.stats.since(before)
+    return tag, jac, used.renders + used.grad_passes
 
 
 class RenderBank:
-    """Renders of one model for one run: `images`, `groups` and `jacobians` (see the module docstring).
+    """Renders of one model for one run (see the module docstring): render sets by purpose (`at`,
+    `jacobians_at`, `levels_at`), and the request-level `images`, `jacobians` and `map`.
 
     executor: where renders run (default: serially in this process, with `model`); progress:
     `progress(iterable, total, desc)` wrapping the results (e.g. RunContext.progress); memory_bytes: the
-    most image bytes kept in memory for reuse (least recently used dropped first)."""
+    most image bytes kept in memory for reuse (least recently used dropped first); seed: the run's seed,
+    from which every render seed derives; store: an on-disk RenderCache for every result (resume)."""
 
     def __init__(self, model: ForwardModel, executor: Executor | None = None, progress: Callable | None = None,
-                 memory_bytes: int = 1 << 30):
+                 memory_bytes: int = 1 << 30, seed: int = 0, store: RenderCache | None = None):
         self.model = model
+        self.run_seed = int(seed)
+        self.store = store
         self.executor = executor if executor is not None else SerialExecutor(model=model)
         self.progress = progress or (lambda it, total=None, desc="": it)
         self.memory_bytes = int(memory_bytes)
@@ -115,14 +147,63 @@ class RenderBank:
         self._memo: OrderedDict[Hashable, torch.Tensor] = OrderedDict()
         self._held = 0
 
+    # -- seeds and render sets ---------------------------------------------------------------------
+    def seed(self, purpose: str, spp: int, theta=None, replicate: int = 0) -> int:
+        """The seed of θ in render set (purpose, spp, replicate); θ None: the set's common seed."""
+        idx = [int(spp), int(replicate)] + ([] if theta is None else [theta_key(theta)])
+        return derive(self.run_seed, f"bank/{purpose}", *idx)
+
+    def request(self, theta, spp: int, purpose: str, common: bool = False, replicate: int = 0) -> Request:
+        """The Request of θ in a render set (see `seed`)."""
+        return Request.of(theta, spp, self.seed(purpose, spp, None if common else theta, replicate))
+
+    def at(self, thetas, spp: int, purpose: str, common: bool = False, replicate: int = 0,
+           desc: str | None = None) -> torch.Tensor:
+        """Images (N, H, W, C) float32 of thetas (N,) or (N, P) in render set (purpose, spp, replicate)."""
+        return self.images([self.request(t, spp, purpose, common, replicate) for t in _points(thetas)],
+                           desc or f"{purpose} renders")
+
+    def jacobians_at(self, thetas, spp: int, step: float, purpose: str, common: bool = False, replicate: int = 0,
+                     rounds: int = 1, desc: str | None = None, method: str = "fd", ad: dict | None = None
+                     ) -> torch.Tensor:
+        """Jacobians (N, P, H, W, C) of thetas in render set (purpose + "-fd", spp, replicate): central FD with
+        step ξ, R `rounds` averaged, every stencil with common random numbers inside it (with `common`
+        every θ shares the set's seed too); or method "ad" with integrator options `ad`."""
+        reqs = [JacobianRequest.of(t, spp, self.seed(purpose + "-fd", spp, None if common else t, replicate), step,
+                                   rounds, method, ad) for t in _points(thetas)]
+        return self.jacobians(reqs, desc or f"{purpose} FD Jacobians")
+
+    def levels_at(self, thetas, levels: Sequence[int], replicates: int, purpose: str, common: bool = False,
+                  desc: str | None = None) -> torch.Tensor:
+        """Renders (k, R, N, H, W, C) of thetas at k spp levels N_i × R replicates of N_i / R spp each:
+        level i, replicate r is render set (purpose, N_i / R, r) — independent across levels and
+        replicates; with `common`, every θ of a (level, replicate) shares its seed."""
+        lv = check_spp(levels, replicates) // replicates
+        pts = _points(thetas)
+        reqs = [self.request(t, int(n), purpose, common, r) for n in lv for r in range(replicates) for t in pts]
+        X = self.images(reqs, desc or f"{purpose} levels")
+        return X.reshape(len(lv), replicates, len(pts), *X.shape[1:])
+
     # -- memory ----------------------------------------------------------------------------------
+    def _store_key(self, key: Hashable) -> str:
+        return render_key(model=self.model.content_key(), request=repr(key))
+
     def _get(self, key: Hashable) -> torch.Tensor | None:
         hit = self._memo.get(key)
         if hit is not None:
             self._memo.move_to_end(key)
+        elif self.store is not None:
+            hit = self.store.get(self._store_key(key))
+            if hit is not None:
+                self._remember(key, hit)
         return hit
 
     def _keep(self, key: Hashable, value: torch.Tensor) -> None:
+        if self.store is not None:
+            self.store.put(self._store_key(key), value)
+        self._remember(key, value)
+
+    def _remember(self, key: Hashable, value: torch.Tensor) -> None:
         size = value.numel() * value.element_size()
         if size > self.memory_bytes or key in self._memo:
             return
@@ -156,20 +237,8 @@ class RenderBank:
             self._keep(r, imgs[0])
         return torch.stack([out[r] for r in requests])
 
-    def groups(self, groups: dict[Hashable, Sequence[Request]], desc: str = "renders",
-               on_done: Callable[[Hashable, torch.Tensor], None] | None = None) -> dict[Hashable, torch.Tensor]:
-        """{tag: images (n, H, W, C)} with one executor task per group (its renders run together in one
-        worker); `on_done(tag, images)` is called as each group finishes (e.g. to save it for resume).
-        Groups are not kept in memory (they are the caller's unit of storage)."""
-        out = {}
-        for tag, imgs in self.map(render_task, [(tag, list(reqs)) for tag, reqs in groups.items()], desc):
-            out[tag] = imgs
-            if on_done is not None:
-                on_done(tag, imgs)
-        return out
-
     def jacobians(self, requests: Sequence[JacobianRequest], desc: str = "FD Jacobians") -> torch.Tensor:
-        """FD Jacobians (N, P, H, W, C) float32 for `requests`, in their order."""
+        """Jacobians (N, P, H, W, C) float32 for `requests`, in their order."""
         out: dict[JacobianRequest, torch.Tensor] = {}
         todo = []
         for r in dict.fromkeys(requests):
@@ -183,14 +252,8 @@ class RenderBank:
             self._keep(r, jac)
         return torch.stack([out[r] for r in requests])
 
-    def replicates(self, points, levels: Sequence[int], replicates: int, seed: int, purpose: str = "levels",
-                   desc: str | None = None) -> torch.Tensor:
-        """Renders (k, R, Q, H, W, C) float32 of Q θ points (points (Q,) or (Q, P)) at k spp levels × R
-        replicates (`level_requests`, point index q), one executor task per point."""
-        lv = check_spp(levels, replicates)
-        pts = np.asarray(points, dtype=np.float64)
-        pts = pts.reshape(pts.shape[0], -1) if pts.ndim else pts.reshape(1, 1)
-        got = self.groups({q: level_requests(pts[q], lv, replicates, seed, purpose, q) for q in range(len(pts))},
-                          desc or f"{purpose} points")
-        X = torch.stack([got[q] for q in range(len(pts))], dim=1)  # (k·R, Q, *S)
-        return X.reshape(len(lv), replicates, *X.shape[1:])
+
+def _points(thetas) -> np.ndarray:
+    """θ points as (N, P) float64 from (N,) (scalar θ) or (N, P)."""
+    t = np.asarray(thetas, dtype=np.float64)
+    return t.reshape(-1, 1) if t.ndim <= 1 else t

@@ -62,9 +62,15 @@ def _render(args) -> None:
     out = Path(args.out)
     stem = f"{model.name}_spp{args.spp}_seed{args.seed}"
     io.write_exr(out / f"{stem}.exr", img)
-    io.write_png(out / f"{stem}.png", img, title=f"{model.name} at {dict(zip(model.params.names, np.round(theta, 4).tolist(), strict=True))}")
-    print(f"{model.name}: θ = {dict(zip(model.params.names, theta.tolist(), strict=True))}, {args.spp} spp, "
-          f"{model.stats.seconds:.3f} s → {out / stem}.exr, .png")
+    io.write_png(
+        out / f"{stem}.png",
+        img,
+        title=f"{model.name} at {dict(zip(model.params.names, np.round(theta, 4).tolist(), strict=True))}",
+    )
+    print(
+        f"{model.name}: θ = {dict(zip(model.params.names, theta.tolist(), strict=True))}, {args.spp} spp, "
+        f"{model.stats.seconds:.3f} s → {out / stem}.exr, .png"
+    )
 
 
 def _list(what: str) -> None:
@@ -111,8 +117,10 @@ def main(argv: list[str] | None = None) -> int:
             run_all(args.names, reduced=args.reduced)
     except (ConfigError, KeyError, ValueError, FileNotFoundError, FileExistsError) as e:
         msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-        print(f"nlosbench: error: {msg}".splitlines()[0] if not isinstance(e, ConfigError) else f"nlosbench: error: {e}",
-              file=sys.stderr)
+        print(
+            f"nlosbench: error: {msg}".splitlines()[0] if not isinstance(e, ConfigError) else f"nlosbench: error: {e}",
+            file=sys.stderr,
+        )
         return BAD_INPUT
     return 0
 

@@ -119,17 +119,36 @@ def run_trial(model: ForwardModel, trial: Trial) -> dict:
     problem = Problem(model, trial.noise, trial.setting.gradient, derive(trial.seed, "problem"))
     before, t0 = model.stats.snapshot(), time.perf_counter()
     try:
-        est = _estimator(trial.setting).fit(problem, y, init, np.random.default_rng(derive(trial.seed, "trial-fit", i, k)),
-                                            trial.budget)
+        est = _estimator(trial.setting).fit(
+            problem, y, init, np.random.default_rng(derive(trial.seed, "trial-fit", i, k)), trial.budget
+        )
     except Exception as e:  # noqa: BLE001 - a failed fit is a result: counted and shown in the summary
         used = model.stats.since(before)
-        rec.update(theta_hat=None, error=f"{type(e).__name__}: {e}", converged=False, reason="failed",
-                   iterations=0, renders=used.renders, grad_passes=used.grad_passes, samples=used.samples,
-                   seconds=time.perf_counter() - t0, final_loss=None)
+        rec.update(
+            theta_hat=None,
+            error=f"{type(e).__name__}: {e}",
+            converged=False,
+            reason="failed",
+            iterations=0,
+            renders=used.renders,
+            grad_passes=used.grad_passes,
+            samples=used.samples,
+            seconds=time.perf_counter() - t0,
+            final_loss=None,
+        )
         return rec
-    rec.update(theta_hat=est.theta.tolist(), error=None, converged=est.converged, reason=est.reason,
-               iterations=est.iterations, renders=est.renders, grad_passes=est.grad_passes, samples=est.samples,
-               seconds=est.seconds, final_loss=est.final_loss)
+    rec.update(
+        theta_hat=est.theta.tolist(),
+        error=None,
+        converged=est.converged,
+        reason=est.reason,
+        iterations=est.iterations,
+        renders=est.renders,
+        grad_passes=est.grad_passes,
+        samples=est.samples,
+        seconds=est.seconds,
+        final_loss=est.final_loss,
+    )
     if trial.keep_trace:
         rec["trace"] = est.trace
     return rec
@@ -157,8 +176,9 @@ def read_log(path: Path) -> list[dict]:
     return out
 
 
-def run_trials(executor, trials: Sequence[Trial], path: Path, resume: bool = False,
-               progress: Callable | None = None) -> list[dict]:
+def run_trials(
+    executor, trials: Sequence[Trial], path: Path, resume: bool = False, progress: Callable | None = None
+) -> list[dict]:
     """Run the trials not yet in the log at `path` (all of them unless `resume`), appending each
     record as it finishes (flush + fsync). Returns every record of the planned trials.
     progress(iterable, total, desc) wraps the results (e.g. RunContext.progress)."""
@@ -183,7 +203,7 @@ def run_trials(executor, trials: Sequence[Trial], path: Path, resume: bool = Fal
 # -- summary -------------------------------------------------------------------------------------
 def _stats(E: np.ndarray) -> tuple[float, float, np.ndarray]:
     """MSE = mean ‖e‖², variance = trace of the sample covariance (ddof 1), bias = mean e; E (n, P)."""
-    mse = float((E ** 2).sum(axis=1).mean())
+    mse = float((E**2).sum(axis=1).mean())
     var = float(E.var(axis=0, ddof=1).sum()) if len(E) > 1 else math.nan
     return mse, var, E.mean(axis=0)
 
@@ -202,12 +222,18 @@ def _ratio(mse: float, bound_log10: float) -> float:
     if mse <= 0:
         return 0.0
     r = math.log10(mse) - bound_log10
-    return 10.0 ** r if r < 300 else math.inf
+    return 10.0**r if r < 300 else math.inf
 
 
-def summarize(records: Sequence[dict], names: Sequence[str], bounds: dict | None = None,
-              far_above: float = 3.0, bootstrap: int = 1000, seed: int = 0,
-              labels: Sequence[str] | None = None) -> list[dict]:
+def summarize(
+    records: Sequence[dict],
+    names: Sequence[str],
+    bounds: dict | None = None,
+    far_above: float = 3.0,
+    bootstrap: int = 1000,
+    seed: int = 0,
+    labels: Sequence[str] | None = None,
+) -> list[dict]:
     """One row per (noise, θ*, estimator label): counts (failed / not converged shown, failures
     excluded from the statistics, non-converged fits included), MSE, variance and bias with
     bootstrap standard errors (`bootstrap` resamples of the trials), time and renders, and for every
@@ -224,25 +250,50 @@ def summarize(records: Sequence[dict], names: Sequence[str], bounds: dict | None
     for (j, i, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], labels.index(kv[0][2]))):
         truth = np.array(rs[0]["theta_true"])
         ok = [r for r in rs if r["error"] is None]
-        row = {"noise": j, "theta_index": i, **{f"theta_{n}": float(v) for n, v in zip(names, truth, strict=True)},
-               "estimator": label, "name": rs[0]["name"], "n": len(rs), "n_failed": len(rs) - len(ok),
-               "n_nonconverged": sum(1 for r in ok if not r["converged"])}
+        row = {
+            "noise": j,
+            "theta_index": i,
+            **{f"theta_{n}": float(v) for n, v in zip(names, truth, strict=True)},
+            "estimator": label,
+            "name": rs[0]["name"],
+            "n": len(rs),
+            "n_failed": len(rs) - len(ok),
+            "n_nonconverged": sum(1 for r in ok if not r["converged"]),
+        }
         E = np.array([r["theta_hat"] for r in ok], dtype=np.float64).reshape(len(ok), len(truth)) - truth
         if len(ok):
             mse, var, bias = _stats(E)
             rng = np.random.default_rng(derive(seed, "bootstrap", j, i, labels.index(label)))
             boot = [_stats(E[rng.integers(0, len(E), len(E))]) for _ in range(bootstrap)]
-            row.update(mse=mse, mse_se=_se([b[0] for b in boot]), var=var, var_se=_se([b[1] for b in boot]),
-                       bias=float(np.linalg.norm(bias)), bias_se=_se([np.linalg.norm(b[2]) for b in boot]),
-                       **{f"bias_{n}": float(b) for n, b in zip(names, bias, strict=True)})
+            row.update(
+                mse=mse,
+                mse_se=_se([b[0] for b in boot]),
+                var=var,
+                var_se=_se([b[1] for b in boot]),
+                bias=float(np.linalg.norm(bias)),
+                bias_se=_se([np.linalg.norm(b[2]) for b in boot]),
+                **{f"bias_{n}": float(b) for n, b in zip(names, bias, strict=True)},
+            )
         else:
-            row.update(mse=math.nan, mse_se=math.nan, var=math.nan, var_se=math.nan, bias=math.nan, bias_se=math.nan,
-                       **{f"bias_{n}": math.nan for n in names})
+            row.update(
+                mse=math.nan,
+                mse_se=math.nan,
+                var=math.nan,
+                var_se=math.nan,
+                bias=math.nan,
+                bias_se=math.nan,
+                **{f"bias_{n}": math.nan for n in names},
+            )
         secs, rend, grads = ([r[k] for r in rs] for k in ("seconds", "renders", "grad_passes"))
-        row.update(mean_seconds=float(np.mean(secs)), total_seconds=float(np.sum(secs)),
-                   mean_renders=float(np.mean(rend)), total_renders=int(np.sum(rend)),
-                   mean_grad_passes=float(np.mean(grads)), total_grad_passes=int(np.sum(grads)),
-                   mean_iterations=float(np.mean([r["iterations"] for r in rs])))
+        row.update(
+            mean_seconds=float(np.mean(secs)),
+            total_seconds=float(np.sum(secs)),
+            mean_renders=float(np.mean(rend)),
+            total_renders=int(np.sum(rend)),
+            mean_grad_passes=float(np.mean(grads)),
+            total_grad_passes=int(np.sum(grads)),
+            mean_iterations=float(np.mean([r["iterations"] for r in rs])),
+        )
         far, below = [], []
         for b, v in (bounds or {}).get((j, i), {}).items():
             row[b] = v["value"]

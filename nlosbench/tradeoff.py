@@ -42,7 +42,9 @@ def aggregate(errors, how: str = "max") -> float:
 
 def check_tolerance(tolerance: float) -> float:
     """A relative bound tolerance as float > 0, else ValueError."""
-    if isinstance(tolerance, bool) or not (isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0):
+    if isinstance(tolerance, bool) or not (
+        isinstance(tolerance, (int, float)) and math.isfinite(tolerance) and tolerance > 0
+    ):
         raise ValueError(f"tolerance must be a finite number > 0 (relative error of the bound), got {tolerance!r}")
     return float(tolerance)
 
@@ -88,8 +90,16 @@ def recommend(knob: str, points: list[Point], reference, tolerance: float) -> Re
         raise ValueError(f"knob {knob!r}: reference {reference!r} is not among the points {[p.value for p in points]}")
     ok = [p for p in points if p.error <= tol or p.value == reference]
     best = min(ok, key=lambda p: p.cost)
-    return Recommendation(knob=knob, value=best.value, cost=best.cost, error=best.error, reference=reference,
-                          reference_cost=ref[0].cost, speedup=ref[0].cost / best.cost, tolerance=tol)
+    return Recommendation(
+        knob=knob,
+        value=best.value,
+        cost=best.cost,
+        error=best.error,
+        reference=reference,
+        reference_cost=ref[0].cost,
+        speedup=ref[0].cost / best.cost,
+        tolerance=tol,
+    )
 
 
 def settled(values: list, errors: list[float], tolerance: float):

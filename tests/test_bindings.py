@@ -12,10 +12,25 @@ XML = nb.scenes.SCENE_DIR / "cornell_ball.xml"
 
 @pytest.fixture(scope="module")
 def path_model(tmp_path_factory):
-    spec = {"file": str(XML), "params": [
-        {"name": "s", "kind": "path", "object": "ball", "points": [[-0.4, -0.6, 0.1], [0.0, -0.6, 0.1], [0.0, -0.2, 0.1]]},
-        {"name": "light", "kind": "radiance", "key": "light.emitter.radiance.value", "lower": 0.1, "upper": 2.0, "default": 1.0},
-    ]}
+    spec = {
+        "file": str(XML),
+        "params": [
+            {
+                "name": "s",
+                "kind": "path",
+                "object": "ball",
+                "points": [[-0.4, -0.6, 0.1], [0.0, -0.6, 0.1], [0.0, -0.2, 0.1]],
+            },
+            {
+                "name": "light",
+                "kind": "radiance",
+                "key": "light.emitter.radiance.value",
+                "lower": 0.1,
+                "upper": 2.0,
+                "default": 1.0,
+            },
+        ],
+    }
     spec["params"][0]["default"] = 0.4
     p = tmp_path_factory.mktemp("spec") / "path.yaml"
     p.write_text(yaml.safe_dump(spec))

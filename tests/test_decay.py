@@ -16,16 +16,18 @@ from nlosbench.noise import AWGN
 LEVELS = [64, 128, 256, 512, 1024]
 
 
-def _toy_variances(power: float, repeats: int = 16, seed: int = 1) -> np.ndarray:
+def _toy_variances(power: float, repeats: int = 64, seed: int = 1) -> np.ndarray:
     model = nb.scenes.get("blob2d", render_noise=0.2, render_noise_power=power)
-    X = RenderBank(model).replicates([model.params.default], [n * repeats for n in LEVELS], repeats, seed)
+    X = RenderBank(model, seed=seed).levels_at([model.params.default], [n * repeats for n in LEVELS], repeats,
+                                                  "levels")
     return pixel_variances(X[:, :, 0])  # renders of n spp each, `repeats` per level
 
 
 @pytest.mark.parametrize("power", [1.0, 0.8])
 def test_decay_rate_recovered_on_toy(power):
-    """Synthetic noise with variance ∝ N^-p (16 repeats per level, 576 pixels, 2000 weightings): the
-    median p_opt is within 0.03 of p and 90 % of the p_opt within 0.05; p far from 1 warns."""
+    """Synthetic noise with variance ∝ N^-p (64 repeats per level, 576 pixels, 2000 weightings): the
+    median p_opt is within 0.05 of p (about 4 SD: over 16 seeds it had SD 0.012, range ±0.031) and 90 %
+    of the p_opt within 0.07 (seen: within 0.042 over those seeds); p far from 1 warns."""
     V = _toy_variances(power)
     if power == 1.0:
         import warnings
@@ -38,10 +40,10 @@ def test_decay_rate_recovered_on_toy(power):
         with pytest.warns(RuntimeWarning, match="far from 1"):
             r = decay_check(V, LEVELS, n_weights=2000, seed=4)
         assert r.far_from_one
-    assert abs(r.p - power) < 0.03
-    assert power - 0.05 < r.q05 and r.q95 < power + 0.05
+    assert abs(r.p - power) < 0.05
+    assert power - 0.07 < r.q05 and r.q95 < power + 0.07
     assert r.at_edge == 0 and r.p_opt.shape == (2000,)
-    assert abs(r.p_grid[np.argmin(r.fit_error)] - power) < 0.03
+    assert abs(r.p_grid[np.argmin(r.fit_error)] - power) < 0.05
 
 
 def test_exact_variances_and_scale_invariance():
@@ -85,7 +87,7 @@ def test_mitsuba_path_tracer_decays_as_one_over_N(cornell):
     of 1. (Few repeats bias p_opt low on a renderer with fireflies; more pixels or repeats fix it.)"""
     model = cornell.restrict(["ball_x"])
     R = 8
-    X = RenderBank(model).replicates([-0.2, -0.07, 0.07, 0.2], [8 * R, 16 * R, 32 * R, 64 * R], R, seed=3)
+    X = RenderBank(model, seed=3).levels_at([-0.2, -0.07, 0.07, 0.2], [8 * R, 16 * R, 32 * R, 64 * R], R, "levels")
     r = decay_check(pixel_variances(X.reshape(4, R, -1)), [8, 16, 32, 64], n_weights=2000, seed=1)
     assert abs(r.p - 1.0) < 0.1, (r.p, r.q05, r.q95)
 
@@ -97,14 +99,21 @@ def test_lambda_hat_uses_measured_power():
     theta = np.array([0.5, 0.5])
     pts = np.vstack([theta, theta + [0.0025, 0.0], theta + [0.02, 0.0]])
     levels, R, noise = [128, 192, 256, 320, 384], 4, AWGN(1.0)
-    lam = noise.chi2_exponent(model.clean(torch.tensor(pts[0])), torch.stack([model.clean(torch.tensor(p)) for p in pts[1:]]))
+    lam = noise.chi2_exponent(
+        model.clean(torch.tensor(pts[0])), torch.stack([model.clean(torch.tensor(p)) for p in pts[1:]])
+    )
     measured, assumed = [], []
     for run in range(30):
-        X = RenderBank(model).replicates(pts, levels, R, seed=run)
+        X = RenderBank(model, seed=run).levels_at(pts, levels, R, "levels")
         Xm = X.double().mean(1)
         lt = np.stack([noise.chi2_exponent(Xm[i, 0], Xm[i, 1:]).numpy() for i in range(len(levels))])  # (k, K)
-        p = decay_check(pixel_variances(X.reshape(len(levels), R, -1)), np.array(levels) // R, n_weights=200,
-                        seed=run, tolerance=1.0).p
+        p = decay_check(
+            pixel_variances(X.reshape(len(levels), R, -1)),
+            np.array(levels) // R,
+            n_weights=200,
+            seed=run,
+            tolerance=1.0,
+        ).p
         measured.append(fit_lambda(lt, levels, p).lam)
         assumed.append(fit_lambda(lt, levels, 1.0).lam)
     for est, ok in ((np.array(measured), True), (np.array(assumed), False)):

@@ -160,7 +160,8 @@ def test_verdict_clean_when_ad_has_no_more_outliers_than_fd():
 
 
 def test_verdict_artifact_prone_on_excess_or_non_fading_outliers():
-    excess = D.judge([_fd(256, 1), _row("pp", "ad", 256, 9, cost=5.0), _row("pp", "ad", 256, 0, remedy="median", cost=3.0)], "p")
+    rows = [_fd(256, 1), _row("pp", "ad", 256, 9, cost=5.0), _row("pp", "ad", 256, 0, remedy="median", cost=3.0)]
+    excess = D.judge(rows, "p")
     assert excess.status == "ad-artifact-prone" and "median-of-K" in excess.text
     assert excess.settings().method == "fd" and excess.cheapest == "fd"
     # paper: AD outliers stay from 4096 to 16384 spp while FD's fade away
@@ -218,9 +219,12 @@ def test_verdicts_round_trip_and_choose_backend(tmp_path, cornell):
 
 # -- backends, applicability, cost ------------------------------------------------------------------
 
+
 def test_backend_specs_round_trip_and_errors(cornell):
-    for spec in ({"method": "fd", "step": 0.02, "rounds": 3, "crn": False},
-                 {"method": "ad", "integrator": "prb_projective", "sppi": 0, "guiding": "none"}):
+    for spec in (
+        {"method": "fd", "step": 0.02, "rounds": 3, "crn": False},
+        {"method": "ad", "integrator": "prb_projective", "sppi": 0, "guiding": "none"},
+    ):
         assert D.spec_of(D.backend(spec)) == spec
     assert D.label(D.backend({"method": "fd", "step": 0.01})) == "fd(ξ=0.01,R=1,crn)"
     assert D.label(D.backend({"method": "ad", "integrator": "prb"})) == "ad:prb"
@@ -262,6 +266,7 @@ def test_measure_sees_memory_outside_python_objects():
 
 # -- real renders on the paper's Cornell box -------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def paper_box():
     return nb.scenes.get("cornell_paper")
@@ -275,7 +280,9 @@ def test_paper_box_is_the_papers_scene_and_the_red_ball_stays_free(paper_box):
     import mitsuba as mi
 
     p = mi.traverse(paper_box.scene)
-    assert [float(p[f"{k}.alpha"][0]) for k in ("wall", "green_ball.bsdf", "red_ball.bsdf")] == pytest.approx([0.1, 0.05, 0.4862])
+    assert [float(p[f"{k}.alpha"][0]) for k in ("wall", "green_ball.bsdf", "red_ball.bsdf")] == pytest.approx(
+        [0.1, 0.05, 0.4862]
+    )
     rad = np.array(p["light.emitter.radiance.value"], dtype=np.float64).ravel()
     assert len(paper_box.scene.emitters()) == 1 and np.ptp(rad) == 0 and rad[0] > 0
     shapes = {s.id(): s for s in paper_box.scene.shapes()}
@@ -324,7 +331,9 @@ def test_visibility_boost_with_boost_1_is_the_plain_pass(paper_box):
     np.testing.assert_allclose(split.images, plain.images, rtol=0, atol=2e-6 * np.abs(plain.images).max())
     assert split.grad_passes == 2 * plain.grad_passes
     with pytest.raises(ValueError, match="projective"):
-        D.remedy_run(m, m.params.default, 0, D.backend({"method": "ad", "integrator": "prb"}), 16, [1], "visibility-boost")
+        D.remedy_run(
+            m, m.params.default, 0, D.backend({"method": "ad", "integrator": "prb"}), 16, [1], "visibility-boost"
+        )
     with pytest.raises(ValueError, match="median of 2"):
         D.remedy_run(m, m.params.default, 0, pp, 16, [1], "median", k=2)
 
@@ -335,8 +344,17 @@ def _paper_block(**kw) -> dict:
     from nlosbench.schema import validate_block
     from nlosbench.studies import gradients as study
 
-    return validate_block({"id": "grad", "spp": [4096, 16384], "seeds": 8, "ad_options": {},
-                           "reference": {"spp": 65536, "rounds": 16}, **kw}, study_schema(study))
+    return validate_block(
+        {
+            "id": "grad",
+            "spp": [4096, 16384],
+            "seeds": 8,
+            "ad_options": {},
+            "reference": {"spp": 65536, "rounds": 16},
+            **kw,
+        },
+        study_schema(study),
+    )
 
 
 def test_smoke_shrinks_a_paper_scale_block():
@@ -344,8 +362,12 @@ def test_smoke_shrinks_a_paper_scale_block():
     from nlosbench.schema import validate_block
     from nlosbench.studies import gradients as study
 
-    big = _paper_block(backends=[{"method": "fd", "step": 0.01, "rounds": 16},
-                                 {"method": "ad", "integrator": "prb_projective", "sppi": 0}])
+    big = _paper_block(
+        backends=[
+            {"method": "fd", "step": 0.01, "rounds": 16},
+            {"method": "ad", "integrator": "prb_projective", "sppi": 0},
+        ]
+    )
     tiny = validate_block(study.smoke(big), study_schema(study))  # still a valid block
     assert (tiny["spp"], tiny["seeds"], tiny["reference"]) == ([4, 8], 2, {"spp": 32, "rounds": 2})
     assert tiny["remedies"]["k"] == 4 and tiny["remedies"]["boost"] == 2
@@ -364,9 +386,12 @@ def test_gradients_study_end_to_end(tmp_path, paper_box):
     from nlosbench.studies.context import RunContext
 
     model = nb.scenes.get("cornell_paper", defines={"res": 16})
-    big = _paper_block(params=["red_color", "red_x"], reference=None,
-                       backends=[{"method": "fd", "step": 0.02}, {"method": "ad", "integrator": "prb_projective", "sppi": 0}],
-                       remedies={"names": ["median", "visibility-boost"], "k": 3, "boost": 4})
+    big = _paper_block(
+        params=["red_color", "red_x"],
+        reference=None,
+        backends=[{"method": "fd", "step": 0.02}, {"method": "ad", "integrator": "prb_projective", "sppi": 0}],
+        remedies={"names": ["median", "visibility-boost"], "k": 3, "boost": 4},
+    )
     cfg = {"type": "gradients", **study.smoke(big)}
     ctx = RunContext(dir=tmp_path, config={}, model_spec={}, model=model, noises=[], seed=3, quiet=True)
     res = study.run(ctx, cfg)

@@ -74,21 +74,26 @@ def test_cli_lists_estimators_with_the_plugin(plugin, capsys):
 
 
 def test_broken_plugin_names_its_entry_point(monkeypatch):
-    ep = importlib.metadata.EntryPoint(name="broken", value="no_such_module_xyz:Thing", group=estimators.ENTRY_POINT_GROUP)
+    ep = importlib.metadata.EntryPoint(
+        name="broken", value="no_such_module_xyz:Thing", group=estimators.ENTRY_POINT_GROUP
+    )
     monkeypatch.setattr(importlib.metadata, "entry_points", lambda **kw: importlib.metadata.EntryPoints([ep]))
     with pytest.raises(ImportError, match="broken.*no_such_module_xyz"):
         estimators.get("broken")
 
 
-@pytest.mark.parametrize("call, err, msg", [
-    (lambda: estimators.get("mle-adamm"), KeyError, "did you mean 'mle-adam'"),
-    (lambda: estimators.get("mle-adam", learning_rate=0.1), ValueError, "bad options"),
-    (lambda: estimators.get("mle-adam", lr_schedule="linear"), ValueError, "lr_schedule"),
-    (lambda: estimators.get("mle-adam", spp=[[0.5, 64]]), ValueError, "start at fraction 0"),
-    (lambda: estimators.get("grid-search", num=1), ValueError, "num >= 2"),
-    (lambda: estimators.get("multi-start", base="multi-start"), ValueError, "another estimator"),
-    (lambda: Budget(renders=0), ValueError, "renders must be > 0"),
-])
+@pytest.mark.parametrize(
+    "call, err, msg",
+    [
+        (lambda: estimators.get("mle-adamm"), KeyError, "did you mean 'mle-adam'"),
+        (lambda: estimators.get("mle-adam", learning_rate=0.1), ValueError, "bad options"),
+        (lambda: estimators.get("mle-adam", lr_schedule="linear"), ValueError, "lr_schedule"),
+        (lambda: estimators.get("mle-adam", spp=[[0.5, 64]]), ValueError, "start at fraction 0"),
+        (lambda: estimators.get("grid-search", num=1), ValueError, "num >= 2"),
+        (lambda: estimators.get("multi-start", base="multi-start"), ValueError, "another estimator"),
+        (lambda: Budget(renders=0), ValueError, "renders must be > 0"),
+    ],
+)
 def test_bad_options(call, err, msg):
     with pytest.raises(err, match=msg):
         call()
@@ -103,12 +108,15 @@ def test_fit_needs_a_seeded_generator_and_a_start_inside_theta():
         est.fit(problem, y, [0.95], np.random.default_rng(0))
 
 
-@pytest.mark.parametrize("name, options", [
-    ("mle-adam", {}),
-    ("gauss-newton", {}),
-    ("grid-search", {"num": 31, "spp": 1}),
-    ("multi-start", {"base": "gauss-newton", "starts": 3}),
-])
+@pytest.mark.parametrize(
+    "name, options",
+    [
+        ("mle-adam", {}),
+        ("gauss-newton", {}),
+        ("grid-search", {"num": 31, "spp": 1}),
+        ("multi-start", {"base": "gauss-newton", "starts": 3}),
+    ],
+)
 def test_noise_free_data_recovers_theta(name, options):
     """y = L_θ* exactly (blob2d): the NLL's minimum is θ*, so every estimator must land on it."""
     model = nb.scenes.get("blob2d", width=0.15)
@@ -198,8 +206,9 @@ def _cornell_case(cornell, name: str, truth: float, seed: int):
     p = model.params
     rng = np.random.default_rng(derive(seed, "start"))
     # uniform in the part of Θ at least 40 % of its width away from θ*
-    far = [(lo, truth - 0.4 * (p.upper[0] - p.lower[0])) for lo in p.lower] + \
-          [(truth + 0.4 * (p.upper[0] - p.lower[0]), hi) for hi in p.upper]
+    far = [(lo, truth - 0.4 * (p.upper[0] - p.lower[0])) for lo in p.lower] + [
+        (truth + 0.4 * (p.upper[0] - p.lower[0]), hi) for hi in p.upper
+    ]
     lo, hi = max(far, key=lambda ab: ab[1] - ab[0])
     return model, noise, y, np.array([rng.uniform(lo, hi)])
 

@@ -160,12 +160,15 @@ def test_toy_study_picks_the_settings_of_its_known_cost_curve(tmp_path):
     out, res = _run(tmp_path, TOY)
     k = res["knobs"]
     assert [p["error"] for p in k["spp"]["points"]] == [0.0, 0.0]
-    assert k["spp"]["recommendation"] == {"value": 36, "error": 0.0, "cost": k["spp"]["points"][0]["cost"], "speedup": 4.0}
+    assert k["spp"]["recommendation"] == {"value": 36, "error": 0.0, "cost": k["spp"]["points"][0]["cost"],
+                                          "speedup": 4.0}
 
     model = nb.scenes.get("blob2d", width=0.2).restrict(["x"])
     thetas = np.linspace(0.35, 0.65, 7)
     R = np.stack([model.render([t], 1, 0).numpy() for t in thetas]).astype(np.float64)
-    J = np.stack([fd_jacobian(model, [t], 1, 0, GradientSettings(step=0.01)).numpy() for t in thetas]).astype(np.float64)
+    J = np.stack([fd_jacobian(model, [t], 1, 0, GradientSettings(step=0.01)).numpy() for t in thetas]).astype(
+        np.float64
+    )
     sums = lambda x, b: x.reshape(*x.shape[:-3], 24 // b, b, 24 // b, b, 1).sum(axis=(-4, -2))  # noqa: E731
     ref = _bound_set(R, J, nb.noise.AWGN(2.0), thetas)
     expected = {}
@@ -174,7 +177,9 @@ def test_toy_study_picks_the_settings_of_its_known_cost_curve(tmp_path):
         expected[b] = max(relative_error(g, r).max() for g, r in zip(got, ref, strict=True))
     points = {p["value"]: p for p in k["bin"]["points"]}
     for b, e in expected.items():
-        assert points[b]["error"] == pytest.approx(e, rel=1e-9)
+        # the study's binned sensor returns float32 images (every model does): its block means and FD
+        # differences are rounded where this reference keeps float64, which moves the error ~1e-6 relative
+        assert points[b]["error"] == pytest.approx(e, rel=1e-5)
         assert points[1]["cost"] / points[b]["cost"] == b * b
     assert expected[2] < 0.05 < expected[3]  # so the right pick is b = 2, neither end of the list
     assert (k["bin"]["recommendation"]["value"], k["bin"]["recommendation"]["speedup"]) == (2, 4.0)
@@ -189,12 +194,25 @@ def test_toy_study_picks_the_settings_of_its_known_cost_curve(tmp_path):
     assert f"| bin | 2 | 1 | {study._pct(expected[2])} | 4× |" in report and "**Caution:**" not in report
 
 
-CORNELL = {"name": "cornell-fidelity", "seed": 2, "executor": {"type": "serial"},
-           "scene": {"name": "cornell_ball", "options": {"defines": {"res": 16}}, "params": ["ball_x"]},
-           "noise": [{"model": "awgn", "sigma": 1.0}, {"model": "poisson", "scale": 10.0}],
-           "studies": [{"type": "fidelity", "grid": {"start": -0.06, "stop": 0.06, "num": 4}, "spp": [4, 16],
-                        "bins": [1, 2], "max_depth": [2, 3], "fd_step": 0.02, "los_until": 0.0,
-                        "prune": ["green_wall"]}]}
+CORNELL = {
+    "name": "cornell-fidelity",
+    "seed": 2,
+    "executor": {"type": "serial"},
+    "scene": {"name": "cornell_ball", "options": {"defines": {"res": 16}}, "params": ["ball_x"]},
+    "noise": [{"model": "awgn", "sigma": 1.0}, {"model": "poisson", "scale": 10.0}],
+    "studies": [
+        {
+            "type": "fidelity",
+            "grid": {"start": -0.06, "stop": 0.06, "num": 4},
+            "spp": [4, 16],
+            "bins": [1, 2],
+            "max_depth": [2, 3],
+            "fd_step": 0.02,
+            "los_until": 0.0,
+            "prune": ["green_wall"],
+        }
+    ],
+}
 
 
 def test_cornell_study_runs_end_to_end_and_its_report_reproduces(tmp_path):
@@ -209,7 +227,8 @@ def test_cornell_study_runs_end_to_end_and_its_report_reproduces(tmp_path):
     k = res["knobs"]
     assert all(p["renders"] == 3 * 4 and p["cost"] > 0 for s in k.values() for p in s["points"])  # image + FD pair
     spp4, bin2 = k["spp"]["points"][0], next(p for p in k["bin"]["points"] if p["value"] == 2)
-    assert bin2["seconds"] == spp4["seconds"]  # bin 2 at 16 spp renders 16/4 per pixel: the spp-4 set, shared
+    # bin 2 at 16 spp renders 16/4 per fine pixel: the pixel-samples of the spp-4 setting (each from its own set)
+    assert bin2["samples"] == spp4["samples"] and bin2["renders"] == spp4["renders"]
     depth2 = next(p for p in k["max_depth"]["points"] if p["value"] == 2)
     assert depth2["error"] > 0  # a Cornell box without indirect light is another image
     assert res["depth"]["settled"] in (2, 3) and res["depth"]["nlos_points"] == 2
@@ -230,13 +249,16 @@ def _ctx(tmp_path, raw):
     return RunContext.create(cfg, tmp_path, quiet=True), cfg["studies"][0]
 
 
-@pytest.mark.parametrize("change, message", [
-    ({"tolerance": 0.0}, "tolerance must be a finite number > 0"),
-    ({"bins": [1, 5], "spp": [25]}, r"b = 5 does not divide the 24×24 image"),
-    ({"bins": [1, 4], "spp": [8]}, r"reference spp 8 is not a multiple of b² = 16"),
-    ({"bins": [0]}, "binning factor must be an integer >= 1"),
-    ({"max_depth": [2, 4]}, "max_depth and prune need a Mitsuba scene"),
-])
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        ({"tolerance": 0.0}, "tolerance must be a finite number > 0"),
+        ({"bins": [1, 5], "spp": [25]}, r"b = 5 does not divide the 24×24 image"),
+        ({"bins": [1, 4], "spp": [8]}, r"reference spp 8 is not a multiple of b² = 16"),
+        ({"bins": [0]}, "binning factor must be an integer >= 1"),
+        ({"max_depth": [2, 4]}, "max_depth and prune need a Mitsuba scene"),
+    ],
+)
 def test_bad_toy_settings_are_refused_before_any_work(tmp_path, change, message):
     ctx, block = _ctx(tmp_path, {**TOY, "studies": [{**TOY["studies"][0], **change}]})
     with pytest.raises(ValueError, match=message):

@@ -35,8 +35,8 @@ REPS = 40
 def _sets(model, seed):
     """(X (k, R, 1+K, H, W, 1), Xe (1, R, 1+K, ...)) for θ* and θ*+Δ_x, level and N_eff renders."""
     pts = np.vstack([THETA, THETA + np.stack([DX, 0 * DX], 1)])
-    return (RenderBank(model).replicates(pts, LEVELS, R, seed, "levels"),
-            RenderBank(model).replicates(pts, [N_EFF], R, seed, "n-eff"))
+    return (RenderBank(model, seed=seed).levels_at(pts, LEVELS, R, "levels"),
+            RenderBank(model, seed=seed).levels_at(pts, [N_EFF], R, "n-eff"))
 
 
 def _analyse(X, Xe, noise, **kw):
@@ -123,7 +123,10 @@ def test_interval_brackets_true_hcr(toy, noise):
     print(f"{noise}: coverage of [HCR_Neff, HCR-hat] {cover:.3f}, with bootstrap ends {cover_ci:.3f} ({REPS} runs)")
     assert cover_ci >= max(cover, 0.9)
     # the bootstrap intervals' width against the run-to-run spread (5–95 % range over the 40 runs)
-    for end, ci in ((neff, [r.ci_neff for r in rs]), (hat[resolved], [r.ci_hat for r, ok in zip(rs, resolved, strict=True) if ok])):
+    for end, ci in (
+        (neff, [r.ci_neff for r in rs]),
+        (hat[resolved], [r.ci_hat for r, ok in zip(rs, resolved, strict=True) if ok]),
+    ):
         width = np.median(np.diff(np.array(ci), axis=1))
         spread = np.subtract(*np.quantile(end, [0.95, 0.05]))
         print(f"  bootstrap 90 % width / run-to-run 5–95 % range: {width / spread:.2f}")
@@ -172,8 +175,8 @@ def test_fit_recovers_exact_line_and_matches_weighted_lstsq(p):
     assert np.all(f.se < 1e-9)
     y = lam[None] + C[None] / N[:, None] ** p + np.random.default_rng(0).normal(size=(5, 3)) * 0.1
     f = fit_lambda(y, N, p)
-    sw = np.sqrt(N ** p)[:, None]
-    ref = np.linalg.lstsq(np.stack([np.ones(5), N ** -p], 1) * sw, y * sw, rcond=None)[0]
+    sw = np.sqrt(N**p)[:, None]
+    ref = np.linalg.lstsq(np.stack([np.ones(5), N**-p], 1) * sw, y * sw, rcond=None)[0]
     np.testing.assert_allclose(f.lam, ref[0], rtol=1e-9)
     np.testing.assert_allclose(f.C, ref[1], rtol=1e-9)
 
@@ -202,10 +205,20 @@ def test_noise_dominated_delta_gives_unresolved_hcr_hat():
     model = nb.scenes.get("blob2d", render_noise=S_RENDER)
     pts = np.vstack([THETA, THETA + [1e-6, 0.0], THETA + [0.02, 0.0]])
     for seed in range(20):
-        X = RenderBank(model).replicates(pts, LEVELS[:3], R, seed, "levels")
-        Xe = RenderBank(model).replicates(pts, [sum(LEVELS[:3])], R, seed, "n-eff")
-        r = inexact_hcr(X[:, :, 0], X[:, :, 1:], [1e-6, 0.02], LEVELS[:3], NOISES[0], Xe[0, :, 0], Xe[0, :, 1:],
-                        sum(LEVELS[:3]), bootstrap=20, seed=seed)
+        X = RenderBank(model, seed=seed).levels_at(pts, LEVELS[:3], R, "levels")
+        Xe = RenderBank(model, seed=seed).levels_at(pts, [sum(LEVELS[:3])], R, "n-eff")
+        r = inexact_hcr(
+            X[:, :, 0],
+            X[:, :, 1:],
+            [1e-6, 0.02],
+            LEVELS[:3],
+            NOISES[0],
+            Xe[0, :, 0],
+            Xe[0, :, 1:],
+            sum(LEVELS[:3]),
+            bootstrap=20,
+            seed=seed,
+        )
         assert r.fit.noise_dominated[0] and not r.fit.noise_dominated[1]
         if r.fit.lam[0] < 0:
             break
@@ -239,12 +252,13 @@ def test_input_errors():
 def test_mitsuba_rendering_noise_decays_as_one_over_N(cornell):
     """Real path tracer (cornell_ball 32×32): two independent renders of the *same* θ have λ = 0, so
     λ̃^(N) is pure rendering noise C/N: λ̃(128)/λ̃(32) ≈ 1/4 (within 25 %, 3072 pixel values), the fit's
-    λ̂ is small against C/N, and the study renders k·R·Q + R·Q images with distinct seeds."""
+    λ̂ is small against C/N, and the bank renders k·R + R images per set with distinct seeds (the second
+    render of θ comes from a second purpose: the same θ in one set is one render)."""
     model = cornell.restrict(["ball_x"])
     before = model.stats.snapshot()
-    pts = [0.1, 0.1]
-    X = RenderBank(model).replicates(pts, [32, 128], 4, seed=7, purpose="levels")
-    Xe = RenderBank(model).replicates(pts, [160], 4, seed=7, purpose="n-eff")
+    bank = RenderBank(model, seed=7)
+    X = torch.cat([bank.levels_at([0.1], [32, 128], 4, f"levels-{k}") for k in "ab"], dim=2)
+    Xe = torch.cat([bank.levels_at([0.1], [160], 4, f"n-eff-{k}") for k in "ab"], dim=2)
     assert model.stats.since(before).renders == 2 * 4 * 2 + 4 * 2
     flat = X.reshape(-1, X[0, 0, 0].numel())
     assert len({tuple(v[:64].tolist()) for v in flat}) == flat.shape[0]  # no two renders share a seed
@@ -258,14 +272,30 @@ def test_mitsuba_rendering_noise_decays_as_one_over_N(cornell):
 def _study_config(tmp_path, **study):
     import yaml
 
-    cfg = {"name": "inexact-test", "seed": 2,
-           "scene": {"name": "blob2d", "options": {"render_noise": S_RENDER, **study.pop("scene_options", {})},
-                     "params": ["x"]},
-           "noise": [{"model": "awgn", "sigma": 1.0}, {"model": "poisson", "scale": 1.0}],
-           "executor": {"type": "serial"},
-           "studies": [{"type": "inexact", "theta": [0.45, 0.5, 0.55], "deltas": [-0.02, -0.005, 0.005, 0.02, 0.05],
-                        "levels": [128, 256, 384], "n_eff": 768, "replicates": 4, "bootstrap": 30,
-                        "decay_weights": 500, **study}]}
+    cfg = {
+        "name": "inexact-test",
+        "seed": 2,
+        "scene": {
+            "name": "blob2d",
+            "options": {"render_noise": S_RENDER, **study.pop("scene_options", {})},
+            "params": ["x"],
+        },
+        "noise": [{"model": "awgn", "sigma": 1.0}, {"model": "poisson", "scale": 1.0}],
+        "executor": {"type": "serial"},
+        "studies": [
+            {
+                "type": "inexact",
+                "theta": [0.45, 0.5, 0.55],
+                "deltas": [-0.02, -0.005, 0.005, 0.02, 0.05],
+                "levels": [128, 256, 384],
+                "n_eff": 768,
+                "replicates": 4,
+                "bootstrap": 30,
+                "decay_weights": 500,
+                **study,
+            }
+        ],
+    }
     path = tmp_path / "cfg.yaml"
     path.write_text(yaml.safe_dump(cfg))
     return path
@@ -277,28 +307,38 @@ def test_study_measured_power_and_config_errors(tmp_path):
     (k = 1 level, identical levels, …) are clear errors."""
     from nlosbench.experiment.runner import run
 
-    d = run(_study_config(tmp_path, power="measured", bootstrap=0, noise=0, n_eff=1024,
-                          scene_options={"render_noise_power": 0.8}), out=tmp_path / "run", quiet=True)
+    d = run(
+        _study_config(
+            tmp_path, power="measured", bootstrap=0, noise=0, n_eff=1024, scene_options={"render_noise_power": 0.8}
+        ),
+        out=tmp_path / "run",
+        quiet=True,
+    )
     res = json.loads((d / "results.json").read_text())["studies"]["00-inexact"]["results"]
     assert res["power_source"] == "measured" and abs(res["power"] - 0.8) < 0.05
     assert res["budget_ratio"] == pytest.approx(1024 / 768)
     text = (d / "report.md").read_text()
     for what in ("far from 1", "unequal render budget"):
         assert sum(what in w for w in res["warnings"]) == 1 and text.count(what) == 1, what
-    for bad, match in (({"theta": [0.95]}, "out of range"), ({"deltas": [0.5]}, "no Δ"),
-                       ({"noise": 5}, "noise"), ({"power": -1}, "power"), ({"levels": [128]}, "at least 2 distinct"),
-                       ({"levels": [256, 256]}, "at least 2 distinct"),
-                       ({"n_eff": 770}, "divisible")):
+    for bad, match in (
+        ({"theta": [0.95]}, "out of range"),
+        ({"deltas": [0.5]}, "no Δ"),
+        ({"noise": 5}, "noise"),
+        ({"power": -1}, "power"),
+        ({"levels": [128]}, "at least 2 distinct"),
+        ({"levels": [256, 256]}, "at least 2 distinct"),
+        ({"n_eff": 770}, "divisible"),
+    ):
         with pytest.raises(ValueError, match=match):
             run(_study_config(tmp_path, **bad), out=tmp_path / f"bad{len(match)}", quiet=True)
 
 
-def test_study_end_to_end_then_resumed_per_point(tmp_path):
+def test_study_end_to_end_then_resumed_from_the_render_store(tmp_path):
     """The `inexact` study through the runner: CSVs, plots, report section, JSON summary; renders shared
-    between θ* (grid-aligned Δ), decay check consistent with 1/N. Then resume: the later half of the
-    per-point render files deleted and one earlier file corrupted, the run resumed on a 2-worker local
-    pool instead of the serial executor gives identical CSVs (seeds per point, whatever the executor)
-    and renders only the missing/corrupt points. A changed render plan is refused on resume."""
+    between θ* (grid-aligned Δ), decay check consistent with 1/N. Then resume: the later half of the run's
+    stored renders deleted and one earlier entry corrupted, the run resumed on a 2-worker local pool
+    instead of the serial executor gives identical CSVs (bank seeds, whatever the executor) and renders
+    only the missing and corrupt entries."""
     from nlosbench.experiment.runner import run
     from nlosbench.io import read_csv
 
@@ -306,11 +346,19 @@ def test_study_end_to_end_then_resumed_per_point(tmp_path):
     d = run(cfg, out=tmp_path / "run", quiet=True)
     res = json.loads((d / "results.json").read_text())["studies"]["00-inexact"]["results"]
     sd = d / "00-inexact"
-    for f in ("hcr.csv", "lambda.csv", "decay.csv", "decay.png", "hcr_vs_theta_awgn_sigma_1_0.png",
-              "hcr_vs_theta_poisson_scale_1_0.png", "lambda_awgn_sigma_1_0_widest.png", "lambda_poisson_scale_1_0_narrowest.png"):
+    for f in (
+        "hcr.csv",
+        "lambda.csv",
+        "decay.csv",
+        "decay.png",
+        "hcr_vs_theta_awgn_sigma_1_0.png",
+        "hcr_vs_theta_poisson_scale_1_0.png",
+        "lambda_awgn_sigma_1_0_widest.png",
+        "lambda_poisson_scale_1_0_narrowest.png",
+    ):
         assert (sd / f).is_file(), f
     Q = res["render_points"]
-    assert Q < 3 * 6 and res["renders"] == Q * 4 * 4 and res["points_resumed"] == 0
+    assert Q < 3 * 6 and res["renders"] == res["renders_planned"] == Q * 4 * 4
     assert abs(res["decay"]["p"] - 1) < 0.1 and res["power_source"] == "assumed" and not res["warnings"]
     rows = read_csv(sd / "hcr.csv")
     assert len(rows) == 6 and all(math.isfinite(float(r["log10_hcr_neff"])) for r in rows)
@@ -318,20 +366,17 @@ def test_study_end_to_end_then_resumed_per_point(tmp_path):
     assert "HCR_Neff" in text and "Decay check" in text and "| 0.5 |" in text
 
     first = {f: (sd / f).read_text() for f in ("hcr.csv", "lambda.csv", "decay.csv", "decay_popt.csv")}
-    files = sorted((sd / "points").glob("*.npz"))
-    assert len(files) == Q > 4
-    for f in files[Q // 2:]:
+    stored = sorted((d / "renders").rglob("*.npc"))
+    assert len(stored) == Q * 4 * 4
+    for f in stored[len(stored) // 2 :]:
         f.unlink()
-    files[0].write_bytes(b"truncated")
+    stored[0].write_bytes(b"truncated")
     (d / "results.json").unlink()
     run(cfg, ["executor.type=local", "executor.workers=2"], out=d, resume=True, quiet=True)
     res = json.loads((d / "results.json").read_text())["studies"]["00-inexact"]["results"]
-    assert res["points_resumed"] == Q // 2 - 1
+    assert res["renders"] == len(stored) - len(stored) // 2 + 1
     for f, text in first.items():
         assert (sd / f).read_text() == text, f
-    (d / "results.json").unlink()
-    with pytest.raises(ValueError, match="render plan"):
-        run(cfg, ["studies.0.levels=[128, 256, 512]"], out=d, resume=True, quiet=True)
 
 
 def test_smoke_reduces_a_paper_scale_block(tmp_path):
@@ -359,8 +404,12 @@ def test_smoke_reduces_a_paper_scale_block(tmp_path):
     import yaml
 
     paper_sized = {k: v for k, v in block.items() if k not in ("type", "id", "theta", "deltas")}
-    path = _study_config(tmp_path, **paper_sized, theta={"start": 0.3, "stop": 0.7, "num": 41},
-                         deltas={"start": -0.4, "stop": 0.4, "num": 81})
+    path = _study_config(
+        tmp_path,
+        **paper_sized,
+        theta={"start": 0.3, "stop": 0.7, "num": 41},
+        deltas={"start": -0.4, "stop": 0.4, "num": 81},
+    )
     cfg = config_mod.load(path)
     cfg["studies"] = [inexact.smoke(cfg["studies"][0])]
     path.write_text(yaml.safe_dump(cfg))

@@ -25,6 +25,7 @@ from nlosbench.montecarlo import LOG_NAME, Setting, make_trials, read_log, run_t
 from nlosbench.schema import ConfigError
 from nlosbench.studies import trials as study
 from nlosbench.studies.context import RunContext
+from nlosbench.studies.tables import paper_table
 
 TIMING = ("mean_seconds", "total_seconds")
 
@@ -107,15 +108,16 @@ def test_cornell_study_produces_a_complete_summary(tmp_path):
         assert r["mean_renders"] > 0 and r["mean_seconds"] > 0
         assert r["crlb"] > 0 and math.isfinite(r["mse_over_crlb"]) and r["mse_over_hcr"] > 0
     # at 64 spp rendering noise dominates λ (the paper's point): HCR_Neff may underflow, its log10 never
-    assert all(math.isfinite(b["hcr_log10"]) and math.isfinite(b["crlb_log10"]) for b in res["bound_rows"])
+    assert all(math.isfinite(b["log10_hcr"]) and math.isfinite(b["log10_crlb"]) for b in res["bound_rows"])
     assert len(read_log(folder / LOG_NAME)) == 8
-    for f in ("bounds.csv", "plan.json", "images/clean_000.exr", "images/clean_001.exr", "plots/mse_vs_theta.png",
-              "plots/speed_vs_error.png"):
+    for f in ("bounds.csv", "plan.json", "images/clean_000.exr", "images/clean_001.exr"):
         assert (folder / f).is_file(), f
     # grad auto on a position: the prior picks FD with the block's step; the choice is reported
     chosen = res["gradients"]["adam-auto"]
     assert chosen.startswith("fd(ξ=0.02,R=1,crn) (auto: ball_x → fd") and "prior" in chosen, chosen
     md = study.report(folder, res)
+    for f in ("plots/mse_vs_theta.png", "plots/speed_vs_error.png"):  # drawn by the report, from saved data
+        assert (folder / f).is_file(), f
     assert "| -0.1 | adam-auto | 2 | 0 |" in md and "CRLB: trace of F⁻¹" in md
     assert f"gradient of **adam-auto**: {chosen}" in md
 
@@ -221,7 +223,7 @@ def test_failed_fits_are_counted_shown_and_not_silently_dropped(tmp_path):
     ({"estimators": [{"name": "mle-adam"}, {"name": "mle-adam"}]}, "estimators", "used twice"),
     ({"theta": [0.5, 0.95]}, "theta[1]", r"edge=0.95 outside \[0.1, 0.9\]"),
     ({"theta": []}, "theta", "non-empty"),
-    ({"n": 0}, "n", "at least 1 trial"),
+    ({"n": 0}, "n", "expected a positive integer, got 0"),
     ({"noise": 3}, "noise", "indices into the 1 noise model"),
     ({"budget": {"renders": 0}}, "budget", "renders must be > 0"),
     ({"bounds": ["barankin"], "theta": [0.5]}, None, None),
@@ -229,7 +231,8 @@ def test_failed_fits_are_counted_shown_and_not_silently_dropped(tmp_path):
 def test_bad_input_is_rejected_before_any_render(tmp_path, change, path, msg):
     """Estimator names and options fail when the config is resolved (`check`: studies[0]...), the rest
     when the study starts (trials...); either way before any render."""
-    block = {"theta": [0.5], "n": 2, "n_eff": 1, "estimators": [{"name": "grid-search", "options": {"spp": 1}}], **change}
+    block = {"theta": [0.5], "n": 2, "n_eff": 1, "estimators": [{"name": "grid-search", "options": {"spp": 1}}],
+             **change}
     if path is None:  # a valid block (scalar θ allows barankin): runs
         ctx, block = make_ctx(tmp_path, {"name": "edge1d"}, block)
         assert study.run(ctx, block)["trials"] == 2
@@ -256,8 +259,14 @@ def test_auto_gradient_follows_the_verdicts_or_the_prior(cornell, tmp_path):
     assert s.gradient == GradientSettings("ad", ad={"type": "prb"})
     (s,) = study.parse_settings(auto, "trials.estimators", x)
     assert s.gradient.method == "fd"
-    path = save_verdicts(tmp_path / "verdicts.json", {"ball_red": Verdict(
-        "ball_red", "ad-artifact-prone", "outliers", {"method": "fd", "step": 0.05, "rounds": 2, "crn": True})})
+    path = save_verdicts(
+        tmp_path / "verdicts.json",
+        {
+            "ball_red": Verdict(
+                "ball_red", "ad-artifact-prone", "outliers", {"method": "fd", "step": 0.05, "rounds": 2, "crn": True}
+            )
+        },
+    )
     auto[0]["gradient"] = {"method": "auto", "verdicts": str(path)}
     (s,) = study.parse_settings(auto, "trials.estimators", red)
     assert s.gradient == GradientSettings("fd") and "outliers" in s.gradient.chosen
@@ -269,14 +278,26 @@ def test_auto_gradient_follows_the_verdicts_or_the_prior(cornell, tmp_path):
 def test_paper_table_writes_bounds_below_float64_from_their_log10():
     """The paper's first row (θ* = 80 cm: HCR_Neff 4.17e-214, HCR-hat 1.30e-216) and a bound of 1e-400,
     which underflows float64: every cell comes from log10."""
-    rows = [{"noise": 0, "theta_index": i, "estimator": "MLE", "mse": m, "var": v}
-            for i, (m, v) in enumerate([(0.0024, 0.0019), (4.0518, 4.0372)])]
-    bound_rows = [{"noise": 0, "theta_index": 0, "theta_x": 80.0, "hcr_log10": math.log10(4.17) - 214,
-                   "hcr_hat_log10": math.log10(1.3) - 216},
-                  {"noise": 0, "theta_index": 1, "theta_x": 100.0, "hcr_log10": -400.0, "hcr_hat_log10": math.inf}]
-    table = study.paper_table(rows, bound_rows, ["hcr", "hcr_hat"], ["x"], ["cm"], 0)
-    assert table == ["| θ* (cm) | HCR_Neff | HCR-hat | MSE(MLE) | Var(MLE) |", "|---|---|---|---|---|",
-                     "| 80 | 4.17e-214 | 1.3e-216 | 0.0024 | 0.0019 |", "| 100 | 1e-400 | – | 4.052 | 4.037 |"]
+    rows = [
+        {"noise": 0, "theta_index": i, "theta_x": x, "estimator": "MLE", "mse": m, "var": v}
+        for i, (x, m, v) in enumerate([(80.0, 0.0024, 0.0019), (100.0, 4.0518, 4.0372)])
+    ]
+    bound_rows = [
+        {
+            "noise_index": 0,
+            "theta_index": 0,
+            "log10_hcr": math.log10(4.17) - 214,
+            "log10_hcr_hat": math.log10(1.3) - 216,
+        },
+        {"noise_index": 0, "theta_index": 1, "log10_hcr": -400.0, "log10_hcr_hat": math.inf},
+    ]
+    table = paper_table(rows, bound_rows, ["hcr", "hcr_hat"], ["x"], ["cm"], 0)
+    assert table == [
+        "| θ* (cm) | HCR_Neff | HCR-hat | MSE(MLE) | Var(MLE) |",
+        "|---|---|---|---|---|",
+        "| 80 | 4.17e-214 | 1.3e-216 | 0.0024 | 0.0019 |",
+        "| 100 | 1e-400 | – | 4.052 | 4.037 |",
+    ]
 
 
 def test_smoke_runs_the_paper_config_in_seconds(tmp_path):
@@ -296,34 +317,63 @@ def test_smoke_runs_the_paper_config_in_seconds(tmp_path):
 
 
 def test_smoke_caps_every_estimator_and_gradient_option():
-    block = resolve({"scene": {"name": "blob2d"}, "studies": [{
-        "type": "trials", "theta": [[0.3, 0.3], [0.4, 0.5], [0.7, 0.7]],
-        "n": 200, "n_eff": 65536, "hcr_grid": 41, "levels": [2048, 4096, 8192], "bootstrap": 5000,
-        "budget": {"iterations": 1000, "renders": 10000},
-        "estimators": [{"name": "grid-search", "options": {"num": 65, "spp": 1024, "refine_evals": 150}},
-                       {"name": "multi-start", "options": {"base": "gauss-newton", "starts": 8,
-                                                           "options": {"iterations": 30, "spp": 512}},
-                        "gradient": {"method": "fd", "rounds": 16, "spp": 4096}}]}]})["studies"][0]
+    block = resolve(
+        {
+            "scene": {"name": "blob2d"},
+            "studies": [
+                {
+                    "type": "trials",
+                    "theta": [[0.3, 0.3], [0.4, 0.5], [0.7, 0.7]],
+                    "n": 200,
+                    "n_eff": 65536,
+                    "hcr_grid": 41,
+                    "levels": [2048, 4096, 8192],
+                    "bootstrap": 5000,
+                    "budget": {"iterations": 1000, "renders": 10000},
+                    "estimators": [
+                        {"name": "grid-search", "options": {"num": 65, "spp": 1024, "refine_evals": 150}},
+                        {
+                            "name": "multi-start",
+                            "options": {"base": "gauss-newton", "starts": 8, "options": {"iterations": 30, "spp": 512}},
+                            "gradient": {"method": "fd", "rounds": 16, "spp": 4096},
+                        },
+                    ],
+                }
+            ],
+        }
+    )["studies"][0]
     b = study.smoke({k: v for k, v in block.items() if k != "type"})
     assert b["theta"] == [[0.3, 0.3], [0.7, 0.7]] and b["n"] == 2 and b["n_eff"] == 32 and b["bootstrap"] == 20
     assert b["hcr_grid"] == 5 and b["levels"] == [8, 16]
     assert b["budget"] == {"iterations": 3, "renders": 10000, "seconds": None}
     assert b["estimators"][0]["options"] == {"num": 5, "spp": 4, "refine_evals": 4}
-    assert b["estimators"][1]["options"] == {"base": "gauss-newton", "starts": 2, "options": {"iterations": 3, "spp": 4}}
+    assert b["estimators"][1]["options"] == {
+        "base": "gauss-newton",
+        "starts": 2,
+        "options": {"iterations": 3, "spp": 4},
+    }
     assert b["estimators"][1]["gradient"] == {"method": "fd", "rounds": 1, "spp": 4}
     assert block["n"] == 200 and block["estimators"][0]["options"]["num"] == 65  # a copy: the block is unchanged
 
 
 def test_barankin_needs_a_scalar_theta(tmp_path):
-    ctx, block = make_ctx(tmp_path, {"name": "blob2d"}, {"theta": [[0.5, 0.5]], "n": 1, "bounds": ["barankin"],
-                                                         "estimators": [{"name": "mle-adam"}]})
+    ctx, block = make_ctx(
+        tmp_path,
+        {"name": "blob2d"},
+        {"theta": [[0.5, 0.5]], "n": 1, "bounds": ["barankin"], "estimators": [{"name": "mle-adam"}]},
+    )
     with pytest.raises(ConfigError, match="barankin bounds a scalar θ"):
         study.run(ctx, block)
 
 
 def test_resume_with_a_changed_config_is_refused(tmp_path):
-    block = {"theta": [0.5], "n": 2, "n_eff": 1, "hcr_grid": 9,
-             "estimators": [{"name": "grid-search", "options": {"num": 9, "spp": 1}}]}
+    block = {
+        "theta": [0.5],
+        "n": 2,
+        "n_eff": 1,
+        "hcr_grid": 9,
+        "estimators": [{"name": "grid-search", "options": {"num": 9, "spp": 1}}],
+    }
     ctx, b = make_ctx(tmp_path, {"name": "edge1d"}, block)
     study.run(ctx, b)
     ctx, b = make_ctx(tmp_path, {"name": "edge1d"}, {**block, "n": 3}, resume=True)
@@ -333,28 +383,55 @@ def test_resume_with_a_changed_config_is_refused(tmp_path):
 
 def test_summary_statistics_against_hand_computed_values():
     """MSE, variance (ddof 1), bias and the ratio to a bound on three fixed estimates."""
-    recs = [{"noise": 0, "theta_index": 0, "trial": k, "estimator": "e", "name": "e", "theta_true": [1.0],
-             "theta_hat": [h], "error": None, "converged": k != 2, "seconds": 1.0, "renders": 10, "grad_passes": 0,
-             "iterations": 3} for k, h in enumerate([1.1, 0.8, 1.3])]
+    recs = [
+        {
+            "noise": 0,
+            "theta_index": 0,
+            "trial": k,
+            "estimator": "e",
+            "name": "e",
+            "theta_true": [1.0],
+            "theta_hat": [h],
+            "error": None,
+            "converged": k != 2,
+            "seconds": 1.0,
+            "renders": 10,
+            "grad_passes": 0,
+            "iterations": 3,
+        }
+        for k, h in enumerate([1.1, 0.8, 1.3])
+    ]
     recs.append({**recs[0], "trial": 3, "theta_hat": None, "error": "boom", "converged": False})
     (row,) = summarize(recs, ["t"], {(0, 0): {"hcr": {"value": 0.01, "log10": -2.0}}}, far_above=2.0, bootstrap=200)
     e = np.array([0.1, -0.2, 0.3])
     assert row["n"] == 4 and row["n_failed"] == 1 and row["n_nonconverged"] == 1
-    assert row["mse"] == pytest.approx((e ** 2).mean()) and row["var"] == pytest.approx(e.var(ddof=1))
-    assert row["bias_t"] == pytest.approx(e.mean()) and row["mse_over_hcr"] == pytest.approx((e ** 2).mean() / 0.01)
+    assert row["mse"] == pytest.approx((e**2).mean()) and row["var"] == pytest.approx(e.var(ddof=1))
+    assert row["bias_t"] == pytest.approx(e.mean()) and row["mse_over_hcr"] == pytest.approx((e**2).mean() / 0.01)
     assert row["far_above"] == "hcr" and row["total_renders"] == 40 and row["mse_se"] > 0
 
 
 def test_hcr_interval_from_spp_levels_is_compared(tmp_path):
     """edge1d with Monte Carlo-like rendering noise: HCR-hat (λ̂ fitted over two spp levels,
     bounds.inexact) lies above HCR_Neff, which rendering noise pulls down; both ratios are reported."""
-    ctx, block = make_ctx(tmp_path, {"name": "edge1d", "options": {"render_noise": 0.3}}, {
-        "theta": [0.5078125], "n": 3, "n_eff": 2048, "bounds": ["hcr", "hcr_hat"], "levels": [512, 1536],
-        "hcr_grid": 33, "hcr_offsets": 6, "fd_step": 1e-3,
-        "estimators": [{"name": "grid-search", "options": {"num": 33, "spp": 256}}]}, seed=4)
+    ctx, block = make_ctx(
+        tmp_path,
+        {"name": "edge1d", "options": {"render_noise": 0.3}},
+        {
+            "theta": [0.5078125],
+            "n": 3,
+            "n_eff": 2048,
+            "bounds": ["hcr", "hcr_hat"],
+            "levels": [512, 1536],
+            "hcr_grid": 33,
+            "hcr_offsets": 6,
+            "fd_step": 1e-3,
+            "estimators": [{"name": "grid-search", "options": {"num": 33, "spp": 256}}],
+        },
+        seed=4,
+    )
     res = study.run(ctx, block)
     (b,) = res["bound_rows"]
-    assert math.isfinite(b["hcr_hat_log10"]) and b["hcr_hat_log10"] > b["hcr_log10"], b
+    assert math.isfinite(b["log10_hcr_hat"]) and b["log10_hcr_hat"] > b["log10_hcr"], b
     (row,) = res["summary"]
     assert row["mse_over_hcr_hat"] < row["mse_over_hcr"]
     assert "HCR-hat" in study.report(ctx.dir / "trials", res)

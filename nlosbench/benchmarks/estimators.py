@@ -158,33 +158,61 @@ def run(reduced: bool = False) -> list[dict]:
     n = 4 if reduced else 30
     blob = {"name": "blob2d", "options": {"width": 0.15}}
     edge = {"name": "edge1d"}
-    rows = _per_trial(blob, "blob2d", [0.45, 0.58], AWGN(0.02), [
-        Setting("mle-adam", {"iterations": 60}, "mle-adam (AD)", GradientSettings("ad")),
-        Setting("mle-adam", {"iterations": 60}, "mle-adam (FD)", GradientSettings(step=1e-3)),
-        Setting("gauss-newton", {"spp": 1}, "gauss-newton (AD)", GradientSettings("ad")),
-        Setting("grid-search", {"num": 25, "spp": 1}),
-        Setting("multi-start", {"base": "gauss-newton", "starts": 3}, "multi-start ×3 (GN, AD)", GradientSettings("ad")),
-    ], n, 1)
-    rows += _per_trial(edge, "edge1d", [0.5078125], AWGN(0.1), [
-        Setting("mle-adam", {"iterations": 60}, "mle-adam (AD)", GradientSettings("ad")),
-        Setting("grid-search", {"num": 129, "spp": 1}),
-        Setting("gauss-newton", {}, "gauss-newton (AD)", GradientSettings("ad")),
-    ], n, 1)
+    rows = _per_trial(
+        blob,
+        "blob2d",
+        [0.45, 0.58],
+        AWGN(0.02),
+        [
+            Setting("mle-adam", {"iterations": 60}, "mle-adam (AD)", GradientSettings("ad")),
+            Setting("mle-adam", {"iterations": 60}, "mle-adam (FD)", GradientSettings(step=1e-3)),
+            Setting("gauss-newton", {"spp": 1}, "gauss-newton (AD)", GradientSettings("ad")),
+            Setting("grid-search", {"num": 25, "spp": 1}),
+            Setting(
+                "multi-start", {"base": "gauss-newton", "starts": 3}, "multi-start ×3 (GN, AD)", GradientSettings("ad")
+            ),
+        ],
+        n,
+        1,
+    )
+    rows += _per_trial(
+        edge,
+        "edge1d",
+        [0.5078125],
+        AWGN(0.1),
+        [
+            Setting("mle-adam", {"iterations": 60}, "mle-adam (AD)", GradientSettings("ad")),
+            Setting("grid-search", {"num": 129, "spp": 1}),
+            Setting("gauss-newton", {}, "gauss-newton (AD)", GradientSettings("ad")),
+        ],
+        n,
+        1,
+    )
     noisy_blob = {"name": "blob2d", "options": {"width": 0.15, "render_noise": 0.2}}
     adam = {"lr": 0.05, "iterations": 40, "spp": 16}
     starts = [[0.3, 0.7], [0.7, 0.35]] + ([] if reduced else [[0.35, 0.3], [0.65, 0.7]])
-    rows.append(_recipe(noisy_blob, [0.5, 0.5], starts, adam, 4096)
-                | {"scene": "blob2d (render_noise 0.2)"})
+    rows.append(_recipe(noisy_blob, [0.5, 0.5], starts, adam, 4096) | {"scene": "blob2d (render_noise 0.2)"})
     if not reduced:
         cornell = {"name": "cornell_ball", "params": ["ball_x"]}
-        rows += _per_trial(cornell, "cornell_ball", [0.1], AWGN(0.05), [
-            Setting("mle-adam", {"lr": 0.1, "iterations": 20, "spp": 32}, "mle-adam (FD)", GradientSettings(step=0.02)),
-            Setting("gauss-newton", {"spp": 64, "iterations": 8}, "gauss-newton (FD)", GradientSettings(step=0.02)),
-            Setting("grid-search", {"num": 33, "spp": 64, "refine_evals": 15}),
-        ], 6, 1024)
+        rows += _per_trial(
+            cornell,
+            "cornell_ball",
+            [0.1],
+            AWGN(0.05),
+            [
+                Setting(
+                    "mle-adam", {"lr": 0.1, "iterations": 20, "spp": 32}, "mle-adam (FD)", GradientSettings(step=0.02)
+                ),
+                Setting("gauss-newton", {"spp": 64, "iterations": 8}, "gauss-newton (FD)", GradientSettings(step=0.02)),
+                Setting("grid-search", {"num": 33, "spp": 64, "refine_evals": 15}),
+            ],
+            6,
+            1024,
+        )
         rows.append(_pool_speedup(cornell, 0.1, 16))
-        rows.append(_recipe(cornell, [0.1], [[-0.2], [0.35]], {"lr": 0.1, "iterations": 15, "spp": [[0, 64], [0.5, 128]]},
-                            1024))
+        rows.append(
+            _recipe(cornell, [0.1], [[-0.2], [0.35]], {"lr": 0.1, "iterations": 15, "spp": [[0, 64], [0.5, 128]]}, 1024)
+        )
     return rows
 
 

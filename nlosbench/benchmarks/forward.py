@@ -61,8 +61,17 @@ def _ad_cost(model, spp: int, reps: int, ad: dict) -> dict:
     for r in range(reps):
         model.render(THETA, spp, derive(SEED, "bench-ad-forward", r))
     t_fwd = (time.perf_counter() - t) / reps
-    return {"bench": "ad_prb_projective", "spp": spp, "reps": reps, "ad": str(ad), "var_ad": float(np.var(vals, ddof=1)),
-            "mean_ad": float(np.mean(vals)), "ad_s": t_ad, "forward_s": t_fwd, "ratio": t_ad / t_fwd}
+    return {
+        "bench": "ad_prb_projective",
+        "spp": spp,
+        "reps": reps,
+        "ad": str(ad),
+        "var_ad": float(np.var(vals, ddof=1)),
+        "mean_ad": float(np.mean(vals)),
+        "ad_s": t_ad,
+        "forward_s": t_fwd,
+        "ratio": t_ad / t_fwd,
+    }
 
 
 def run(reduced: bool = False) -> list[dict]:
@@ -71,8 +80,11 @@ def run(reduced: bool = False) -> list[dict]:
     model = scenes.get("cornell_ball", **({} if reduced else {"defines": {"res": 64}}))
     spp, reps = (16, 3) if reduced else (256, 20)
     ad = {"sppc": 4, "sppp": 4, "sppi": 0} if reduced else {}
-    return [_overhead(model, spp, reps * 3), *_fd_variance(model, spp, reps),
-            _ad_cost(model, spp, 2 if reduced else 5, ad)]
+    return [
+        _overhead(model, spp, reps * 3),
+        *_fd_variance(model, spp, reps),
+        _ad_cost(model, spp, 2 if reduced else 5, ad),
+    ]
 
 
 if __name__ == "__main__":

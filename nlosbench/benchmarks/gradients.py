@@ -29,10 +29,17 @@ def _configs(reduced: bool) -> list[tuple[dict, str, int]]:
     fds = [{"method": "fd", "step": 0.01, "crn": True}, {"method": "fd", "step": 0.01, "crn": False}]
     if reduced:
         return [(b, "", 2) for b in fds + [{**cheap, "sppi": 0}]] + [({**cheap, "sppi": 0}, "median", 2)]
-    ads = [{"method": "ad", "integrator": "prb"}, {"method": "ad", "integrator": "direct_projective", "guiding": "none"},
-           cheap, {**cheap, "sppi": 0}]
-    return ([(b, "", 8) for b in fds + ads] + [({"method": "ad", "integrator": "prb_projective"}, "", 2)]
-            + [(cheap, r, 8) for r in ("mean", "median", "visibility-boost")])
+    ads = [
+        {"method": "ad", "integrator": "prb"},
+        {"method": "ad", "integrator": "direct_projective", "guiding": "none"},
+        cheap,
+        {**cheap, "sppi": 0},
+    ]
+    return (
+        [(b, "", 8) for b in fds + ads]
+        + [({"method": "ad", "integrator": "prb_projective"}, "", 2)]
+        + [(cheap, r, 8) for r in ("mean", "median", "visibility-boost")]
+    )
 
 
 def run(reduced: bool = False) -> list[dict]:
@@ -50,15 +57,33 @@ def run(reduced: bool = False) -> list[dict]:
             # the forward render is re-timed beside each configuration, so a shared machine's load cancels in the ratio
             fwd = forward_cost(model, theta, spp, [derive(SEED, "bench-forward", j, b, s) for s in range(4)])
             sd = [derive(SEED, "bench", j, b, s) for s in range(seeds)]
-            run_ = (remedy_run(model, theta, j, settings, spp, sd, remedy) if remedy
-                    else gradient_images(model, theta, j, settings, spp, sd))
+            run_ = (
+                remedy_run(model, theta, j, settings, spp, sd, remedy)
+                if remedy
+                else gradient_images(model, theta, j, settings, spp, sd)
+            )
             r = result_row(run_, ref, fwd, TARGET)
-            rows.append({"bench": "gradients", "param": name, "gradient": label(settings) + (f" + {remedy}" if remedy else ""),
-                         "res": res, "spp": spp, "seeds": seeds, "seconds": r["seconds"], "ratio": r["time_ratio"],
-                         "forward_s": fwd.seconds, "rel_total_error": r["rel_total_error"], "image_rmse": r["rmse"],
-                         "outlier_px": r["outlier_pixels_per_image"], "agrees": r["agrees"],
-                         "time_to_5pct_s": r["cost_to_target"], "peak_mib": r["peak_mib"],
-                         "ref_total": ref.total, "ref_total_se": ref.total_se})
+            rows.append(
+                {
+                    "bench": "gradients",
+                    "param": name,
+                    "gradient": label(settings) + (f" + {remedy}" if remedy else ""),
+                    "res": res,
+                    "spp": spp,
+                    "seeds": seeds,
+                    "seconds": r["seconds"],
+                    "ratio": r["time_ratio"],
+                    "forward_s": fwd.seconds,
+                    "rel_total_error": r["rel_total_error"],
+                    "image_rmse": r["rmse"],
+                    "outlier_px": r["outlier_pixels_per_image"],
+                    "agrees": r["agrees"],
+                    "time_to_5pct_s": r["cost_to_target"],
+                    "peak_mib": r["peak_mib"],
+                    "ref_total": ref.total,
+                    "ref_total_se": ref.total_se,
+                }
+            )
     return rows
 
 

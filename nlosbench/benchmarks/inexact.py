@@ -48,8 +48,8 @@ def _toy(n_eff: int, reps: int, replicates: int = 8, bootstrap: int = 100) -> di
     levels = _paper_levels(n_eff)
     ends = np.empty((reps, 5))
     for rep in range(reps):
-        X = RenderBank(model).replicates(pts, levels, replicates, seed=rep, purpose="levels")
-        Xe = RenderBank(model).replicates(pts, [n_eff], replicates, seed=rep, purpose="n-eff")
+        X = RenderBank(model, seed=rep).levels_at(pts, levels, replicates, "levels")
+        Xe = RenderBank(model, seed=rep).levels_at(pts, [n_eff], replicates, "n-eff")
         r = inexact_hcr(X[:, :, 0], X[:, :, 1:], DX, levels, noise, Xe[0, :, 0], Xe[0, :, 1:], n_eff,
                         bootstrap=bootstrap, seed=derive(rep, "bench-inexact-bootstrap"))
         ends[rep] = r.hcr_neff.log10, r.hcr_hat.log10, r.hcr_hat.unresolved, r.ci_neff[0], r.ci_hat[1]
@@ -74,7 +74,7 @@ def _cornell(levels: list[int], n_eff: int, points: list[float]) -> dict:
     for name, lv, purpose in (("levels", levels, "levels"), ("n_eff", [n_eff], "n-eff")):
         before = model.stats.snapshot()
         t0 = time.perf_counter()
-        RenderBank(model).replicates(points, lv, 1, seed=1, purpose=purpose)
+        RenderBank(model, seed=1).levels_at(points, lv, 1, purpose)
         dt = time.perf_counter() - t0
         timings[name] = (dt, model.stats.since(before))
     (t_lv, s_lv), (t_eff, s_eff) = timings["levels"], timings["n_eff"]

@@ -1,5 +1,6 @@
-"""Information bounds from renders: HCR (single offsets and grid curves), CRLB, Barankin, and
-per-pixel Fisher information maps."""
+"""Information bounds from renders: HCR (single offsets and grid curves), CRLB, Barankin, per-pixel
+Fisher information maps, HCR intervals from inexact renders, and the bound service (`service`) that
+studies ask for every bound at θ* and bound curves."""
 from nlosbench.bounds.barankin import BarankinResult, barankin
 from nlosbench.bounds.crlb import CRLBResult, crlb, crlb_from_hcr_limit, crlb_log10, fisher_matrix
 from nlosbench.bounds.fisher_maps import fisher_maps, save_fisher_maps
@@ -24,3 +25,6 @@ from nlosbench.bounds.inexact import (  # noqa: E402
 
 __all__ += ["DecayResult", "decay_check", "pixel_variances", "InexactHCR", "LambdaFit", "check_levels",
             "fit_lambda", "half_sample_lambda", "inexact_hcr", "replicate_grams"]
+from nlosbench.bounds.service import Bound, BoundPoint, BoundService, FisherPoint  # noqa: E402
+
+__all__ += ["Bound", "BoundPoint", "BoundService", "FisherPoint"]

@@ -220,13 +220,29 @@ def inexact_hcr(X0, XD, deltas, levels: Sequence[int], noise: NoiseModel, X0_eff
     if bootstrap:
         b_eff, b_hat, b_unres = _bootstrap(G, G_eff, lv, power, d, lower, upper, int(bootstrap),
                                            np.random.default_rng(seed))
-        ci_eff, ci_hat = _spread_interval(h_eff.log10, b_eff, confidence), _spread_interval(h_hat.log10, b_hat, confidence)
+        ci_eff = _spread_interval(h_eff.log10, b_eff, confidence)
+        ci_hat = _spread_interval(h_hat.log10, b_hat, confidence)
         unres = float(b_unres.mean())
     width = h_hat.log10 - h_eff.log10
-    return InexactHCR(levels=lv, n_eff=int(n_eff), deltas=d, lam_levels=lam_levels, lam_eff=lam_eff, fit=fit,
-                      hcr_neff=h_eff, hcr_hat=h_hat, width=float(width), inverted=bool(width < 0),
-                      confidence=float(confidence), ci_neff=ci_eff, ci_hat=ci_hat, n_boot=int(bootstrap),
-                      boot_unresolved=unres, samples_levels=int(lv.sum()), samples_eff=int(n_eff))
+    return InexactHCR(
+        levels=lv,
+        n_eff=int(n_eff),
+        deltas=d,
+        lam_levels=lam_levels,
+        lam_eff=lam_eff,
+        fit=fit,
+        hcr_neff=h_eff,
+        hcr_hat=h_hat,
+        width=float(width),
+        inverted=bool(width < 0),
+        confidence=float(confidence),
+        ci_neff=ci_eff,
+        ci_hat=ci_hat,
+        n_boot=int(bootstrap),
+        boot_unresolved=unres,
+        samples_levels=int(lv.sum()),
+        samples_eff=int(n_eff),
+    )
 
 
 def half_sample_lambda(G: np.ndarray, masks: np.ndarray) -> np.ndarray:

@@ -11,9 +11,11 @@ follows the larger legitimate noise at silhouettes; floor is the same statistic 
 pixels, and at least RELATIVE_FLOOR × the reference's signal (Monte Carlo gradient noise is sparse:
 most seeds of most pixels can be exactly 0, which would make any non-zero value infinitely
 significant); se_ref is the reference's per-pixel standard error. A bias that persists in every
-seed keeps spread small while |g − ref| is large, so it is flagged too. Pixels with z > threshold are outliers; 8-connected outlier pixels form clusters.
+seed keeps spread small while |g − ref| is large, so it is flagged too. Pixels with z > threshold are
+outliers; 8-connected outlier pixels form clusters.
 All statistics are float64.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -93,9 +95,11 @@ def outlier_scores(images, ref: Reference) -> np.ndarray:
     # a few seeds give a noisy spread: take the largest of each 3×3 neighbourhood, so a pixel on a
     # one-pixel-wide silhouette whose own few seeds happen to agree still gets the silhouette's σ
     spread = ndimage.maximum_filter(spread, size=(3, 3, 1), mode="nearest")
-    floor = np.maximum(robust_scale(dev if a.shape[0] > 1 else a - ref.image, axis=(0, 1, 2)),  # (C,)
-                       RELATIVE_FLOOR * np.percentile(np.abs(ref.image), 99))
-    sigma = np.sqrt(np.maximum(spread, floor) ** 2 + ref.stderr ** 2)
+    floor = np.maximum(
+        robust_scale(dev if a.shape[0] > 1 else a - ref.image, axis=(0, 1, 2)),  # (C,)
+        RELATIVE_FLOOR * np.percentile(np.abs(ref.image), 99),
+    )
+    sigma = np.sqrt(np.maximum(spread, floor) ** 2 + ref.stderr**2)
     r = np.abs(a - ref.image)
     with np.errstate(divide="ignore", invalid="ignore"):
         z = np.where(sigma > 0, r / sigma, np.where(r > 0, np.inf, 0.0))
@@ -127,9 +131,14 @@ def clusters(z: np.ndarray, threshold: float = THRESHOLD, min_area: int = 1) -> 
         if area < min_area:
             continue
         rows, cols = np.nonzero(inside)
-        out.append(Cluster(area, (sl[0].start, sl[0].stop, sl[1].start, sl[1].stop),
-                           (float(rows.mean() + sl[0].start), float(cols.mean() + sl[1].start)),
-                           float(z[sl][inside].max())))
+        out.append(
+            Cluster(
+                area,
+                (sl[0].start, sl[0].stop, sl[1].start, sl[1].stop),
+                (float(rows.mean() + sl[0].start), float(cols.mean() + sl[1].start)),
+                float(z[sl][inside].max()),
+            )
+        )
     return sorted(out, key=lambda c: -c.area)
 
 
@@ -157,8 +166,11 @@ def persistence(masks: np.ndarray, dilate: int = 1) -> float:
     hit = [i for i in range(len(m)) if m[i].any()]
     if len(hit) < 2:
         return float("nan")
-    j = [np.logical_and(m[a], m[b]).sum() / np.logical_or(m[a], m[b]).sum()
-         for i, a in enumerate(hit) for b in hit[i + 1:]]
+    j = [
+        np.logical_and(m[a], m[b]).sum() / np.logical_or(m[a], m[b]).sum()
+        for i, a in enumerate(hit)
+        for b in hit[i + 1 :]
+    ]
     return float(np.mean(j))
 
 
@@ -187,14 +199,23 @@ def total_agreement(images, ref: Reference, level: float = 0.95) -> Agreement:
         raise ValueError("a confidence interval on the total derivative needs at least 2 seeds")
     totals = a.sum(axis=(1, 2, 3))
     m, v = float(totals.mean()), float(totals.var(ddof=1) / S)
-    vr = ref.total_se ** 2 if np.isfinite(ref.total_se) else 0.0
+    vr = ref.total_se**2 if np.isfinite(ref.total_se) else 0.0
     var = v + vr
     # Welch–Satterthwaite degrees of freedom
-    dof = var ** 2 / (v ** 2 / (S - 1) + (vr ** 2 / (ref.n - 1) if ref.n > 1 and vr > 0 else 0.0)) if var > 0 else S - 1
+    dof = var**2 / (v**2 / (S - 1) + (vr**2 / (ref.n - 1) if ref.n > 1 and vr > 0 else 0.0)) if var > 0 else S - 1
     half = float(stats.t.ppf(0.5 + level / 2, dof)) * np.sqrt(var)
     d = m - ref.total
-    return Agreement(m, float(np.sqrt(v)), ref.total, float(np.sqrt(vr)), d, d - half, d + half,
-                     bool(d - half <= 0 <= d + half), level)
+    return Agreement(
+        m,
+        float(np.sqrt(v)),
+        ref.total,
+        float(np.sqrt(vr)),
+        d,
+        d - half,
+        d + half,
+        bool(d - half <= 0 <= d + half),
+        level,
+    )
 
 
 def image_metrics(images, ref: Reference, threshold: float = THRESHOLD, min_area: int = 1) -> list[dict]:
@@ -209,9 +230,17 @@ def _seed_rows(a: np.ndarray, z: np.ndarray, ref: Reference, threshold: float, m
     rows = []
     for s in range(a.shape[0]):
         cl = clusters(z[s], threshold, min_area)
-        rows.append({"seed_index": s, "outlier_pixels": int(sum(c.area for c in cl)), "clusters": len(cl),
-                     "max_cluster_area": max((c.area for c in cl), default=0), "max_score": float(z[s].max()),
-                     "total": float(a[s].sum()), "rmse": float(np.sqrt(np.mean((a[s] - ref.image) ** 2)))})
+        rows.append(
+            {
+                "seed_index": s,
+                "outlier_pixels": int(sum(c.area for c in cl)),
+                "clusters": len(cl),
+                "max_cluster_area": max((c.area for c in cl), default=0),
+                "max_score": float(z[s].max()),
+                "total": float(a[s].sum()),
+                "rmse": float(np.sqrt(np.mean((a[s] - ref.image) ** 2))),
+            }
+        )
     return rows
 
 
@@ -222,18 +251,28 @@ def summarize(images, ref: Reference, threshold: float = THRESHOLD, min_area: in
     z = outlier_scores(a, ref)
     per = _seed_rows(a, z, ref, threshold, min_area)
     masks = outlier_mask(z, threshold, min_area)
-    out = {"seeds": a.shape[0],
-           "clusters_per_image": float(np.mean([r["clusters"] for r in per])),
-           "outlier_pixels_per_image": float(np.mean([r["outlier_pixels"] for r in per])),
-           "max_cluster_area": max(r["max_cluster_area"] for r in per),
-           "max_score": max(r["max_score"] for r in per),
-           "persistence": persistence(masks),
-           "pixel_var": float(a.var(0, ddof=1).mean()) if a.shape[0] > 1 else float("nan"),
-           "rmse": float(np.sqrt(np.mean((a - ref.image) ** 2)))}
+    out = {
+        "seeds": a.shape[0],
+        "clusters_per_image": float(np.mean([r["clusters"] for r in per])),
+        "outlier_pixels_per_image": float(np.mean([r["outlier_pixels"] for r in per])),
+        "max_cluster_area": max(r["max_cluster_area"] for r in per),
+        "max_score": max(r["max_score"] for r in per),
+        "persistence": persistence(masks),
+        "pixel_var": float(a.var(0, ddof=1).mean()) if a.shape[0] > 1 else float("nan"),
+        "rmse": float(np.sqrt(np.mean((a - ref.image) ** 2))),
+    }
     if a.shape[0] > 1:
         ag = total_agreement(a, ref, level)
-        out.update(total=ag.total, total_se=ag.total_se, ref_total=ag.ref_total, ref_se=ag.ref_se,
-                   diff=ag.diff, ci_low=ag.ci_low, ci_high=ag.ci_high, agrees=ag.agrees)
+        out.update(
+            total=ag.total,
+            total_se=ag.total_se,
+            ref_total=ag.ref_total,
+            ref_se=ag.ref_se,
+            diff=ag.diff,
+            ci_low=ag.ci_low,
+            ci_high=ag.ci_high,
+            agrees=ag.agrees,
+        )
     return out
 
 

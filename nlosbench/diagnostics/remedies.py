@@ -53,7 +53,9 @@ def k_pass(model: ForwardModel, theta, index: int, settings: GradientSettings, s
     if how not in ("mean", "median"):
         raise ValueError(f"how must be 'mean' or 'median', got {how!r}")
     if k < (3 if how == "median" else 2) or spp // k < 1:
-        raise ValueError(f"need K >= 2 (median: K >= 3, the median of 2 is their mean) and spp >= K, got K={k}, spp={spp}")
+        raise ValueError(
+            f"need K >= 2 (median: K >= 3, the median of 2 is their mean) and spp >= K, got K={k}, spp={spp}"
+        )
     combine = mean_of_k if how == "mean" else median_of_k
     imgs, costs, renders, passes = [], [], 0, 0
     for s in seeds:
@@ -64,13 +66,15 @@ def k_pass(model: ForwardModel, theta, index: int, settings: GradientSettings, s
     return GradientRun(np.stack(imgs), list(seeds), costs, renders, passes)
 
 
-def visibility_boost(model: ForwardModel, theta, index: int, settings: GradientSettings, spp: int,
-                     seeds: Sequence[int], boost: int) -> GradientRun:
+def visibility_boost(
+    model: ForwardModel, theta, index: int, settings: GradientSettings, spp: int, seeds: Sequence[int], boost: int
+) -> GradientRun:
     """For each seed: continuous derivative at spp plus visibility derivatives at boost·spp
     (projective integrators only)."""
     if settings.method != "ad" or settings.ad.get("type") not in ("prb_projective", "direct_projective"):
-        raise ValueError("visibility-boost needs a projective AD backend (prb_projective or direct_projective), "
-                         f"got {settings}")
+        raise ValueError(
+            f"visibility-boost needs a projective AD backend (prb_projective or direct_projective), got {settings}"
+        )
     if boost < 1:
         raise ValueError(f"boost must be >= 1, got {boost}")
     cont = replace(settings, ad={**settings.ad, "sppp": 0, "sppi": 0})
@@ -81,8 +85,17 @@ def visibility_boost(model: ForwardModel, theta, index: int, settings: GradientS
     return GradientRun(a.images + b.images, list(seeds), costs, a.renders + b.renders, a.grad_passes + b.grad_passes)
 
 
-def remedy_run(model: ForwardModel, theta, index: int, settings: GradientSettings, spp: int, seeds: Sequence[int],
-               name: str, k: int = 4, boost: int = 4) -> GradientRun:
+def remedy_run(
+    model: ForwardModel,
+    theta,
+    index: int,
+    settings: GradientSettings,
+    spp: int,
+    seeds: Sequence[int],
+    name: str,
+    k: int = 4,
+    boost: int = 4,
+) -> GradientRun:
     """Dispatch on a remedy name in REMEDIES."""
     if name in ("mean", "median"):
         return k_pass(model, theta, index, settings, spp, seeds, k, name)

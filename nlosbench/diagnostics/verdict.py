@@ -168,7 +168,8 @@ def choose_backend(model: ForwardModel, verdicts: Mapping[str, Verdict] | str | 
     found = _as_verdicts(verdicts)
     names = list(model.params.names)
     if found and not set(found) & set(names):  # verdicts for other parameters (e.g. of a restriction) are ignored
-        raise ValueError(f"the verdicts (for {sorted(found)}) name no parameter of {model.name!r} (parameters: {names})")
+        raise ValueError(f"the verdicts (for {sorted(found)}) name no parameter of {model.name!r} "
+                         f"(parameters: {names})")
     choices, why = [], []
     for j, n in enumerate(names):
         if n in found:
@@ -190,5 +191,13 @@ def choose_backend(model: ForwardModel, verdicts: Mapping[str, Verdict] | str | 
     ad = {**ad, **user_ad} if ad_idx else {}
     fd_label, ad_label = label(GradientSettings("fd", step, rounds, crn)), label(GradientSettings("ad", ad=ad))
     chosen = "; ".join(f"{n} → {ad_label if j in ad_idx else fd_label} ({why[j]})" for j, n in enumerate(names))
-    return GradientSettings(method, step=step, rounds=rounds, crn=crn, spp=spp, ad=ad,
-                            ad_params=ad_idx if method == "mixed" else (), chosen=chosen)
+    return GradientSettings(
+        method,
+        step=step,
+        rounds=rounds,
+        crn=crn,
+        spp=spp,
+        ad=ad,
+        ad_params=ad_idx if method == "mixed" else (),
+        chosen=chosen,
+    )

@@ -73,7 +73,12 @@ class AdamMLE(Estimator):
         if tol < 0 or int(patience) != patience or patience < 1:
             raise ValueError(f"mle-adam: need tol >= 0 and patience >= 1, got tol={tol}, patience={patience}")
         self.lr, self.iterations, self.spp = float(lr), int(iterations), spp_schedule(spp)
-        self.lr_schedule, self.lr_final, self.tol, self.patience = lr_schedule, float(lr_final), float(tol), int(patience)
+        self.lr_schedule, self.lr_final, self.tol, self.patience = (
+            lr_schedule,
+            float(lr_final),
+            float(tol),
+            int(patience),
+        )
         self.betas = (float(betas[0]), float(betas[1]))
 
     def lr_factor(self, k: int, n: int) -> float:
@@ -83,14 +88,15 @@ class AdamMLE(Estimator):
             return 1.0
         if self.lr_schedule == "cosine":
             return self.lr_final + (1.0 - self.lr_final) * 0.5 * (1.0 + math.cos(math.pi * x))
-        return self.lr_final ** x
+        return self.lr_final**x
 
     def spp_at(self, k: int, n: int) -> int:
         """spp of iteration k of n under the schedule."""
         return [s for frac, s in self.spp if k >= frac * n][-1]
 
-    def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,
-             tracker: Tracker) -> Outcome:
+    def _fit(
+        self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator, tracker: Tracker
+    ) -> Outcome:
         n = tracker.budget.cap(self.iterations)
         base = render_seed(rng)
         lo, hi = torch.as_tensor(problem.params.lower), torch.as_tensor(problem.params.upper)
@@ -106,7 +112,9 @@ class AdamMLE(Estimator):
                 reason = stop
                 break
             theta = torch.clamp(lo + u * width, lo, hi)  # rounding may step past `upper`
-            L = render(problem.model, theta, self.spp_at(done, n), derive(base, "mle-adam", done), grad=problem.gradient)
+            L = render(
+                problem.model, theta, self.spp_at(done, n), derive(base, "mle-adam", done), grad=problem.gradient
+            )
             loss_t = problem.noise.nll(y, L)
             loss = finite_or_raise(float(loss_t.detach()), f"NLL at iteration {done}")
             tracker.record(done, loss, theta.detach().numpy())

@@ -27,7 +27,9 @@ TOP = {
     "executor": Field({"type": Field(str, "local", choices=("local", "serial", "dask")),
                        "workers": Field(int, 2, "local worker processes"),
                        "address": Field(str, None, "dask scheduler address (default: a LocalCluster)", nullable=True)}),
-    "cache": Field(str, None, "render cache folder (default: none)", nullable=True),
+    "cache": Field(str, None, "render cache folder shared across runs (default: none)", nullable=True),
+    "keep_renders": Field(bool, True, "keep every render of the run in RUN/renders/ (checksummed), so a resumed "
+                                      "run renders nothing twice"),
     "output": Field(str, "runs", "folder under which the run directory is made"),
     "studies": Field(list, help="studies to run, each {type: ..., ...}"),
 }

@@ -15,24 +15,37 @@ def make_report(run_dir: str | Path) -> Path:
     cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
     results = json.loads((run_dir / "results.json").read_text())
     sc = cfg["scene"]
-    noises = ", ".join(f"{n['model']} ({'σ = ' + str(n['sigma']) if n['model'] == 'awgn' else 'scale = ' + str(n['scale'])})"
-                       for n in cfg["noise"])
+    noises = ", ".join(
+        f"{n['model']} ({'σ = ' + str(n['sigma']) if n['model'] == 'awgn' else 'scale = ' + str(n['scale'])})"
+        for n in cfg["noise"]
+    )
     total = sum(s.get("seconds", 0) for s in results["studies"].values())
-    renders = sum(max(int(s["results"].get("renders") or 0), s.get("renders_in_process", 0))
-                  for s in results["studies"].values())
-    lines = [f"# nlosbench run: {cfg['name']}", "",
-             "**Question.** How well can the scene parameter(s) "
-             f"{', '.join(sc['params'] or ['(all)'])} of scene `{sc['name']}` be estimated from noisy images "
-             "(information bounds), and how close do estimators get?", "",
-             f"**Setup.** scene `{sc['name']}` (options {sc['options'] or '{}'}), fixed {sc['fixed'] or '{}'}; "
-             f"noise: {noises}; seed {cfg['seed']}; executor {cfg['executor']['type']}; "
-             f"machine: {platform.machine()}, {platform.system()}, Python {platform.python_version()}.", "",
-             f"**Cost.** {total:.1f} s wall time in total; {renders} renders (each study's own count, worker "
-             "processes included, where it keeps one; else those of the main process).", ""]
+    renders = sum(
+        max(int(s["results"].get("renders") or 0), s.get("renders_in_process", 0)) for s in results["studies"].values()
+    )
+    lines = [
+        f"# nlosbench run: {cfg['name']}",
+        "",
+        "**Question.** How well can the scene parameter(s) "
+        f"{', '.join(sc['params'] or ['(all)'])} of scene `{sc['name']}` be estimated from noisy images "
+        "(information bounds), and how close do estimators get?",
+        "",
+        f"**Setup.** scene `{sc['name']}` (options {sc['options'] or '{}'}), fixed {sc['fixed'] or '{}'}; "
+        f"noise: {noises}; seed {cfg['seed']}; executor {cfg['executor']['type']}; "
+        f"machine: {platform.machine()}, {platform.system()}, Python {platform.python_version()}.",
+        "",
+        f"**Cost.** {total:.1f} s wall time in total; {renders} renders (each study's own count, worker "
+        "processes included, where it keeps one; else those of the main process).",
+        "",
+    ]
     for sid, s in results["studies"].items():
         mod = studies.get(s["type"])
-        lines += [f"## {sid}: {s['type']} ({s.get('seconds', 0):.1f} s)", "",
-                  mod.report(run_dir / sid, s["results"]), ""]
+        lines += [
+            f"## {sid}: {s['type']} ({s.get('seconds', 0):.1f} s)",
+            "",
+            mod.report(run_dir / sid, s["results"]),
+            "",
+        ]
     path = run_dir / "report.md"
     path.write_text("\n".join(lines))
     return path

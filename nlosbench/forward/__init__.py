@@ -2,7 +2,20 @@
 from .autograd import render
 from .cache import RenderCache
 from .gradients import GradientSettings, ad_jacobian, check_concrete, fd_jacobian, jacobian, vjp
-from .model import ForwardModel, RenderError, RenderStats, Restricted
+from .model import Binned, ForwardModel, RenderError, RenderStats, Restricted
 
-__all__ = ["render", "RenderCache", "GradientSettings", "check_concrete", "fd_jacobian", "ad_jacobian", "jacobian", "vjp",
-           "ForwardModel", "RenderError", "RenderStats", "Restricted"]
+__all__ = [
+    "render",
+    "RenderCache",
+    "GradientSettings",
+    "check_concrete",
+    "fd_jacobian",
+    "ad_jacobian",
+    "jacobian",
+    "vjp",
+    "Binned",
+    "ForwardModel",
+    "RenderError",
+    "RenderStats",
+    "Restricted",
+]

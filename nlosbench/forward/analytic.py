@@ -77,13 +77,18 @@ class Blob2D(AnalyticModel):
         params = ParamSpace([Param("x", 0.2, 0.8, 0.5, "m", "spot centre, horizontal"),
                              Param("y", 0.2, 0.8, 0.5, "m", "spot centre, vertical")])
         super().__init__("blob2d", params, **kw)
-        self.size, self.width, self.amplitude, self.background = int(size), float(width), float(amplitude), float(background)
+        self.size, self.width, self.amplitude, self.background = (
+            int(size),
+            float(width),
+            float(amplitude),
+            float(background),
+        )
         c = (torch.arange(self.size, dtype=torch.float64) + 0.5) / self.size
         self._v, self._u = torch.meshgrid(c, c, indexing="ij")
 
     def clean(self, theta: torch.Tensor) -> torch.Tensor:
         r2 = (self._u - theta[0]) ** 2 + (self._v - theta[1]) ** 2
-        return (self.background + self.amplitude * torch.exp(-r2 / (2 * self.width ** 2)))[..., None]
+        return (self.background + self.amplitude * torch.exp(-r2 / (2 * self.width**2)))[..., None]
 
 
 class Edge1D(AnalyticModel):

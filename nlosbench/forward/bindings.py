@@ -47,7 +47,9 @@ class Binding:
         if kind in GEOMETRY_KINDS and not b.object:
             raise ValueError(f"{where}: kind {kind!r} needs `object` (a shape id in the scene file)")
         if kind in COLOR_KINDS and not b.key:
-            raise ValueError(f"{where}: kind {kind!r} needs `key` (a mi.traverse key, e.g. ball.bsdf.reflectance.value)")
+            raise ValueError(
+                f"{where}: kind {kind!r} needs `key` (a mi.traverse key, e.g. ball.bsdf.reflectance.value)"
+            )
         if b.channel is not None and b.channel not in (0, 1, 2):
             raise ValueError(f"{where}: channel must be 0, 1 or 2, got {b.channel!r}")
         if kind == "translate":
@@ -69,8 +71,14 @@ class Binding:
                 raise ValueError(f"{where}: bounds must lie within the path's length [0, {b._arclen[-1]:g}] m")
         units = spec.pop("units", "m" if kind in GEOMETRY_KINDS else "1")
         try:
-            b.param = Param(name=spec.pop("name"), lower=float(spec.pop("lower")), upper=float(spec.pop("upper")),
-                            default=float(spec.pop("default")), units=units, description=spec.pop("description", ""))
+            b.param = Param(
+                name=spec.pop("name"),
+                lower=float(spec.pop("lower")),
+                upper=float(spec.pop("upper")),
+                default=float(spec.pop("default")),
+                units=units,
+                description=spec.pop("description", ""),
+            )
         except KeyError as e:
             raise ValueError(f"{where}: missing {e.args[0]!r}") from None
         if spec:
@@ -79,8 +87,13 @@ class Binding:
 
     def path_point(self, s):
         """Point on the polyline at arc length s (a Dr.Jit Float; the segment is chosen from its value)."""
-        i = int(np.clip(np.searchsorted(self._arclen, float(s[0] if hasattr(s, "__len__") else s), "right") - 1,
-                        0, len(self.points) - 2))
+        i = int(
+            np.clip(
+                np.searchsorted(self._arclen, float(s[0] if hasattr(s, "__len__") else s), "right") - 1,
+                0,
+                len(self.points) - 2,
+            )
+        )
         d = (self.points[i + 1] - self.points[i]) / (self._arclen[i + 1] - self._arclen[i])
         return _vec(self.points[i]) + _vec(d) * (s - float(self._arclen[i]))
 
@@ -123,7 +136,9 @@ class ObjectGeometry:
 
         c = _vec(self.center)
         if self.key.endswith("to_world"):
-            params[self.key] = mi.Transform4f().translate(c + offset).scale(mi.Vector3f(scale)).translate(-c) @ self.rest
+            params[self.key] = (
+                mi.Transform4f().translate(c + offset).scale(mi.Vector3f(scale)).translate(-c) @ self.rest
+            )
         else:
             p = dr.unravel(mi.Point3f, self.rest)
             params[self.key] = dr.ravel((p - c) * scale + c + offset)

@@ -97,14 +97,17 @@ def fd_jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: Gradi
             if plus[j] - minus[j] <= 0:
                 raise ValueError(f"FD step for {model.params.names[j]!r} leaves no room inside Θ")
             s_minus = s if settings.crn else derive(seed, "fd-independent", j, r)
-            d = (model.render(plus, spp, s).double() - model.render(minus, spp, s_minus).double()) / (plus[j] - minus[j])
+            d = (model.render(plus, spp, s).double() - model.render(minus, spp, s_minus).double()) / (
+                plus[j] - minus[j]
+            )
             acc = d if acc is None else acc + d
         out.append((acc / settings.rounds).float())
     return torch.stack(out)
 
 
-def ad_jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: GradientSettings = GradientSettings("ad"),
-                indices=None) -> torch.Tensor:
+def ad_jacobian(
+    model: ForwardModel, theta, spp: int, seed: int, settings: GradientSettings = GradientSettings("ad"), indices=None
+) -> torch.Tensor:
     """AD image Jacobian (P', H, W, C) float32: one forward-mode pass per parameter."""
     t = model.params.validate(theta)
     idx = range(len(t)) if indices is None else list(indices)
@@ -117,7 +120,9 @@ def _uses_ad(settings: GradientSettings, j: int) -> bool:
 
 def _check_ad_params(model: ForwardModel, settings: GradientSettings) -> None:
     if settings.ad_params and settings.ad_params[-1] >= len(model.params):
-        raise ValueError(f"ad_params {settings.ad_params} index past the {len(model.params)} parameters of {model.name!r}")
+        raise ValueError(
+            f"ad_params {settings.ad_params} index past the {len(model.params)} parameters of {model.name!r}"
+        )
 
 
 def jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: GradientSettings, indices=None) -> torch.Tensor:
@@ -129,11 +134,17 @@ def jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: Gradient
     if settings.method != "mixed":
         fn = ad_jacobian if settings.method == "ad" else fd_jacobian
         return fn(model, theta, spp, seed, settings, idx)
-    return torch.stack([(ad_jacobian if _uses_ad(settings, j) else fd_jacobian)(model, theta, spp, seed, settings, [j])[0]
-                        for j in idx])
+    return torch.stack(
+        [
+            (ad_jacobian if _uses_ad(settings, j) else fd_jacobian)(model, theta, spp, seed, settings, [j])[0]
+            for j in idx
+        ]
+    )
 
 
-def vjp(model: ForwardModel, theta, grad_out: torch.Tensor, spp: int, seed: int, settings: GradientSettings) -> np.ndarray:
+def vjp(
+    model: ForwardModel, theta, grad_out: torch.Tensor, spp: int, seed: int, settings: GradientSettings
+) -> np.ndarray:
     """Σ_ω grad_out(ω) ∂L(ω)/∂θ, float64 (P,). FD contracts the FD Jacobian of its parameters; AD runs
     one reverse pass; "mixed" does both."""
     check_concrete(settings)
@@ -145,8 +156,9 @@ def vjp(model: ForwardModel, theta, grad_out: torch.Tensor, spp: int, seed: int,
     fd_idx = [j for j in range(P) if j not in ad_idx]
     if ad_idx:
         # `indices`: a colour-only AD part gets `prb` even when the FD parameters move geometry
-        out[ad_idx] = np.asarray(model.vjp(theta, grad_out, spp, derive(seed, "ad-vjp"), indices=ad_idx,
-                                           **settings.ad))[ad_idx]
+        out[ad_idx] = np.asarray(
+            model.vjp(theta, grad_out, spp, derive(seed, "ad-vjp"), indices=ad_idx, **settings.ad)
+        )[ad_idx]
     if fd_idx:
         J = fd_jacobian(model, theta, spp, seed, settings, fd_idx)
         out[fd_idx] = torch.einsum("p...,...->p", J.double(), grad_out.double()).numpy()

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..binning import bin_image, check_bin
 from ..params import ParamSpace
 from .cache import RenderCache, render_key
 
@@ -107,8 +108,10 @@ class ForwardModel(ABC):
     def check_finite(self, img: torch.Tensor, theta, spp: int, seed: int, what: str) -> None:
         if not bool(torch.isfinite(img).all()):
             n = int((~torch.isfinite(img)).sum())
-            raise RenderError(f"{what} of scene {self.name!r} has {n} NaN/Inf value(s) at "
-                              f"θ={dict(zip(self.params.names, np.asarray(theta).tolist(), strict=True))}, spp={spp}, seed={seed}")
+            raise RenderError(
+                f"{what} of scene {self.name!r} has {n} NaN/Inf value(s) at "
+                f"θ={dict(zip(self.params.names, np.asarray(theta).tolist(), strict=True))}, spp={spp}, seed={seed}"
+            )
 
     def restrict(self, names, fixed: dict | None = None) -> ForwardModel:
         """This model seen through parameters `names` only; the others held at `fixed` or their defaults."""
@@ -155,3 +158,44 @@ class Restricted(ForwardModel):
 
     def content_key(self) -> dict:
         return {"base": self.base.content_key(), "index": self.index, "fixed": self.full.tolist()}
+
+
+class Binned(ForwardModel):
+    """`base` seen by a sensor b× coarser per side at a fixed photon budget: `render(θ, spp, seed)` is the
+    b×b block mean of `base.render(θ, spp // b², seed)` — the spp samples of one coarse pixel spread over
+    its b² fine pixels — an image (H/b, W/b, C). Derivatives are binned the same way; spp must be a
+    multiple of b², and H, W multiples of b. Renders, derivatives and stats go to the base model."""
+
+    def __init__(self, base: ForwardModel, b: int):
+        self.base, self.b = base, check_bin(b)
+        super().__init__(f"{base.name}-bin{self.b}", base.params, None)
+        self.stats = base.stats
+        self.exact = base.exact
+
+    def _fine_spp(self, spp: int) -> int:
+        spp, _ = check_spp_seed(spp, 0)
+        if spp % (self.b * self.b):
+            raise ValueError(
+                f"a {self.b}×{self.b}-binned sensor needs spp divisible by b² = {self.b * self.b}, got {spp}"
+            )
+        return spp // (self.b * self.b)
+
+    def _bin(self, img: torch.Tensor) -> torch.Tensor:
+        return torch.from_numpy(bin_image(img, self.b).astype(np.float32))
+
+    def render(self, theta, spp: int, seed: int) -> torch.Tensor:
+        return self._bin(self.base.render(theta, self._fine_spp(spp), seed))
+
+    def _render(self, theta, spp, seed):  # render() is delegated whole, with the base's cache
+        raise NotImplementedError
+
+    def jvp(self, theta, index: int, spp: int, seed: int, **ad) -> torch.Tensor:
+        return self._bin(self.base.jvp(theta, index, self._fine_spp(spp), seed, **ad))
+
+    def vjp(self, theta, grad_out, spp: int, seed: int, indices=None, **ad) -> np.ndarray:
+        """⟨grad_out, binned L⟩ = ⟨grad_out spread over each block / b², L⟩."""
+        fine = grad_out.repeat_interleave(self.b, dim=0).repeat_interleave(self.b, dim=1) / (self.b * self.b)
+        return self.base.vjp(theta, fine, self._fine_spp(spp), seed, indices=indices, **ad)
+
+    def content_key(self) -> dict:
+        return {"base": self.base.content_key(), "bin": self.b}

@@ -1,17 +1,24 @@
 """Studies: one module per question a config can ask (`studies: [{type: bounds, ...}, ...]`).
 
-Contract of a study module (see `bounds.py` for a complete one):
+A study is a small contract over shared services — the render bank (`ctx.bank`: every render), the
+bound service (`ctx.bounds`: every bound at θ* and bound curves) and the executor — in the spirit of
+benchopt's objective / dataset / solver and sbibm's task / algorithm / metric. No study imports another,
+and none renders or computes a bound its own way. Contract of a study module (`bounds.py` is the
+smallest complete one):
   NAME: str                      the `type` in configs
   SCHEMA: dict[str, Field]       the keys of its config block besides `type`
-  run(ctx, cfg) -> dict          does the work, writes files under ctx.study_dir(cfg), returns a
-                                 JSON-serialisable summary (stored in results.json)
+  plan(ctx, cfg) -> Plan         what to render and estimate, from the validated block; raises ConfigError
+                                 (key path, expected, given) for what the schema cannot see
+  run(ctx, cfg) -> dict          asks the services for the plan's work, writes its tables under
+                                 ctx.study_dir(cfg), returns a JSON-serialisable summary (results.json)
   smoke(block) -> dict           a reduced copy of its validated block (tiny grids, few spp/trials) for
                                  `nlosbench run --smoke`: the same code path in seconds
-  check(block, path) (optional)  raises ConfigError for what the schema cannot see (e.g. an unknown
-                                 estimator), so a bad config fails before anything is written
+  check(block, path) (optional)  raises ConfigError for what can be checked without a scene (e.g. an
+                                 unknown estimator), when the config is resolved
   report(study_dir, results) -> str
-                                 a markdown section made only from saved data (so `nlosbench report`
-                                 re-makes it without rendering)
+                                 a markdown section drawn only from saved tables (so `nlosbench report`
+                                 re-makes it without rendering); figures in `plots`, number formats and the
+                                 paper's table in `tables`
 """
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """RunContext: what a study gets — the run directory, the forward model, noise models, seeds, the
-executor and the render bank (`start`), progress bars and a log."""
+executor, the render bank and the bound service (`start`), progress bars and a log."""
 from __future__ import annotations
 
 import sys
@@ -10,6 +10,8 @@ from pathlib import Path
 from .. import executors, scenes
 from .. import noise as noise_models
 from ..bank import RenderBank
+from ..bounds import BoundService
+from ..forward.cache import RenderCache
 from ..forward.model import ForwardModel
 from ..schema import ConfigError
 from ..seeds import derive
@@ -26,12 +28,14 @@ class RunContext:
     resume: bool = False
     executor: object = None
     bank: RenderBank | None = None
+    bounds: BoundService | None = None
     quiet: bool = False
     started: float = field(default_factory=time.perf_counter)
 
     def __post_init__(self):
         if self.bank is None:  # until `start`: renders run serially in this process
-            self.bank = RenderBank(self.model, self.executor, self.progress)
+            self.bank = RenderBank(self.model, self.executor, self.progress, seed=self.seed)
+        self.bounds = BoundService(self.bank, self.noises)
 
     @classmethod
     def create(cls, cfg: dict, run_dir: Path, resume: bool = False, quiet: bool = False) -> RunContext:
@@ -44,9 +48,12 @@ class RunContext:
                    seed=cfg["seed"], resume=resume, quiet=quiet)
 
     def start(self) -> None:
-        """Start the run's executor (the config's `executor` block) and its render bank."""
+        """Start the run's executor (the config's `executor` block), its render bank (renders kept in
+        the run directory's renders/ when the config's `keep_renders` is on) and its bound service."""
         self.executor = executors.create(self.config["executor"], self.model_spec, self.model)
-        self.bank = RenderBank(self.model, self.executor, self.progress)
+        store = RenderCache(self.dir / "renders") if self.config.get("keep_renders", True) else None
+        self.bank = RenderBank(self.model, self.executor, self.progress, seed=self.seed, store=store)
+        self.bounds = BoundService(self.bank, self.noises)
 
     def close(self) -> None:
         """Release the executor's workers."""
@@ -64,7 +71,9 @@ class RunContext:
         idx = range(len(self.noises)) if spec == "all" else [spec] if isinstance(spec, int) else spec
         if not isinstance(idx, (list, range)) or not idx or not all(
                 isinstance(j, int) and not isinstance(j, bool) and 0 <= j < len(self.noises) for j in idx):
-            raise ConfigError(where, f"expected 'all' or indices into the {len(self.noises)} noise model(s), got {spec!r}")
+            raise ConfigError(
+                where, f"expected 'all' or indices into the {len(self.noises)} noise model(s), got {spec!r}"
+            )
         return {j: self.noises[j] for j in idx}
 
     def seed_for(self, purpose: str, *indices: int) -> int:

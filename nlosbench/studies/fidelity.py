@@ -2,7 +2,7 @@
 
 For a 1-D θ grid, every noise model and one knob at a time around a reference (the highest-fidelity
 point: the largest spp, no binning, the deepest path, FD gradients), the HCR curve (G renders,
-`bounds.hcr_curve`) and the CRLB (image Jacobian at each grid point, `bounds.crlb_log10`) are computed,
+the bound service's `curve`) and the CRLB (image Jacobian at each grid point) are computed,
 with the point's wall time, renders and pixel-samples. Knobs:
   spp        samples per sensor pixel of every render;
   bin        b×b binning at a fixed photon budget (`nlosbench.binning`): rendered at full resolution with
@@ -19,9 +19,11 @@ once more (`verify`) for their actual error and speed-up. Depth sufficiency: the
 the NLOS grid points (θ > `los_until`) and the depth from which the bound stops changing. Pruning: the
 reference with each element of `prune` removed from the scene (one at a time) against the full scene.
 
-Every point renders with the same derived seeds (common random numbers across settings), serially in
-this process and without the render cache, so its cost is measured; scene loads and one warm-up render
-per model (kernel compilation) are not counted. Files: fidelity.csv (a row per knob value, noise model and
+Every point is computed from scratch by the bound service (`curve`) on its own render bank of the
+model (or of its b×b-binned sensor, `forward.Binned`), serially in this process and without the render
+cache, so its cost is measured; the bank's seeds (common random numbers across settings of equal spp)
+make the comparison paired; scene loads and one warm-up render per model (kernel compilation) are not
+counted. Files: fidelity.csv (a row per knob value, noise model and
 θ: bounds, errors, cost), fidelity.png (error against cost, a panel per knob), depth.png (bound against
 depth); the recommendations are in results.json.
 """
@@ -30,26 +32,27 @@ from __future__ import annotations
 import math
 import re
 import time
-from collections import defaultdict
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from .. import bounds
-from ..binning import bin_image, check_bin
-from ..forward.gradients import METHODS, GradientSettings, jacobian
+from ..bank import RenderBank
+from ..binning import check_bin
+from ..bounds import BoundService
+from ..forward.gradients import GradientSettings, jacobian
 from ..forward.mitsuba_model import MitsubaModel, pruned_xml
-from ..forward.model import RenderStats
-from ..io import read_csv, write_csv
+from ..forward.model import Binned, RenderStats
+from ..io import write_csv
 from ..scenes import build
 from ..schema import GRID, Field, grid_values, smoke_grid
 from ..tradeoff import AGGREGATES, Point, aggregate, check_tolerance, recommend, relative_error, settled
 from .context import RunContext
-from .plots import _plt, finish
+from .plots import fidelity_plots
 
 NAME = "fidelity"
 KNOBS = ("spp", "bin", "max_depth", "gradient")
+GRADIENTS = ("fd", "ad")
 SCHEMA = {
     "grid": GRID,
     "spp": Field(list, [256, 1024, 4096], "samples per sensor pixel; the largest is the reference", items=int),
@@ -58,7 +61,7 @@ SCHEMA = {
     "max_depth": Field(list, [], "integrator path depths (scene reloaded); the largest is the reference; "
                                  "[]: the scene's own depth, not swept", items=int),
     "gradient": Field(list, ["fd"], "Jacobian methods for the CRLB; fd (central, common random numbers) is "
-                                    "the reference", items=Field(str, choices=METHODS)),
+                                    "the reference", items=Field(str, choices=GRADIENTS)),
     "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
     "ad": Field(dict, {}, "AD integrator options, e.g. {sppc: 4, sppp: 4, sppi: 0} for prb_projective on CPU"),
     "seeds": Field(str, "independent", "render seeds across the θ grid: independent or common (as in `bounds`)",
@@ -111,15 +114,14 @@ def _integrator_depth(model) -> int | None:
 
 
 class _Sweep:
-    """Models per (depth, removed element), loaded once; render and Jacobian sets per setting, timed."""
+    """Models per (depth, removed element), loaded once; per setting a fresh render bank of the model (or
+    of its b×b-binned sensor) and the bound service's curve over it, timed (serial, in this process)."""
 
     def __init__(self, ctx: RunContext, cfg: dict, thetas: list[float], pixels: int):
         self.ctx, self.cfg, self.thetas, self.pixels = ctx, cfg, thetas, pixels
         self.models: dict = {}
         self.warm: set = set()
         self.done: dict[Setting, tuple[dict, RenderStats]] = {}
-        p = ctx.model.params
-        self.lo, self.hi = p.lower[0], p.upper[0]
 
     def model(self, depth: int | None, prune: str | None):
         key = (depth, prune)
@@ -141,64 +143,45 @@ class _Sweep:
                 self.models[key] = m
         return self.models[key]
 
-    def _seed(self, purpose: str, g: int) -> int:
-        return self.ctx.seed_for(purpose, 0 if self.cfg["seeds"] == "common" else g)
+    def _warm_up(self, model, method: str) -> None:
+        """One untimed render (and AD pass) per model: kernel compilation is not the setting's cost."""
+        if (id(model), method) in self.warm:
+            return
+        seed = self.ctx.seed_for("fidelity-warmup")
+        model.render([self.thetas[0]], 1, seed)
+        if method == "ad":
+            jacobian(model, [self.thetas[0]], 1, seed, GradientSettings("ad", ad=dict(self.cfg["ad"])))
+        self.warm.add((id(model), method))
 
-    def _timed(self, model, spp: int, fn) -> tuple[object, RenderStats]:
-        before, t0 = model.stats.snapshot(), time.perf_counter()
-        out = fn()
-        spent, seconds = model.stats.since(before), time.perf_counter() - t0
-        return out, RenderStats(spent.renders, spent.grad_passes, spent.samples + spent.grad_passes * spp * self.pixels, seconds)
-
-    def renders(self, key: tuple, spp: int, label: str) -> tuple[np.ndarray, RenderStats]:
-        """(G, H, W, C) float32 renders of model `key` at `spp` and their cost."""
-        model = self.model(*key)
-        if ("render", key) not in self.warm:
-            model.render([self.thetas[0]], 1, self.ctx.seed_for("fidelity-warmup"))
-            self.warm.add(("render", key))
-        items = self.ctx.progress(enumerate(self.thetas), total=len(self.thetas), desc=f"{label} renders")
-        return self._timed(model, spp, lambda: np.stack(
-            [model.render([t], spp, self._seed("fidelity-grid", g)).numpy() for g, t in items]))
-
-    def jacobians(self, key: tuple, spp: int, method: str, label: str) -> tuple[np.ndarray, RenderStats]:
-        """(G, 1, H, W, C) float32 image Jacobians of model `key` by `method` and their cost."""
-        model = self.model(*key)
-        settings = GradientSettings(method, step=self.cfg["fd_step"], ad=dict(self.cfg["ad"]))
-        if method == "ad" and ("ad", key) not in self.warm:
-            jacobian(model, [self.thetas[0]], 1, self.ctx.seed_for("fidelity-warmup"), settings)
-            self.warm.add(("ad", key))
-        items = self.ctx.progress(enumerate(self.thetas), total=len(self.thetas), desc=f"{label} {method} Jacobians")
-        return self._timed(model, spp, lambda: np.stack(
-            [jacobian(model, [t], spp, self._seed("fidelity-jac", g), settings).numpy() for g, t in items]))
-
-    def bounds_of(self, R: np.ndarray, J: np.ndarray, b: int) -> dict[str, _Bounds]:
-        """Bounds per noise model from renders (G, H, W, C) and Jacobians (G, 1, H, W, C) binned by b."""
-        if b > 1:
-            R, J = bin_image(R, b), bin_image(J, b)
+    def bounds_of(self, s: Setting) -> tuple[dict[str, _Bounds], RenderStats]:
+        """Bounds per noise model (by its unbinned name) of one setting, and their cost."""
+        base = self.model(s.max_depth, s.prune)
+        self._warm_up(base, s.gradient)
+        model = base if s.bin == 1 else Binned(base, s.bin)
+        noises = [n.binned(s.bin) if s.bin > 1 else n for n in self.ctx.noises]
+        svc = BoundService(RenderBank(model, progress=self.ctx.progress, seed=self.ctx.seed), noises)
+        before, t0 = base.stats.snapshot(), time.perf_counter()
+        points = svc.curve(self.thetas, s.spp, self.cfg["seeds"], crlb=True, fd_step=self.cfg["fd_step"],
+                           gradient=s.gradient, ad=dict(self.cfg["ad"]))
+        spent, seconds = base.stats.since(before), time.perf_counter() - t0
+        cost = RenderStats(spent.renders, spent.grad_passes,
+                           spent.samples + spent.grad_passes * s.render_spp * self.pixels, seconds)
         out = {}
-        for noise in self.ctx.noises:
-            nz = noise.binned(b) if b > 1 else noise
-            curve = bounds.hcr_curve(R, np.array(self.thetas), nz, self.lo, self.hi)
-            crlb = [bounds.crlb_log10(R[g], J[g], nz) for g in range(len(self.thetas))]
-            out[str(noise)] = _Bounds(curve.log10, np.array([c[0][0] for c in crlb]), [c[1] for c in crlb],
-                                      int(sum(e == "smallest" for e in curve.at_edge)))
-        return out
+        for j, noise in enumerate(self.ctx.noises):
+            pts = [pt for pt in points if pt.noise_index == j]
+            out[str(noise)] = _Bounds(np.array([pt.bounds["hcr"].log10 for pt in pts]),
+                                      np.array([pt.bounds["crlb"].log10 for pt in pts]),
+                                      [pt.bounds["crlb"].reason for pt in pts],
+                                      sum("sup-at-smallest-delta" in pt.bounds["hcr"].flags for pt in pts))
+        return out, cost
 
     def evaluate(self, settings: list[Setting]) -> None:
-        """Bounds and cost of every setting not done yet; settings sharing renders share them."""
-        groups = defaultdict(list)
+        """Bounds and cost of every setting not done yet (each from its own render sets)."""
         for s in dict.fromkeys(settings):
             if s not in self.done:
-                groups[(s.max_depth, s.prune, s.render_spp)].append(s)
-        for (depth, prune, spp), group in groups.items():
-            label = f"spp {spp}" + (f", depth {depth}" if depth is not None else "") + (f", without {prune}" if prune else "")
-            R, rcost = self.renders((depth, prune), spp, label)
-            for method in dict.fromkeys(s.gradient for s in group):
-                J, jcost = self.jacobians((depth, prune), spp, method, label)
-                for s in (s for s in group if s.gradient == method):
-                    self.done[s] = (self.bounds_of(R, J, s.bin), rcost + jcost)
-            if prune is not None:
-                del self.models[(depth, prune)]  # used once: free its scene
+                self.done[s] = self.bounds_of(s)
+                if s.prune is not None and all(t.prune != s.prune for t in settings if t not in self.done):
+                    self.models.pop((s.max_depth, s.prune), None)  # used up: free its scene
 
 
 def _validate(ctx: RunContext, cfg: dict) -> tuple[list[float], Setting, int]:
@@ -243,7 +226,7 @@ def _knob_settings(cfg: dict, ref: Setting) -> dict[str, list[tuple[object, Sett
     """(value, setting) per swept knob, reference included; knobs with one value only are left out."""
     values = {"spp": sorted(set(cfg["spp"])), "bin": sorted(set(cfg["bins"]) | {1}),
               "max_depth": sorted(set(cfg["max_depth"])),
-              "gradient": [m for m in METHODS if m in set(cfg["gradient"]) | {"fd"}]}
+              "gradient": [m for m in GRADIENTS if m in set(cfg["gradient"]) | {"fd"}]}
     out = {k: [(v, replace(ref, **{k: v})) for v in vals] for k, vals in values.items() if len(vals) > 1}
     if cfg["prune"]:
         out["prune"] = [("none", ref)] + [(e, replace(ref, prune=e)) for e in cfg["prune"]]
@@ -260,10 +243,18 @@ def _errors(res: dict, ref: dict, mask: np.ndarray | None = None) -> dict[str, n
 def _point(value, setting: Setting, res: dict, cost: RenderStats, ref: dict, cfg: dict) -> dict:
     e = _errors(res, ref)
     how = cfg["aggregate"]
-    return {"value": value, "setting": vars(setting).copy(), "cost": cost.seconds if cfg["cost"] == "seconds" else cost.samples,
-            "seconds": cost.seconds, "samples": cost.samples, "renders": cost.renders, "grad_passes": cost.grad_passes,
-            "error": aggregate(np.concatenate([e["hcr"], e["crlb"]]), how), "error_hcr": aggregate(e["hcr"], how),
-            "error_crlb": aggregate(e["crlb"], how)}
+    return {
+        "value": value,
+        "setting": vars(setting).copy(),
+        "cost": cost.seconds if cfg["cost"] == "seconds" else cost.samples,
+        "seconds": cost.seconds,
+        "samples": cost.samples,
+        "renders": cost.renders,
+        "grad_passes": cost.grad_passes,
+        "error": aggregate(np.concatenate([e["hcr"], e["crlb"]]), how),
+        "error_hcr": aggregate(e["hcr"], how),
+        "error_crlb": aggregate(e["crlb"], how),
+    }
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:
@@ -282,29 +273,58 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         summary[knob] = {"reference": ref_value, "points": points}
         if knob != "prune":
             rec = recommend(knob, [Point(p["value"], p["cost"], p["error"]) for p in points], ref_value, tol)
-            summary[knob]["recommendation"] = {"value": rec.value, "error": rec.error, "cost": rec.cost,
-                                               "speedup": rec.speedup}
+            summary[knob]["recommendation"] = {
+                "value": rec.value,
+                "error": rec.error,
+                "cost": rec.cost,
+                "speedup": rec.speedup,
+            }
         for (v, s), p in zip(pts, points, strict=True):
             res = sweep.done[s][0]
             for noise, r in res.items():
                 e_h, e_c = relative_error(r.hcr, ref_res[noise].hcr), relative_error(r.crlb, ref_res[noise].crlb)
                 for g, t in enumerate(thetas):
-                    rows.append({"knob": knob, "value": v, "reference": s == ref, **vars(s), "cost": p["cost"],
-                                 "seconds": p["seconds"], "renders": p["renders"], "noise": noise, "theta": t,
-                                 "log10_hcr": r.hcr[g], "log10_crlb": r.crlb[g], "err_hcr": e_h[g], "err_crlb": e_c[g],
-                                 "crlb_flag": r.flags[g]})
+                    rows.append(
+                        {
+                            "knob": knob,
+                            "value": v,
+                            "reference": s == ref,
+                            **vars(s),
+                            "cost": p["cost"],
+                            "seconds": p["seconds"],
+                            "renders": p["renders"],
+                            "noise": noise,
+                            "theta": t,
+                            "log10_hcr": r.hcr[g],
+                            "log10_crlb": r.crlb[g],
+                            "err_hcr": e_h[g],
+                            "err_crlb": e_c[g],
+                            "crlb_flag": r.flags[g],
+                        }
+                    )
     write_csv(out / "fidelity.csv", rows)
 
     overall = _overall(sweep, summary, ref, cfg)
     depth = _depth_sufficiency(sweep, summary, ref, thetas, cfg) if "max_depth" in summary else None
     ref_cost = sweep.done[ref][1]
-    results = {"parameter": ctx.model.params.names[0], "grid_points": len(thetas), "noises": [str(n) for n in ctx.noises],
-               "reference": vars(ref).copy(), "reference_cost": {"seconds": ref_cost.seconds, "renders": ref_cost.renders},
-               "reference_sup_at_smallest_delta": sum(r.sup_at_smallest for r in ref_res.values()),
-               "tolerance": tol, "aggregate": how, "cost": cfg["cost"], "seeds": cfg["seeds"],
-               "los_until": cfg["los_until"], "knobs": summary, "overall": overall, "depth": depth,
-               # the next-lower spp's error: how far the reference itself may be from converged
-               "spp_convergence": summary["spp"]["points"][-2] if "spp" in summary else None}
+    results = {
+        "parameter": ctx.model.params.names[0],
+        "grid_points": len(thetas),
+        "noises": [str(n) for n in ctx.noises],
+        "reference": vars(ref).copy(),
+        "reference_cost": {"seconds": ref_cost.seconds, "renders": ref_cost.renders},
+        "reference_sup_at_smallest_delta": sum(r.sup_at_smallest for r in ref_res.values()),
+        "tolerance": tol,
+        "aggregate": how,
+        "cost": cfg["cost"],
+        "seeds": cfg["seeds"],
+        "los_until": cfg["los_until"],
+        "knobs": summary,
+        "overall": overall,
+        "depth": depth,
+        # the next-lower spp's error: how far the reference itself may be from converged
+        "spp_convergence": summary["spp"]["points"][-2] if "spp" in summary else None,
+    }
     return results  # plots: report() draws them from the saved files
 
 
@@ -317,13 +337,21 @@ def _overall(sweep: _Sweep, summary: dict, ref: Setting, cfg: dict) -> dict:
     if not cfg["verify"] or combo == ref:
         out["reason"] = "not requested" if not cfg["verify"] else "the reference itself"
         return out
-    if combo.spp % combo.bin ** 2:
-        out["reason"] = f"spp {combo.spp} is not a multiple of b² = {combo.bin ** 2}: not computed"
+    if combo.spp % combo.bin**2:
+        out["reason"] = f"spp {combo.spp} is not a multiple of b² = {combo.bin**2}: not computed"
         return out
     sweep.evaluate([combo])
-    p, r = (_point(name, s, *sweep.done[s], sweep.done[ref][0], cfg) for name, s in (("combined", combo), ("reference", ref)))
-    out.update(verified=True, error=p["error"], cost=p["cost"], speedup=r["cost"] / p["cost"],
-               within=p["error"] <= cfg["tolerance"])
+    p, r = (
+        _point(name, s, *sweep.done[s], sweep.done[ref][0], cfg)
+        for name, s in (("combined", combo), ("reference", ref))
+    )
+    out.update(
+        verified=True,
+        error=p["error"],
+        cost=p["cost"],
+        speedup=r["cost"] / p["cost"],
+        within=p["error"] <= cfg["tolerance"],
+    )
     return out
 
 
@@ -339,85 +367,33 @@ def _depth_sufficiency(sweep: _Sweep, summary: dict, ref: Setting, thetas: list[
     for p in summary["max_depth"]["points"]:
         res = sweep.done[Setting(**p["setting"])][0]
         e = _errors(res, ref_res, mask)
-        rows.append({"max_depth": p["value"], "error": aggregate(np.concatenate([e["hcr"], e["crlb"]]), cfg["aggregate"]),
-                     "median_log10_hcr": {n: float(np.median(res[n].hcr[mask])) for n in res},
-                     "median_log10_crlb": {n: float(np.median(res[n].crlb[mask])) for n in res}})
-    return {"nlos_points": int(mask.sum()), "all_points": bool(mask.all()), "rows": rows,
-            "settled": settled([r["max_depth"] for r in rows], [r["error"] for r in rows], cfg["tolerance"])}
-
-
-# -- plots and report (from saved data only) ----------------------------------------------------
-def _plots(study_dir: Path, results: dict) -> None:
-    """fidelity.png (a panel per knob) and, with a depth sweep, depth.png."""
-    knobs = {k: s for k, s in results["knobs"].items() if k != "prune"}
-    if knobs:
-        _knob_plot(knobs, results, study_dir / "fidelity.png")
-    if results["depth"] is not None:
-        _depth_plot(read_csv(study_dir / "fidelity.csv"), results, study_dir / "depth.png")
-
-
-def _knob_plot(knobs: dict, results: dict, path: Path) -> Path:
-    """Per knob: relative bound error against cost (log-log); errors of 0 drawn at the bottom edge (▼),
-    errors ≥ 100 (10⁴ %) or ∞ at the top edge (▲)."""
-    plt = _plt()
-    from matplotlib.ticker import FuncFormatter, LogLocator
-
-    tol = results["tolerance"]
-    fig, axes = plt.subplots(1, len(knobs), figsize=(4 * len(knobs), 3.6), squeeze=False)
-    for ax, (knob, s) in zip(axes[0], knobs.items(), strict=True):
-        shown = [p["error"] for p in s["points"] if 0 < p["error"] < 100]
-        floor, top = tol / 100, max([tol * 10] + [2 * e for e in shown])
-        for p in s["points"]:
-            e = p["error"]
-            y, marker = (floor, "v") if e == 0 else ((top, "^") if e >= 100 else (e, "o"))
-            ax.loglog(p["cost"], y, marker, color="C3" if p["value"] == s["reference"] else "C0")
-            ax.annotate(str(p["value"]), (p["cost"], y), textcoords="offset points", xytext=(4, 4), fontsize=8)
-        ax.axhline(tol, ls="--", color="gray", lw=0.8)
-        ax.minorticks_off()  # few plain tick labels: mathtext and minor ticks make the plot slow
-        for axis, subs in ((ax.xaxis, (1.0, 2.0, 5.0)), (ax.yaxis, (1.0,))):
-            axis.set_major_locator(LogLocator(subs=subs, numticks=8))
-            axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
-        ax.set_xlabel("cost [s]" if results["cost"] == "seconds" else "cost [pixel-samples]")
-        ax.set_title(f"{knob} (reference {s['reference']}: red)", fontsize=9)
-        ax.grid(alpha=0.3)
-    axes[0][0].set_ylabel(f"relative bound error (- - tolerance {tol:g}; ▼ 0, ▲ ≥ 100)", fontsize=8)
-    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.16, top=0.9, wspace=0.3)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def _depth_plot(rows: list[dict], results: dict, path: Path) -> Path:
-    """Median log10 HCR (solid, min–max band) and CRLB (dashed) over the NLOS θ against path depth."""
-    plt = _plt()
-    lu = results["los_until"]
-    depth_rows = [r for r in rows if r["knob"] == "max_depth" and (lu is None or float(r["theta"]) > lu
-                                                                    or results["depth"]["all_points"])]
-    fig, ax = plt.subplots(figsize=(5.5, 3.8))
-    for i, noise in enumerate(results["noises"]):
-        by = defaultdict(lambda: ([], []))
-        for r in depth_rows:
-            if r["noise"] == noise:
-                by[int(r["value"])][0].append(float(r["log10_hcr"]))
-                by[int(r["value"])][1].append(float(r["log10_crlb"]))
-        d = sorted(by)
-        fin = [np.array([v for v in by[k][0] if math.isfinite(v)] or [np.nan]) for k in d]
-        ax.plot(d, [np.median(f) for f in fin], "o-", color=f"C{i}", label=f"HCR, {noise}")
-        ax.fill_between(d, [f.min() for f in fin], [f.max() for f in fin], color=f"C{i}", alpha=0.15)
-        crlb = [np.median([v for v in by[k][1] if math.isfinite(v)] or [np.nan]) for k in d]
-        ax.plot(d, crlb, "s--", color=f"C{i}", label=f"CRLB, {noise}")
-    ax.set_xticks(d)
-    ax.set_xlabel("max_depth (1: emitters seen directly, 2: direct light, ...)")
-    ax.set_ylabel("log10 bound, NLOS θ [units²]")
-    return finish(fig, ax, path)
+        rows.append(
+            {
+                "max_depth": p["value"],
+                "error": aggregate(np.concatenate([e["hcr"], e["crlb"]]), cfg["aggregate"]),
+                "median_log10_hcr": {n: float(np.median(res[n].hcr[mask])) for n in res},
+                "median_log10_crlb": {n: float(np.median(res[n].crlb[mask])) for n in res},
+            }
+        )
+    return {
+        "nlos_points": int(mask.sum()),
+        "all_points": bool(mask.all()),
+        "rows": rows,
+        "settled": settled([r["max_depth"] for r in rows], [r["error"] for r in rows], cfg["tolerance"]),
+    }
 
 
 def smoke(block: dict) -> dict:
     """A seconds-long copy: 3 grid points, spp [4, 16], bins [1, 2], two depths, one pruned element."""
     two = lambda xs: sorted(set(xs))[:1] + sorted(set(xs))[-1:] if len(set(xs)) > 1 else list(xs)  # noqa: E731
-    return {**block, "grid": smoke_grid(block["grid"], 3), "spp": [4, 16] if len(set(block["spp"])) > 1 else [16],
-            "bins": [1, 2] if any(b > 1 for b in block["bins"]) else [1], "max_depth": two(block["max_depth"]),
-            "prune": block["prune"][:1]}
+    return {
+        **block,
+        "grid": smoke_grid(block["grid"], 3),
+        "spp": [4, 16] if len(set(block["spp"])) > 1 else [16],
+        "bins": [1, 2] if any(b > 1 for b in block["bins"]) else [1],
+        "max_depth": two(block["max_depth"]),
+        "prune": block["prune"][:1],
+    }
 
 
 def _pct(e: float) -> str:
@@ -425,65 +401,111 @@ def _pct(e: float) -> str:
 
 
 def report(study_dir: Path, results: dict) -> str:
-    _plots(study_dir, results)
+    fidelity_plots(study_dir, results)
     ref, tol = results["reference"], results["tolerance"]
     unit = "s" if results["cost"] == "seconds" else "pixel-samples"
     rc = results["reference_cost"]
-    lines = [f"Bound error against cost, one knob at a time around the reference (spp {ref['spp']} per sensor pixel, "
-             f"no binning, max_depth {ref['max_depth'] or 'of the scene'}, FD Jacobians): {results['grid_points']}-point "
-             f"grid of {results['parameter']}, {results['seeds']} seeds, noise {', '.join(results['noises'])}. Error = "
-             f"{results['aggregate']} over θ, noise models and bounds (HCR, CRLB) of |b/b_ref − 1|; cost in {unit} "
-             f"(renders and Jacobians; scene loads and warm-up excluded). Reference: {rc['seconds']:.3g} s, "
-             f"{rc['renders']} renders. Tolerance {_pct(tol)}."
-             + (f" In {results['reference_sup_at_smallest_delta']} (θ, noise) pairs the reference HCR's sup sits at the "
-                "smallest grid Δ: a finer grid may raise those bounds, whose errors then compare grid-limited values."
-                if results["reference_sup_at_smallest_delta"] else ""), "",
-             f"| knob | value | cost [{unit}] | renders | error HCR | error CRLB | error | within |", "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        f"Bound error against cost, one knob at a time around the reference (spp {ref['spp']} per sensor pixel, "
+        f"no binning, max_depth {ref['max_depth'] or 'of the scene'}, FD Jacobians): {results['grid_points']}-point "
+        f"grid of {results['parameter']}, {results['seeds']} seeds, noise {', '.join(results['noises'])}. Error = "
+        f"{results['aggregate']} over θ, noise models and bounds (HCR, CRLB) of |b/b_ref − 1|; cost in {unit} "
+        f"(renders and Jacobians; scene loads and warm-up excluded). Reference: {rc['seconds']:.3g} s, "
+        f"{rc['renders']} renders. Tolerance {_pct(tol)}."
+        + (
+            f" In {results['reference_sup_at_smallest_delta']} (θ, noise) pairs the reference HCR's sup sits at the "
+            "smallest grid Δ: a finer grid may raise those bounds, whose errors then compare grid-limited values."
+            if results["reference_sup_at_smallest_delta"]
+            else ""
+        ),
+        "",
+        f"| knob | value | cost [{unit}] | renders | error HCR | error CRLB | error | within |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     conv = results.get("spp_convergence")
     if conv is not None and conv["error"] > tol:
-        lines[1:1] = ["", f"**Caution:** at {conv['value']} spp the bound differs from the reference's by {_pct(conv['error'])}: "
-                      "the reference is not converged in spp, so every error below includes rendering noise of about that "
-                      "size (bounds from Monte Carlo renders are biased low; see the `inexact` study). Raise the reference "
-                      "spp or use common seeds before trusting a recommendation."]
+        lines[1:1] = [
+            "",
+            f"**Caution:** at {conv['value']} spp the bound differs from the reference's by {_pct(conv['error'])}: "
+            "the reference is not converged in spp, so every error below includes rendering noise of about that "
+            "size (bounds from Monte Carlo renders are biased low; see the `inexact` study). Raise the reference "
+            "spp or use common seeds before trusting a recommendation.",
+        ]
     for knob, s in results["knobs"].items():
         if knob == "prune":
             continue
         for p in s["points"]:
             mark = " (ref)" if p["value"] == s["reference"] else ""
             work = f"{p['renders']}" + (f" + {p['grad_passes']} AD passes" if p["grad_passes"] else "")
-            lines.append(f"| {knob} | {p['value']}{mark} | {p['cost']:.4g} | {work} | {_pct(p['error_hcr'])} | "
-                         f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {'yes' if p['error'] <= tol else 'no'} |")
+            lines.append(
+                f"| {knob} | {p['value']}{mark} | {p['cost']:.4g} | {work} | {_pct(p['error_hcr'])} | "
+                f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {'yes' if p['error'] <= tol else 'no'} |"
+            )
     lines += ["", "| knob | recommended | reference | error | speed-up |", "|---|---|---|---|---|"]
     for knob, s in results["knobs"].items():
         if "recommendation" in s:
             r = s["recommendation"]
             lines.append(f"| {knob} | {r['value']} | {s['reference']} | {_pct(r['error'])} | {r['speedup']:.3g}× |")
     o = results["overall"]
-    combo = ", ".join(f"{k} {o['setting'][k]}" for k in ("spp", "bin", "max_depth", "gradient") if o["setting"][k] is not None)
-    lines += ["", f"**Overall:** {combo}; predicted speed-up {o['predicted_speedup']:.3g}× (product of the knobs'). "
-              + (f"Computed: error {_pct(o['error'])} ({'within' if o['within'] else 'NOT within'} tolerance: "
-                 f"{'the errors do not compound here' if o['within'] else 'the errors compound: keep one knob at its reference'}), "
-                 f"speed-up {o['speedup']:.3g}×." if o["verified"] else f"Not computed ({o['reason']}).")]
+    combo = ", ".join(
+        f"{k} {o['setting'][k]}" for k in ("spp", "bin", "max_depth", "gradient") if o["setting"][k] is not None
+    )
+    lines += [
+        "",
+        f"**Overall:** {combo}; predicted speed-up {o['predicted_speedup']:.3g}× (product of the knobs'). "
+        + (
+            f"Computed: error {_pct(o['error'])} ({'within' if o['within'] else 'NOT within'} tolerance: "
+            + ("the errors do not compound here" if o["within"] else "the errors compound: keep one knob at its reference")
+            + f"), speed-up {o['speedup']:.3g}×."
+            if o["verified"]
+            else f"Not computed ({o['reason']})."
+        ),
+    ]
     lines += ["", f"![bound error against cost]({study_dir.name}/fidelity.png)"]
     d = results["depth"]
     if d is not None:
-        where = "all grid points" if d["all_points"] else f"the {d['nlos_points']} NLOS grid points (θ > {results['los_until']})"
-        lines += ["", f"**Depth sufficiency** over {where}: the bound stops changing (within {_pct(tol)}) from "
-                  f"max_depth {d['settled']} on.", "",
-                  "| max_depth | change vs deepest | " + " | ".join(f"median log10 HCR, {n}" for n in results["noises"]) + " |",
-                  "|---|---|" + "---|" * len(results["noises"])]
+        where = (
+            "all grid points"
+            if d["all_points"]
+            else f"the {d['nlos_points']} NLOS grid points (θ > {results['los_until']})"
+        )
+        lines += [
+            "",
+            f"**Depth sufficiency** over {where}: the bound stops changing (within {_pct(tol)}) from "
+            f"max_depth {d['settled']} on.",
+            "",
+            "| max_depth | change vs deepest | "
+            + " | ".join(f"median log10 HCR, {n}" for n in results["noises"])
+            + " |",
+            "|---|---|" + "---|" * len(results["noises"]),
+        ]
         for r in d["rows"]:
-            lines.append(f"| {r['max_depth']} | {_pct(r['error'])} | "
-                         + " | ".join(f"{r['median_log10_hcr'][n]:.4g}" for n in results["noises"]) + " |")
-        lines += ["", "(±inf: no usable Δ or no information at that depth, e.g. the object does not show in the image; "
-                  "the plot leaves such values out.)", "", f"![depth]({study_dir.name}/depth.png)"]
+            lines.append(
+                f"| {r['max_depth']} | {_pct(r['error'])} | "
+                + " | ".join(f"{r['median_log10_hcr'][n]:.4g}" for n in results["noises"])
+                + " |"
+            )
+        lines += [
+            "",
+            "(±inf: no usable Δ or no information at that depth, e.g. the object does not show in the image; "
+            "the plot leaves such values out.)",
+            "",
+            f"![depth]({study_dir.name}/depth.png)",
+        ]
     if "prune" in results["knobs"]:
         s = results["knobs"]["prune"]
         base = next(p for p in s["points"] if p["value"] == "none")
-        lines += ["", "**Scene pruning:** the reference bound with one element removed.", "",
-                  "| element removed | error HCR | error CRLB | bound depends on it | cost vs full scene |", "|---|---|---|---|---|"]
+        lines += [
+            "",
+            "**Scene pruning:** the reference bound with one element removed.",
+            "",
+            "| element removed | error HCR | error CRLB | bound depends on it | cost vs full scene |",
+            "|---|---|---|---|---|",
+        ]
         for p in s["points"]:
             if p["value"] != "none":
-                lines.append(f"| {p['value']} | {_pct(p['error_hcr'])} | {_pct(p['error_crlb'])} | "
-                             f"{'yes' if p['error'] > tol else 'no'} | {p['cost'] / base['cost']:.3g}× |")
+                lines.append(
+                    f"| {p['value']} | {_pct(p['error_hcr'])} | {_pct(p['error_crlb'])} | "
+                    f"{'yes' if p['error'] > tol else 'no'} | {p['cost'] / base['cost']:.3g}× |"
+                )
     return "\n".join(lines)

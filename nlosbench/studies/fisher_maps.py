@@ -2,16 +2,16 @@
 where in the picture the information about each parameter lives."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .. import bounds
-from ..bank import JacobianRequest, Request
-from ..io import read_csv, read_exr, write_csv, write_exr
-from ..schema import Field
+from ..bounds import save_fisher_maps
+from ..io import read_csv, write_csv, write_exr
+from ..schema import ConfigError, Field
 from .context import RunContext
-from .plots import _plt
+from .plots import fisher_figure
 
 NAME = "fisher-maps"
 SCHEMA = {
@@ -24,56 +24,52 @@ SCHEMA = {
 }
 
 
-def run(ctx: RunContext, cfg: dict) -> dict:
-    out = ctx.study_dir(cfg)
-    m = ctx.model
+@dataclass(frozen=True)
+class Plan:
+    """θ points (T, P) with their labels, spp, FD step and rounds, channel reduction."""
+
+    thetas: np.ndarray
+    labels: list
+    spp: int
+    fd_step: float
+    fd_rounds: int
+    reduce: str
+
+
+def plan(ctx: RunContext, cfg: dict) -> Plan:
+    sid = cfg.get("id") or NAME
     labels = cfg["labels"] or [f"p{i}" for i in range(len(cfg["at"]))]
     if len(labels) != len(cfg["at"]):
-        raise ValueError(f"fisher-maps: {len(cfg['at'])} points but {len(labels)} labels")
-    ts = [m.params.validate(np.atleast_1d(theta)) for theta in cfg["at"]]
-    Ls = ctx.bank.images([Request.of(t, cfg["spp"], ctx.seed_for("fisher-render", i)) for i, t in enumerate(ts)],
-                         "Fisher-map renders")
-    Js = ctx.bank.jacobians([JacobianRequest.of(t, cfg["spp"], ctx.seed_for("fisher-fd", i), cfg["fd_step"],
-                                                cfg["fd_rounds"]) for i, t in enumerate(ts)], "Fisher-map FD Jacobians")
+        raise ConfigError(f"{sid}.labels", f"{len(cfg['at'])} points but {len(labels)} labels")
+    thetas = []
+    for i, theta in enumerate(cfg["at"]):
+        try:
+            thetas.append(ctx.model.params.validate(np.atleast_1d(theta)))
+        except (TypeError, ValueError) as e:
+            raise ConfigError(f"{sid}.at[{i}]", str(e)) from None
+    for k in ("spp", "fd_rounds"):
+        if cfg[k] < 1:
+            raise ConfigError(f"{sid}.{k}", f"expected a positive integer, got {cfg[k]}")
+    return Plan(np.array(thetas), labels, cfg["spp"], cfg["fd_step"], cfg["fd_rounds"], cfg["reduce"])
+
+
+def run(ctx: RunContext, cfg: dict) -> dict:
+    p, out, m = plan(ctx, cfg), ctx.study_dir(cfg), ctx.model
+    before = ctx.bank.renders
     rows = []
-    for t, label, L, J in zip(ts, labels, Ls, Js, strict=True):
-        write_exr(out / f"{label}_rgb.exr", L)
+    for label, fp in zip(p.labels, ctx.bounds.fisher(p.thetas, p.spp, p.fd_step, p.fd_rounds, p.reduce), strict=True):
+        write_exr(out / f"{label}_rgb.exr", fp.L)
         for j, name in enumerate(m.params.names):
-            write_exr(out / f"{label}_dL_d{name}.exr", J[j])
+            write_exr(out / f"{label}_dL_d{name}.exr", fp.J[j])
         for k, noise in enumerate(ctx.noises):
-            maps = bounds.fisher_maps(L, J, noise, cfg["reduce"])
-            bounds.save_fisher_maps(maps, list(m.params.names), out, prefix=f"{label}_noise{k}_fisher")
-            log10_crlb, flag = bounds.crlb_log10(L, J, noise)
+            save_fisher_maps(fp.maps[k], list(m.params.names), out, prefix=f"{label}_noise{k}_fisher")
             for j, name in enumerate(m.params.names):
-                rows.append({"label": label, "theta": t.tolist(), "noise": str(noise), "param": name,
-                             "fisher_total": float(maps[j].sum()), "log10_crlb": float(log10_crlb[j]), "flag": flag})
+                b = fp.crlb[k][j]
+                rows.append({"label": label, "theta": fp.theta.tolist(), "noise": str(noise), "param": name,
+                             "fisher_total": float(fp.maps[k][j].sum()), "log10_crlb": b.log10, "flag": b.reason})
     write_csv(out / "fisher.csv", rows)  # the figure: report() draws it from the saved EXRs
-    return {"points": labels, "params": list(m.params.names), "noises": [str(n) for n in ctx.noises],
-            "renders": len(labels) * (1 + 2 * m.params.dim * cfg["fd_rounds"]), "spp": cfg["spp"]}
-
-
-def _figure(out: Path, labels: list[str], names: list[str]) -> Path:
-    """One row per point: the RGB render, then the log-scale FI map of each parameter (first noise)."""
-    plt = _plt()
-    cols = 1 + len(names)
-    fig, axes = plt.subplots(len(labels), cols, figsize=(3.2 * cols, 3 * len(labels)), squeeze=False)
-    for r, label in enumerate(labels):
-        rgb = read_exr(out / f"{label}_rgb.exr")
-        axes[r, 0].imshow(np.clip(rgb / max(np.percentile(rgb, 99), 1e-12), 0, 1) ** (1 / 2.2))
-        axes[r, 0].set_title(f"{label}: render")
-        for c, name in enumerate(names, start=1):
-            fi = read_exr(out / f"{label}_noise0_fisher_{name}.exr")[..., 0].astype(np.float64)
-            pos = fi[fi > 0]
-            im = axes[r, c].imshow(np.log10(np.where(fi > 0, fi, np.nan)), cmap="inferno",
-                                   vmin=np.log10(pos.min()) if pos.size else None, vmax=np.log10(pos.max()) if pos.size else None)
-            axes[r, c].set_title(f"log10 FI, {name}")
-            fig.colorbar(im, ax=axes[r, c], fraction=0.046, pad=0.04)
-    for a in axes.ravel():
-        a.set_axis_off()
-    fig.tight_layout()
-    fig.savefig(out / "fisher_maps.png", dpi=110)
-    plt.close(fig)
-    return out / "fisher_maps.png"
+    return {"points": p.labels, "params": list(m.params.names), "noises": [str(n) for n in ctx.noises],
+            "renders": ctx.bank.renders - before, "spp": p.spp}
 
 
 def smoke(block: dict) -> dict:
@@ -84,7 +80,7 @@ def smoke(block: dict) -> dict:
 
 def report(study_dir: Path, results: dict) -> str:
     rows = read_csv(study_dir / "fisher.csv")
-    _figure(study_dir, results["points"], results["params"])
+    fisher_figure(study_dir, results["points"], results["params"])
     lines = [f"Per-pixel Fisher information from central FD (common random numbers) at {results['spp']} spp; "
              f"{results['renders']} renders.", "", f"![Fisher maps]({study_dir.name}/fisher_maps.png)", "",
              "| point | θ | noise | parameter | total FI | log10 CRLB | flag |", "|---|---|---|---|---|---|---|"]

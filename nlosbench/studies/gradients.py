@@ -75,7 +75,10 @@ def _backends(ctx: RunContext, cfg: dict, index: int) -> list[tuple[GradientSett
         why = applicable_integrators(ctx.model, index)
         return sorted([(s, why.get(s.ad.get("type"), "") if s.method == "ad" else "") for s in found],
                       key=lambda x: not (x[0].method == "fd" and x[0].crn))
-    out = [(GradientSettings("fd", step=cfg["fd_step"]), ""), (GradientSettings("fd", step=cfg["fd_step"], crn=False), "")]
+    out = [
+        (GradientSettings("fd", step=cfg["fd_step"]), ""),
+        (GradientSettings("fd", step=cfg["fd_step"], crn=False), ""),
+    ]
     applicable = applicable_integrators(ctx.model, index)
     if not applicable:  # a model without scene bindings: its own (exact) derivative
         return out + [(GradientSettings("ad"), "")]
@@ -99,26 +102,39 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     if unknown:
         raise ValueError(f"gradients study: unknown remedies {unknown}; known: {list(REMEDIES)}")
     spps, S, top = sorted(cfg["spp"]), cfg["seeds"], max(cfg["spp"])
-    forward = {spp: forward_cost(model, theta, spp, [ctx.seed_for("gradients-forward", spp, s) for s in range(3)])
-               for spp in spps}
+    forward = {
+        spp: forward_cost(model, theta, spp, [ctx.seed_for("gradients-forward", spp, s) for s in range(3)])
+        for spp in spps
+    }
     rows, seed_rows, images, masks, grid_rows = [], [], {}, {}, ["reference"]
     for j_name in names:
         j = model.params.index(j_name)
         ref_cfg = cfg["reference"]
-        ref = (fd_reference(model, theta, j, ref_cfg["spp"], ref_cfg["rounds"], cfg["fd_step"], ctx.seed_for("gradients-ref", j))
-               if ref_cfg else None)
+        ref = (
+            fd_reference(
+                model, theta, j, ref_cfg["spp"], ref_cfg["rounds"], cfg["fd_step"], ctx.seed_for("gradients-ref", j)
+            )
+            if ref_cfg
+            else None
+        )
         if ref is not None:
             images[("reference", j_name, spps[0])] = ref.image
         configs = _backends(ctx, cfg, j)
         todo = [(b, s, why, spp, "") for b, (s, why) in enumerate(configs) for spp in spps]
-        todo += [(b, s, why, top, rem) for b, (s, why) in enumerate(configs) if s.method == "ad" and not why and
-                 s.ad.get("type") for rem in cfg["remedies"]["names"]
-                 if rem != "visibility-boost" or s.ad["type"] != "prb"]
+        todo += [
+            (b, s, why, top, rem)
+            for b, (s, why) in enumerate(configs)
+            if s.method == "ad" and not why and s.ad.get("type")
+            for rem in cfg["remedies"]["names"]
+            if rem != "visibility-boost" or s.ad["type"] != "prb"
+        ]
         fd_median: dict[int, Reference] = {}
         for b, settings, why, spp, remedy in ctx.progress(todo, total=len(todo), desc=f"gradients d/d{j_name}"):
             seeds = [ctx.seed_for("gradients", b, j, spp, s) for s in range(S)]
             if remedy:
-                run_ = remedy_run(model, theta, j, settings, spp, seeds, remedy, cfg["remedies"]["k"], cfg["remedies"]["boost"])
+                run_ = remedy_run(
+                    model, theta, j, settings, spp, seeds, remedy, cfg["remedies"]["k"], cfg["remedies"]["boost"]
+                )
             else:
                 run_ = gradient_images(model, theta, j, settings, spp, seeds)
             is_control = settings.method == "fd" and settings.crn and not remedy
@@ -128,10 +144,19 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             if r_ is None:
                 raise ValueError("gradients study with `reference: null` needs an FD backend with crn: true")
             lab = label(settings) + (f" + {remedy}" if remedy else "")
-            row = {"param": j_name, "kind": param_kind(model, j) or "", "label": lab, "backend": label(settings),
-                   "method": settings.method, "crn": settings.crn if settings.method == "fd" else "",
-                   "remedy": remedy, "spp": spp, "applicable": why, "spec": json.dumps(spec_of(settings)),
-                   **result_row(run_, r_, forward[spp], cfg["target_rel_error"], cfg["threshold"], cfg["min_area"])}
+            row = {
+                "param": j_name,
+                "kind": param_kind(model, j) or "",
+                "label": lab,
+                "backend": label(settings),
+                "method": settings.method,
+                "crn": settings.crn if settings.method == "fd" else "",
+                "remedy": remedy,
+                "spp": spp,
+                "applicable": why,
+                "spec": json.dumps(spec_of(settings)),
+                **result_row(run_, r_, forward[spp], cfg["target_rel_error"], cfg["threshold"], cfg["min_area"]),
+            }
             rows.append(row)
             for m in image_metrics(run_.images, r_, cfg["threshold"], cfg["min_area"]):
                 seed_rows.append({"param": j_name, "label": lab, "spp": spp, "seed": seeds[m["seed_index"]], **m})
@@ -150,15 +175,30 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     write_csv(out / "seeds.csv", seed_rows)
     verdicts = {n: judge(rows, n) for n in names}
     save_verdicts(out / "verdicts.json", verdicts)
-    gradient_grid(images, masks, grid_rows, [(p, s) for p in names for s in spps], out / "gradient_grid.png",
-                  {n: model.params.units[model.params.index(n)] for n in names})
-    return {"params": names, "theta": dict(zip(model.params.names, theta.tolist(), strict=True)), "spp": spps, "seeds": S,
-            "reference": (f"FD ξ={cfg['fd_step']:g}, {cfg['reference']['spp']} spp × {cfg['reference']['rounds']} rounds"
-                          if cfg["reference"] else "per-pixel median of the FD (CRN) seeds"),
-            "target_rel_error": cfg["target_rel_error"], "threshold": cfg["threshold"],
-            "forward_seconds": {str(k): v.seconds for k, v in forward.items()},
-            "forward_peak_mib": {str(k): v.peak_bytes / (1 << 20) for k, v in forward.items()},
-            "verdicts": {n: v.text for n, v in verdicts.items()}}
+    gradient_grid(
+        images,
+        masks,
+        grid_rows,
+        [(p, s) for p in names for s in spps],
+        out / "gradient_grid.png",
+        {n: model.params.units[model.params.index(n)] for n in names},
+    )
+    return {
+        "params": names,
+        "theta": dict(zip(model.params.names, theta.tolist(), strict=True)),
+        "spp": spps,
+        "seeds": S,
+        "reference": (
+            f"FD ξ={cfg['fd_step']:g}, {cfg['reference']['spp']} spp × {cfg['reference']['rounds']} rounds"
+            if cfg["reference"]
+            else "per-pixel median of the FD (CRN) seeds"
+        ),
+        "target_rel_error": cfg["target_rel_error"],
+        "threshold": cfg["threshold"],
+        "forward_seconds": {str(k): v.seconds for k, v in forward.items()},
+        "forward_peak_mib": {str(k): v.peak_bytes / (1 << 20) for k, v in forward.items()},
+        "verdicts": {n: v.text for n, v in verdicts.items()},
+    }
 
 
 def _add_spp_trends(rows: list[dict]) -> None:
@@ -181,15 +221,20 @@ def smoke(block: dict) -> dict:
     """A seconds-long copy: 2 seeds, spp levels 4 and 8 (one level stays one), a 32-spp × 2-round
     reference, K ≤ 4, boost = 2, and `guiding: none` for the projective AD backends (octree guiding costs
     ~20 s per pass on 2 cores whatever the image size)."""
+
     def unguided(spec: dict) -> dict:
         projective = spec.get("method") == "ad" and spec.get("integrator") in ("prb_projective", "direct_projective")
         return {**spec, "guiding": "none"} if projective else spec
 
-    return {**block, "spp": [4, 8] if len(set(block["spp"])) > 1 else [8], "seeds": 2,
-            "backends": None if block["backends"] is None else [unguided(b) for b in block["backends"]],
-            "ad_options": {**block["ad_options"], "guiding": "none"},
-            "reference": block["reference"] and {"spp": min(block["reference"]["spp"], 32), "rounds": 2},
-            "remedies": {**block["remedies"], "k": min(block["remedies"]["k"], 4), "boost": 2}}
+    return {
+        **block,
+        "spp": [4, 8] if len(set(block["spp"])) > 1 else [8],
+        "seeds": 2,
+        "backends": None if block["backends"] is None else [unguided(b) for b in block["backends"]],
+        "ad_options": {**block["ad_options"], "guiding": "none"},
+        "reference": block["reference"] and {"spp": min(block["reference"]["spp"], 32), "rounds": 2},
+        "remedies": {**block["remedies"], "k": min(block["remedies"]["k"], 4), "boost": 2},
+    }
 
 
 def _safe(name: str) -> str:
@@ -206,30 +251,45 @@ def _fmt(v, spec: str = ".3g") -> str:
 def report(study_dir: Path, results: dict) -> str:
     rows = read_csv(study_dir / "summary.csv")
     verdicts = load_verdicts(study_dir)
-    lines = [f"Gradients of {', '.join(results['params'])} at θ = {results['theta']}: each backend at "
-             f"{', '.join(map(str, results['spp']))} spp, {results['seeds']} seeds; reference: {results['reference']}. "
-             f"Outliers: score > {results['threshold']:g} (robust per-pixel z against the reference). "
-             f"Time to target: seconds to reach a total-derivative error of {results['target_rel_error']:.0%} "
-             "(∞: biased). One forward render takes "
-             + ", ".join(f"{float(t):.3g} s ({float(results['forward_peak_mib'][k]):.3g} MiB peak) at {k} spp"
-                         for k, t in results["forward_seconds"].items()) + ".", "",
-             f"![gradient images]({study_dir.name}/gradient_grid.png)", "",
-             "| parameter | verdict | backend for grad=auto | cheapest to target |", "|---|---|---|---|"]
+    lines = [
+        f"Gradients of {', '.join(results['params'])} at θ = {results['theta']}: each backend at "
+        f"{', '.join(map(str, results['spp']))} spp, {results['seeds']} seeds; reference: {results['reference']}. "
+        f"Outliers: score > {results['threshold']:g} (robust per-pixel z against the reference). "
+        f"Time to target: seconds to reach a total-derivative error of {results['target_rel_error']:.0%} "
+        "(∞: biased). One forward render takes "
+        + ", ".join(
+            f"{float(t):.3g} s ({float(results['forward_peak_mib'][k]):.3g} MiB peak) at {k} spp"
+            for k, t in results["forward_seconds"].items()
+        )
+        + ".",
+        "",
+        f"![gradient images]({study_dir.name}/gradient_grid.png)",
+        "",
+        "| parameter | verdict | backend for grad=auto | cheapest to target |",
+        "|---|---|---|---|",
+    ]
     for n, v in verdicts.items():
         lines.append(f"| {n} | {v.text} | {label(v.settings())} | {v.cheapest or '—'} |")
-    lines += ["", "Persistence: mean Jaccard overlap of the outlier masks across seeds (1: clusters stay put, 0: they "
-              "move with the seed). Trend: outlier pixels from the lowest to the highest spp. × fwd memory: blank where "
-              "a forward render's own peak is under 1 MiB (then only the absolute peak means something).", "",
-              "| parameter | gradient | spp | clusters/img | outlier px/img | max cluster px | persistence | trend "
-              "| total ± se | reference | agrees | pixel var | s/grad | × fwd time | peak MiB | × fwd memory "
-              "| time to target [s] |", "|" + "---|" * 17]
+    lines += [
+        "",
+        "Persistence: mean Jaccard overlap of the outlier masks across seeds (1: clusters stay put, 0: they "
+        "move with the seed). Trend: outlier pixels from the lowest to the highest spp. × fwd memory: blank where "
+        "a forward render's own peak is under 1 MiB (then only the absolute peak means something).",
+        "",
+        "| parameter | gradient | spp | clusters/img | outlier px/img | max cluster px | persistence | trend "
+        "| total ± se | reference | agrees | pixel var | s/grad | × fwd time | peak MiB | × fwd memory "
+        "| time to target [s] |",
+        "|" + "---|" * 17,
+    ]
     for r in rows:
-        lines.append(f"| {r['param']} | {r['label']}{' (' + r['applicable'] + ')' if r['applicable'] else ''} | {r['spp']} "
-                     f"| {_fmt(r['clusters_per_image'])} | {_fmt(r['outlier_pixels_per_image'])} "
-                     f"| {r['max_cluster_area']} | {_fmt(r['persistence'], '.2f')} | {r.get('spp_trend', '')} "
-                     f"| {_fmt(r['total'], '.4g')} ± {_fmt(r['total_se'], '.2g')} | {_fmt(r['ref_total'], '.4g')} "
-                     f"| {r['agrees']} | {_fmt(r['pixel_var'])} | {_fmt(r['seconds'])} | {_fmt(r['time_ratio'])} "
-                     f"| {_fmt(r['peak_mib'])} | {_fmt(r['memory_ratio'])} | {_fmt(r['cost_to_target'])} |")
+        lines.append(
+            f"| {r['param']} | {r['label']}{' (' + r['applicable'] + ')' if r['applicable'] else ''} | {r['spp']} "
+            f"| {_fmt(r['clusters_per_image'])} | {_fmt(r['outlier_pixels_per_image'])} "
+            f"| {r['max_cluster_area']} | {_fmt(r['persistence'], '.2f')} | {r.get('spp_trend', '')} "
+            f"| {_fmt(r['total'], '.4g')} ± {_fmt(r['total_se'], '.2g')} | {_fmt(r['ref_total'], '.4g')} "
+            f"| {r['agrees']} | {_fmt(r['pixel_var'])} | {_fmt(r['seconds'])} | {_fmt(r['time_ratio'])} "
+            f"| {_fmt(r['peak_mib'])} | {_fmt(r['memory_ratio'])} | {_fmt(r['cost_to_target'])} |"
+        )
     lines += ["", "Per-verdict evidence:"]
     lines += [f"- {n}: " + "; ".join(v.reasons) for n, v in verdicts.items()]
     return "\n".join(lines)

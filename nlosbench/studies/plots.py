@@ -1,8 +1,15 @@
-"""Plots shared by studies (matplotlib, Agg): bound curves on a log scale with LOS/NLOS marked."""
+"""The studies' figures (matplotlib, Agg), each drawn from saved tables only."""
 from __future__ import annotations
 
+import math
+import re
 from collections import defaultdict
 from pathlib import Path
+
+import numpy as np
+
+from ..io import read_csv, read_exr
+from .tables import cell, mse_units
 
 
 def _plt():
@@ -14,16 +21,17 @@ def _plt():
     return plt
 
 
-def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = None, xlabel: str = "θ",
+def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = None, parameter: str = "θ",
                       units: str = "units") -> Path:
-    """log10 bound vs θ: one solid line (HCR) and, where present, dashed CRLB and dotted Barankin per noise."""
+    """log10 bound vs θ from bound-service rows (theta_<parameter>, log10_<kind> per noise): one solid
+    line (HCR) and, where present, dashed CRLB and dotted Barankin per noise model."""
     plt = _plt()
     series = defaultdict(list)
     for r in rows:
         series[r["noise"]].append(r)
     fig, ax = plt.subplots(figsize=(7, 4))
     for i, (noise, rs) in enumerate(series.items()):
-        x = [float(r["theta"]) for r in rs]
+        x = [float(r[f"theta_{parameter}"]) for r in rs]
         color = f"C{i}"
         ax.plot(x, [float(r["log10_hcr"]) for r in rs], "-", color=color, label=f"HCR, {noise}")
         for key, style, name in (("log10_crlb", "--", "CRLB"), ("log10_barankin", ":", "Barankin")):
@@ -33,7 +41,7 @@ def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = No
         ax.axvline(float(los_until), color="gray", lw=0.8)
         ax.text(float(los_until), ax.get_ylim()[1], " NLOS →", va="top", ha="left", fontsize=8, color="gray")
         ax.text(float(los_until), ax.get_ylim()[1], "← LOS ", va="top", ha="right", fontsize=8, color="gray")
-    ax.set_xlabel(xlabel)
+    ax.set_xlabel(f"θ = {parameter} [{units}]")
     ax.set_ylabel(f"log10 bound [{units}²]")
     return finish(fig, ax, path)
 
@@ -46,3 +54,366 @@ def finish(fig, ax, path: Path, dpi: int = 120) -> Path:
     fig.savefig(path, dpi=dpi)
     _plt().close(fig)
     return path
+
+
+def fisher_figure(out: Path, labels: list[str], names: list[str]) -> Path:
+    """fisher_maps.png: one row per point: the RGB render, then the log-scale FI map of each parameter
+    (first noise model), from the saved EXRs."""
+    plt = _plt()
+    cols = 1 + len(names)
+    fig, axes = plt.subplots(len(labels), cols, figsize=(3.2 * cols, 3 * len(labels)), squeeze=False)
+    for r, label in enumerate(labels):
+        rgb = read_exr(out / f"{label}_rgb.exr")
+        axes[r, 0].imshow(np.clip(rgb / max(np.percentile(rgb, 99), 1e-12), 0, 1) ** (1 / 2.2))
+        axes[r, 0].set_title(f"{label}: render")
+        for c, name in enumerate(names, start=1):
+            fi = read_exr(out / f"{label}_noise0_fisher_{name}.exr")[..., 0].astype(np.float64)
+            pos = fi[fi > 0]
+            im = axes[r, c].imshow(
+                np.log10(np.where(fi > 0, fi, np.nan)),
+                cmap="inferno",
+                vmin=np.log10(pos.min()) if pos.size else None,
+                vmax=np.log10(pos.max()) if pos.size else None,
+            )
+            axes[r, c].set_title(f"log10 FI, {name}")
+            fig.colorbar(im, ax=axes[r, c], fraction=0.046, pad=0.04)
+    for a in axes.ravel():
+        a.set_axis_off()
+    fig.tight_layout()
+    fig.savefig(out / "fisher_maps.png", dpi=110)
+    plt.close(fig)
+    return out / "fisher_maps.png"
+
+
+def plot_mse(
+    rows: list[dict], bound_rows: list[dict], bounds, names: list[str], units: list[str], noise_names: dict, path: Path
+) -> Path:
+    """MSE (± SE) of every estimator and the bounds against θ*, log scale; one panel per noise model
+    (trials summary rows and bound-service rows; parameter names and units)."""
+    plt = _plt()
+    noises = sorted({r["noise"] for r in rows})
+    fig, axes = plt.subplots(1, len(noises), figsize=(6 * len(noises), 4.2), squeeze=False)
+    xname = names[0] if len(names) == 1 else "θ* index"
+    xkey = f"theta_{names[0]}" if len(names) == 1 else "theta_index"
+    for ax, j in zip(axes[0], noises, strict=True):
+        for label in dict.fromkeys(r["estimator"] for r in rows):
+            rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r["mse"] > 0]
+            ax.errorbar(
+                [r[xkey] for r in rs],
+                [r["mse"] for r in rs],
+                yerr=[r["mse_se"] for r in rs],
+                marker="o",
+                capsize=3,
+                label=f"MSE {label}",
+            )
+        for b in bounds:
+            bs = [r for r in bound_rows if r["noise_index"] == j and math.isfinite(r[f"log10_{b}"])]
+            ax.plot([r[xkey] for r in bs], [10.0 ** r[f"log10_{b}"] for r in bs], "--", marker=".", label=b.upper())
+        ax.set_yscale("log")
+        ax.set_xlabel(f"θ* ({xname}{', ' + units[0] if len(names) == 1 else ''})")
+        ax.set_ylabel(f"MSE, bound [{mse_units(units)}]")
+        ax.set_title(f"noise {j}: {noise_names[j]}")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_speed(rows: list[dict], units: str, path: Path) -> Path:
+    """Speed against error: per estimator setting (and noise model), mean wall seconds and renders
+    (+ AD passes) per trial against the MSE averaged over θ*, log–log."""
+    plt = _plt()
+    from matplotlib.ticker import NullFormatter
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    several = len({r["noise"] for r in rows}) > 1
+    xs: list[list[float]] = [[], []]
+    for j, label in dict.fromkeys((r["noise"], r["estimator"]) for r in rows):
+        rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r["mse"] > 0]
+        if not rs:  # every fit failed (or hit θ* exactly): nothing to place on a log axis
+            continue
+        mse = float(np.mean([r["mse"] for r in rs]))
+        secs = float(np.mean([r["mean_seconds"] for r in rs]))
+        rend = float(np.mean([r["mean_renders"] + r["mean_grad_passes"] for r in rs]))
+        for ax, x, seen in zip(axes, (secs, rend), xs, strict=True):
+            seen.append(x)
+            ax.scatter([x], [mse], s=40)
+            ax.annotate(
+                f"{label} (noise {j})" if several else label,
+                (x, mse),
+                fontsize=8,
+                xytext=(4, 4),
+                textcoords="offset points",
+            )
+    for ax, xl, seen in zip(axes, ("wall seconds per trial", "renders + AD passes per trial"), xs, strict=True):
+        if seen and min(seen) > 0:  # a log axis needs positive data (cached renders count 0)
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+        ax.set_xlabel(xl)
+        ax.set_ylabel(f"MSE averaged over θ* [{units}]")
+        ax.xaxis.set_minor_formatter(NullFormatter())
+        ax.grid(True, which="both", alpha=0.3)
+    fig.suptitle("speed against error (one point per estimator setting)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def slug(s: str) -> str:
+    """A file-name-safe lower-case version of `s` (runs of other characters → '_')."""
+    return re.sub(r"[^A-Za-z0-9]+", "_", s).strip("_").lower()
+
+
+def inexact_plots(study_dir: Path, results: dict) -> list[Path]:
+    """PNG plots from the saved CSVs: HCR vs θ* with the interval shaded (per noise); λ̃^(N) vs Δ per
+    level with λ̂, and the HCR functional from λ̃^(N_eff) and λ̂, at the θ* with the widest and the
+    narrowest interval (sup near Δ = 0 vs away from it, as in the paper); the decay check."""
+    plt = _plt()
+    hrows, lrows = read_csv(study_dir / "hcr.csv"), read_csv(study_dir / "lambda.csv")
+    par = f"{results['parameter']} [{results['units']}]"
+    paths = []
+    for noise in dict.fromkeys(r["noise"] for r in hrows):
+        rs = [r for r in hrows if r["noise"] == noise]
+        x = np.array([cell(r["theta"]) for r in rs])
+        ge, gh = (np.array([cell(r[k]) for r in rs]) for k in ("log10_hcr_neff", "log10_hcr_hat"))
+        fig, ax = plt.subplots(figsize=(7, 4))
+        ax.fill_between(x, np.minimum(ge, gh), np.maximum(ge, gh), color="C0", alpha=0.25, label="[HCR_Neff, HCR-hat]")
+        for key, col, name in (
+            ("neff", "C3", f"HCR_Neff (N_eff = {results['n_eff']})"),
+            ("hat", "k", f"HCR-hat (λ̂ from {len(results['levels'])} levels)"),
+        ):
+            lo_, hi_ = (np.array([cell(r[f"ci_{key}_{s}"]) for r in rs]) for s in ("lo", "hi"))
+            if np.isfinite(lo_).any():
+                ax.fill_between(
+                    x,
+                    np.where(np.isfinite(lo_), lo_, np.nan),
+                    np.where(np.isfinite(hi_), hi_, np.nan),
+                    color=col,
+                    alpha=0.12,
+                    label=f"{name.split(' ')[0]}: {results['confidence']:.0%} bootstrap CI",
+                )
+            ax.plot(x, ge if key == "neff" else gh, "-o", ms=3, color=col, label=name)
+        un = np.array([r["unresolved_hat"] == "True" for r in rs])
+        if un.any():
+            ax.plot(x[un], gh[un], "x", color="C1", ms=8, label="HCR-hat unresolved (some λ̂ ≤ 0)")
+        ax.set_xlabel(f"θ* = {par}")
+        ax.set_ylabel(f"log10 bound [{results['units']}²]")
+        ax.set_title(f"HCR interval from inexact renders, {noise}", fontsize=9)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        paths.append(study_dir / f"hcr_vs_theta_{slug(noise)}.png")
+        fig.savefig(paths[-1], dpi=120)
+        plt.close(fig)
+
+        width = np.array([cell(r["width_decades"]) for r in rs])
+        picks = (
+            {"widest": int(np.nanargmax(width)), "narrowest": int(np.nanargmin(width))}
+            if np.isfinite(width).any()
+            else {}
+        )
+        for tag, i in picks.items():
+            th = rs[i]["theta"]
+            paths.append(
+                _lambda_plot(
+                    plt,
+                    [r for r in lrows if r["noise"] == noise and r["theta"] == th],
+                    results,
+                    study_dir / f"lambda_{slug(noise)}_{tag}.png",
+                    f"{noise}, θ* = {cell(th):g} ({tag} interval: {width[i]:.3g} decades)",
+                )
+            )
+    if (study_dir / "decay.csv").exists():
+        paths.append(_decay_plot(plt, study_dir, results))
+    return paths
+
+
+def _lambda_plot(plt, rows: list[dict], results: dict, path: Path, title: str) -> Path:
+    d = np.array([cell(r["delta"]) for r in rows])
+    o = np.argsort(d)
+    d = d[o]
+    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 4))
+    cmap = plt.get_cmap("viridis")
+    k = len(results["levels"])
+    for i, n in enumerate(results["levels"]):
+        a1.plot(
+            d,
+            np.array([cell(r[f"lam_l{i}"]) for r in rows])[o],
+            ".-",
+            lw=0.8,
+            color=cmap(i / max(k - 1, 1)),
+            label=f"λ̃, N = {n}" if i in (0, k - 1) else None,
+        )
+    a1.plot(
+        d, np.array([cell(r["lam_neff"]) for r in rows])[o], "-", color="C3", label=f"λ̃, N_eff = {results['n_eff']}"
+    )
+    lam_hat = np.array([cell(r["lam_hat"]) for r in rows])[o]
+    a1.plot(d, np.where(lam_hat > 0, lam_hat, np.nan), "-", color="k", lw=1.5, label="λ̂ (fit, N → ∞)")
+    bad = lam_hat <= 0
+    if bad.any():
+        a1.plot(
+            d[bad],
+            np.full(bad.sum(), np.nanmin(np.where(lam_hat > 0, lam_hat, np.nan)) if (~bad).any() else 1.0),
+            "v",
+            color="C1",
+            label="λ̂ ≤ 0 (unresolved)",
+        )
+    a1.set_yscale("log")
+    a1.set_xlabel(f"Δ [{results['units']}]")
+    a1.set_ylabel("λ")
+    a1.legend(fontsize=7)
+    a1.grid(alpha=0.3)
+    for key, col, name in (("log10_f_neff", "C3", "from λ̃^(N_eff)"), ("log10_f_hat", "k", "from λ̂")):
+        f = np.array([cell(r[key]) for r in rows])[o]
+        a2.plot(d, np.where(np.isfinite(f), f, np.nan), "-o", ms=3, color=col, label=name)
+    a2.set_xlabel(f"Δ [{results['units']}]")
+    a2.set_ylabel(f"log10 Δ²/(exp λ − 1) [{results['units']}²]")
+    a2.legend(fontsize=7)
+    a2.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _decay_plot(plt, study_dir: Path, results: dict) -> Path:
+    dc = read_csv(study_dir / "decay.csv")
+    hist = read_csv(study_dir / "decay_popt.csv")
+    gam = read_csv(study_dir / "decay_gamma.csv")
+    dec = results["decay"]
+    fig, (a1, a2, a3) = plt.subplots(1, 3, figsize=(12, 3.6))
+    a1.plot([cell(r["p"]) for r in dc], [cell(r["fit_error"]) for r in dc], "-")
+    a1.set_yscale("log")
+    a1.set_xlabel("p")
+    a1.set_ylabel("mean relative fit error ‖γ − C N^−p‖²/‖γ‖²")
+    a2.bar(
+        [cell(r["p_opt"]) for r in hist],
+        [int(r["count"]) for r in hist],
+        width=max(1e-3, float(np.diff([cell(r["p"]) for r in dc[:2]])[0])),
+        color="C0",
+    )
+    a2.axvline(1.0, color="gray", lw=0.8)
+    a2.set_xlabel(f"p_opt (median {dec['p']:.3f}, {dec['n_weights']} weightings)")
+    a2.set_ylabel("count")
+    n = np.array([cell(r["spp"]) for r in gam])
+    a3.loglog(n, [cell(r["gamma"]) for r in gam], "o", label="γ(N), one weighting")
+    a3.loglog(n, dec["c_example"] * n ** -dec["p"], "-", label=f"C N^−{dec['p']:.3f}")
+    a3.set_xlabel("spp per render N")
+    a3.legend(fontsize=7)
+    for a in (a1, a2, a3):
+        a.grid(alpha=0.3)
+    fig.suptitle("rendering-noise decay check: Σ W Var L̃^(N) = C N^−p?", fontsize=9)
+    fig.tight_layout()
+    path = study_dir / "decay.png"
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def fidelity_plots(study_dir: Path, results: dict) -> None:
+    """The fidelity study's fidelity.png (a panel per knob) and, with a depth sweep, depth.png."""
+    knobs = {k: s for k, s in results["knobs"].items() if k != "prune"}
+    if knobs:
+        _knob_plot(knobs, results, study_dir / "fidelity.png")
+    if results["depth"] is not None:
+        _depth_plot(read_csv(study_dir / "fidelity.csv"), results, study_dir / "depth.png")
+
+
+def _knob_plot(knobs: dict, results: dict, path: Path) -> Path:
+    """Per knob: relative bound error against cost (log-log); errors of 0 drawn at the bottom edge (▼),
+    errors ≥ 100 (10⁴ %) or ∞ at the top edge (▲)."""
+    plt = _plt()
+    from matplotlib.ticker import FuncFormatter, LogLocator
+
+    tol = results["tolerance"]
+    fig, axes = plt.subplots(1, len(knobs), figsize=(4 * len(knobs), 3.6), squeeze=False)
+    for ax, (knob, s) in zip(axes[0], knobs.items(), strict=True):
+        shown = [p["error"] for p in s["points"] if 0 < p["error"] < 100]
+        floor, top = tol / 100, max([tol * 10] + [2 * e for e in shown])
+        for p in s["points"]:
+            e = p["error"]
+            y, marker = (floor, "v") if e == 0 else ((top, "^") if e >= 100 else (e, "o"))
+            ax.loglog(p["cost"], y, marker, color="C3" if p["value"] == s["reference"] else "C0")
+            ax.annotate(str(p["value"]), (p["cost"], y), textcoords="offset points", xytext=(4, 4), fontsize=8)
+        ax.axhline(tol, ls="--", color="gray", lw=0.8)
+        ax.minorticks_off()  # few plain tick labels: mathtext and minor ticks make the plot slow
+        for axis, subs in ((ax.xaxis, (1.0, 2.0, 5.0)), (ax.yaxis, (1.0,))):
+            axis.set_major_locator(LogLocator(subs=subs, numticks=8))
+            axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.set_xlabel("cost [s]" if results["cost"] == "seconds" else "cost [pixel-samples]")
+        ax.set_title(f"{knob} (reference {s['reference']}: red)", fontsize=9)
+        ax.grid(alpha=0.3)
+    axes[0][0].set_ylabel(f"relative bound error (- - tolerance {tol:g}; ▼ 0, ▲ ≥ 100)", fontsize=8)
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.16, top=0.9, wspace=0.3)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def _depth_plot(rows: list[dict], results: dict, path: Path) -> Path:
+    """Median log10 HCR (solid, min–max band) and CRLB (dashed) over the NLOS θ against path depth."""
+    plt = _plt()
+    lu = results["los_until"]
+    depth_rows = [
+        r
+        for r in rows
+        if r["knob"] == "max_depth" and (lu is None or float(r["theta"]) > lu or results["depth"]["all_points"])
+    ]
+    fig, ax = plt.subplots(figsize=(5.5, 3.8))
+    for i, noise in enumerate(results["noises"]):
+        by = defaultdict(lambda: ([], []))
+        for r in depth_rows:
+            if r["noise"] == noise:
+                by[int(r["value"])][0].append(float(r["log10_hcr"]))
+                by[int(r["value"])][1].append(float(r["log10_crlb"]))
+        d = sorted(by)
+        fin = [np.array([v for v in by[k][0] if math.isfinite(v)] or [np.nan]) for k in d]
+        ax.plot(d, [np.median(f) for f in fin], "o-", color=f"C{i}", label=f"HCR, {noise}")
+        ax.fill_between(d, [f.min() for f in fin], [f.max() for f in fin], color=f"C{i}", alpha=0.15)
+        crlb = [np.median([v for v in by[k][1] if math.isfinite(v)] or [np.nan]) for k in d]
+        ax.plot(d, crlb, "s--", color=f"C{i}", label=f"CRLB, {noise}")
+    ax.set_xticks(d)
+    ax.set_xlabel("max_depth (1: emitters seen directly, 2: direct light, ...)")
+    ax.set_ylabel("log10 bound, NLOS θ [units²]")
+    return finish(fig, ax, path)
+
+
+def _vec_label(v) -> str:
+    return "(" + ", ".join(f"{float(x):g}" for x in v) + ")"
+
+
+def heat_maps(rows: list[dict], out: Path, summary: dict) -> list[Path]:
+    """One PNG per noise model: log10 of the mean per-pixel FI of each parameter over the offset grid
+    (axis 0 across, axis 1 up, in cm, like the paper's figure); infinite or missing cells are blank."""
+    plt = _plt()
+    num, step = summary["num"], summary["step"]
+    half = (num - 1) / 2 * step * 100
+    ext = [-half - step * 50, half + step * 50, -half - step * 50, half + step * 50]
+    paths = []
+    for k, noise in enumerate(summary["noises"]):
+        names = summary["params"]
+        fig, axes = plt.subplots(1, len(names), figsize=(4.6 * len(names), 4), squeeze=False)
+        for p, name in enumerate(names):
+            grid = np.full((num, num), np.nan)
+            for r in rows:
+                v = float(r["mean_fisher"])
+                if r["noise"] == noise and r["param"] == name and math.isfinite(v) and v > 0:
+                    grid[int(r["i"]), int(r["j"])] = math.log10(v)
+            im = axes[0, p].imshow(grid.T, origin="lower", extent=ext, cmap="viridis", interpolation="nearest")
+            axes[0, p].set_title(f"{name}, {noise}", fontsize=9)
+            axes[0, p].set_xlabel(f"camera offset along {_vec_label(summary['axes'][0])} [cm]")
+            axes[0, p].set_ylabel(f"camera offset along {_vec_label(summary['axes'][1])} [cm]")
+            fig.colorbar(
+                im, ax=axes[0, p], fraction=0.046, pad=0.04, label=f"log10 mean FI per pixel [1/{summary['units'][p]}²]"
+            )
+        fig.tight_layout()
+        path = out / f"heatmap_noise{k}.png"
+        fig.savefig(path, dpi=120)
+        plt.close(fig)
+        paths.append(path)
+    return paths

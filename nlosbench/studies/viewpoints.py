@@ -22,14 +22,13 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import bounds
-from ..forward.gradients import GradientSettings, fd_jacobian
+from ..bank import RenderBank
+from ..bounds import BoundService, FisherPoint, save_fisher_maps
 from ..forward.model import ForwardModel
 from ..io import read_csv, write_csv, write_exr, write_png
 from ..schema import Field
-from ..seeds import derive
 from .context import RunContext
-from .plots import _plt
+from .plots import heat_maps
 
 NAME = "viewpoints"
 SCHEMA = {
@@ -115,13 +114,11 @@ def offset_grid(num: int, step: float, axes) -> tuple[np.ndarray, np.ndarray]:
     return u, u[:, None, None] * a[0] + u[None, :, None] * a[1]
 
 
-def viewpoint_information(model: ForwardModel, theta, spp: int, seed: int, settings: GradientSettings, noises,
-                          reduce: str = "mean"):
-    """Render, FD Jacobian and per-pixel Fisher maps at the current camera pose: (L (H, W, C),
-    J (P, H, W, C), [maps (P, H, W) float64 per noise model])."""
-    L = model.render(theta, spp, derive(seed, "render"))
-    J = fd_jacobian(model, theta, spp, derive(seed, "fd"), settings)
-    return L, J, [bounds.fisher_maps(L, J, n, reduce) for n in noises]
+def viewpoint_information(model: ForwardModel, theta, spp: int, seed: int, fd_step: float, rounds: int, noises,
+                          reduce: str = "mean") -> FisherPoint:
+    """Render, FD Jacobian and per-pixel Fisher maps (P, H, W) per noise model at the current camera pose,
+    from the bound service over a render bank of the posed model (its seeds derive from `seed`)."""
+    return BoundService(RenderBank(model, seed=seed), noises).fisher([theta], spp, fd_step, rounds, reduce)[0]
 
 
 def _saved_views(num: int) -> dict[tuple[int, int], str]:
@@ -136,13 +133,14 @@ def _viewpoint_task(model: ForwardModel, item: dict) -> tuple:
     before = model.stats.snapshot()
     rig = CameraRig(model, item["target"])
     with rig.at(item["offset"]):
-        L, _, maps = viewpoint_information(model, item["theta"], item["spp"], item["seed"], item["settings"],
-                                           item["noises"], item["reduce"])
+        fp = viewpoint_information(model, item["theta"], item["spp"], item["seed"], item["fd_step"],
+                                   item["fd_rounds"], item["noises"], item["reduce"])
+    maps = [fp.maps[k] for k in range(len(item["noises"]))]
     rec = {"i": item["i"], "j": item["j"], "offset": item["offset"],
            "mean_fisher": [[float(np.mean(mp)) for mp in nm] for nm in maps],
            "infinite_pixels": [[int(np.isinf(mp).sum()) for mp in nm] for nm in maps]}
     if item["keep"]:
-        rec["images"] = (L.numpy(), maps)
+        rec["images"] = (fp.L.numpy(), maps)
     return (item["i"], item["j"]), rec, model.stats.since(before).renders
 
 
@@ -152,7 +150,6 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     theta = m.params.validate(m.params.default if cfg["at"] is None else cfg["at"])
     u, offsets = offset_grid(cfg["num"], cfg["step"], cfg["axes"])
     target = CameraRig(m, cfg["target"]).target
-    settings = GradientSettings(step=cfg["fd_step"], rounds=cfg["fd_rounds"])
     log = out / "viewpoints.jsonl"
     done = {}
     if ctx.resume and log.exists():
@@ -162,10 +159,26 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     elif log.exists():
         log.unlink()
     saved = _saved_views(cfg["num"])
-    items = [{"i": i, "j": j, "offset": offsets[i, j].tolist(), "target": target.tolist(), "theta": theta.tolist(),
-              "spp": cfg["spp"], "seed": ctx.seed_for("viewpoint", i, j), "settings": settings, "noises": ctx.noises,
-              "reduce": cfg["reduce"], "keep": (i, j) in saved}
-             for i in range(cfg["num"]) for j in range(cfg["num"]) if (i, j) not in done]
+    before = ctx.bank.renders
+    items = [
+        {
+            "i": i,
+            "j": j,
+            "offset": offsets[i, j].tolist(),
+            "target": target.tolist(),
+            "theta": theta.tolist(),
+            "spp": cfg["spp"],
+            "seed": ctx.seed_for("viewpoint", i, j),
+            "fd_step": cfg["fd_step"],
+            "fd_rounds": cfg["fd_rounds"],
+            "noises": ctx.noises,
+            "reduce": cfg["reduce"],
+            "keep": (i, j) in saved,
+        }
+        for i in range(cfg["num"])
+        for j in range(cfg["num"])
+        if (i, j) not in done
+    ]
     with open(log, "a") as f:
         for _, rec in ctx.bank.map(_viewpoint_task, items, "viewpoints"):
             images = rec.pop("images", None)
@@ -178,58 +191,40 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     for (i, j), rec in sorted(done.items()):
         for k, noise in enumerate(ctx.noises):
             for p, name in enumerate(m.params.names):
-                rows.append({"i": i, "j": j, "offset_0": u[i], "offset_1": u[j], "noise": str(noise), "param": name,
-                             "mean_fisher": rec["mean_fisher"][k][p], "infinite_pixels": rec["infinite_pixels"][k][p]})
+                rows.append(
+                    {
+                        "i": i,
+                        "j": j,
+                        "offset_0": u[i],
+                        "offset_1": u[j],
+                        "noise": str(noise),
+                        "param": name,
+                        "mean_fisher": rec["mean_fisher"][k][p],
+                        "infinite_pixels": rec["infinite_pixels"][k][p],
+                    }
+                )
     write_csv(out / "viewpoints.csv", rows)
-    summary = {"num": cfg["num"], "step": cfg["step"], "axes": cfg["axes"], "target": target.tolist(),
-               "theta": theta.tolist(), "params": list(m.params.names), "units": list(m.params.units),
-               "noises": [str(n) for n in ctx.noises], "spp": cfg["spp"],
-               "renders": cfg["num"] ** 2 * (1 + 2 * m.params.dim * cfg["fd_rounds"]),
-               "infinite_cells": sum(r["infinite_pixels"] > 0 for r in rows)}
-    heat_maps(rows, out, summary)
-    return summary
+    summary = {
+        "num": cfg["num"],
+        "step": cfg["step"],
+        "axes": cfg["axes"],
+        "target": target.tolist(),
+        "theta": theta.tolist(),
+        "params": list(m.params.names),
+        "units": list(m.params.units),
+        "noises": [str(n) for n in ctx.noises],
+        "spp": cfg["spp"],
+        "renders": ctx.bank.renders - before,
+        "infinite_cells": sum(r["infinite_pixels"] > 0 for r in rows),
+    }
+    return summary  # the heat maps: report() draws them from viewpoints.csv
 
 
 def _save_view(out: Path, label: str, L, maps, names: list[str]) -> None:
     write_exr(out / "views" / f"{label}_rgb.exr", L)
     write_png(out / "views" / f"{label}_rgb.png", L, title=label)
     for k, mp in enumerate(maps):
-        bounds.save_fisher_maps(mp, names, out / "views", prefix=f"{label}_noise{k}_fisher")
-
-
-def _fmt(v) -> str:
-    return "(" + ", ".join(f"{float(x):g}" for x in v) + ")"
-
-
-def heat_maps(rows: list[dict], out: Path, summary: dict) -> list[Path]:
-    """One PNG per noise model: log10 of the mean per-pixel FI of each parameter over the offset grid
-    (axis 0 across, axis 1 up, in cm, like the paper's figure); infinite or missing cells are blank."""
-    plt = _plt()
-    num, step = summary["num"], summary["step"]
-    half = (num - 1) / 2 * step * 100
-    ext = [-half - step * 50, half + step * 50, -half - step * 50, half + step * 50]
-    paths = []
-    for k, noise in enumerate(summary["noises"]):
-        names = summary["params"]
-        fig, axes = plt.subplots(1, len(names), figsize=(4.6 * len(names), 4), squeeze=False)
-        for p, name in enumerate(names):
-            grid = np.full((num, num), np.nan)
-            for r in rows:
-                v = float(r["mean_fisher"])
-                if r["noise"] == noise and r["param"] == name and math.isfinite(v) and v > 0:
-                    grid[int(r["i"]), int(r["j"])] = math.log10(v)
-            im = axes[0, p].imshow(grid.T, origin="lower", extent=ext, cmap="viridis", interpolation="nearest")
-            axes[0, p].set_title(f"{name}, {noise}", fontsize=9)
-            axes[0, p].set_xlabel(f"camera offset along {_fmt(summary['axes'][0])} [cm]")
-            axes[0, p].set_ylabel(f"camera offset along {_fmt(summary['axes'][1])} [cm]")
-            fig.colorbar(im, ax=axes[0, p], fraction=0.046, pad=0.04,
-                         label=f"log10 mean FI per pixel [1/{summary['units'][p]}²]")
-        fig.tight_layout()
-        path = out / f"heatmap_noise{k}.png"
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
-        paths.append(path)
-    return paths
+        save_fisher_maps(mp, names, out / "views", prefix=f"{label}_noise{k}_fisher")
 
 
 def smoke(block: dict) -> dict:
@@ -240,12 +235,21 @@ def report(study_dir: Path, results: dict) -> str:
     rows = read_csv(study_dir / "viewpoints.csv")
     paths = heat_maps(rows, study_dir, results)
     n, s = results["num"], results["step"]
-    lines = [f"Average per-pixel Fisher information over a {n} × {n} grid of camera offsets "
-             f"({s * 100:.3g} cm steps, ±{(n - 1) / 2 * s * 100:.3g} cm along {results['axes']}), camera aimed at "
-             f"{[round(v, 3) for v in results['target']]}, θ = {results['theta']}, {results['spp']} spp, "
-             f"{results['renders']} renders (image + central FD with common random numbers per viewpoint).", ""]
-    lines += [f"![viewpoints {noise}]({study_dir.name}/{p.name})" for noise, p in zip(results["noises"], paths, strict=True)]
-    lines += ["", "| noise | parameter | min mean FI | centre | max mean FI | argmax offset [cm] |", "|---|---|---|---|---|---|"]
+    lines = [
+        f"Average per-pixel Fisher information over a {n} × {n} grid of camera offsets "
+        f"({s * 100:.3g} cm steps, ±{(n - 1) / 2 * s * 100:.3g} cm along {results['axes']}), camera aimed at "
+        f"{[round(v, 3) for v in results['target']]}, θ = {results['theta']}, {results['spp']} spp, "
+        f"{results['renders']} renders (image + central FD with common random numbers per viewpoint).",
+        "",
+    ]
+    lines += [
+        f"![viewpoints {noise}]({study_dir.name}/{p.name})" for noise, p in zip(results["noises"], paths, strict=True)
+    ]
+    lines += [
+        "",
+        "| noise | parameter | min mean FI | centre | max mean FI | argmax offset [cm] |",
+        "|---|---|---|---|---|---|",
+    ]
     c = str((n - 1) // 2)
     for noise in results["noises"]:
         for name in results["params"]:
@@ -255,9 +259,13 @@ def report(study_dir: Path, results: dict) -> str:
                 continue
             best = sel[int(np.nanargmax(vals))]
             centre = [float(r["mean_fisher"]) for r in sel if r["i"] == c and r["j"] == c]
-            lines.append(f"| {noise} | {name} | {np.nanmin(vals):.4g} | {centre[0] if centre else float('nan'):.4g} | "
-                         f"{np.nanmax(vals):.4g} | ({float(best['offset_0']) * 100:.3g}, {float(best['offset_1']) * 100:.3g}) |")
+            lines.append(
+                f"| {noise} | {name} | {np.nanmin(vals):.4g} | {centre[0] if centre else float('nan'):.4g} | "
+                f"{np.nanmax(vals):.4g} | ({float(best['offset_0']) * 100:.3g}, {float(best['offset_1']) * 100:.3g}) |"
+            )
     if results.get("infinite_cells"):
-        lines.append(f"\n{results['infinite_cells']} cell(s) have infinite Fisher information (a Poisson pixel rendered "
-                     "as exactly 0 that changes with θ): render with more spp.")
+        lines.append(
+            f"\n{results['infinite_cells']} cell(s) have infinite Fisher information (a Poisson pixel rendered "
+            "as exactly 0 that changes with θ): render with more spp."
+        )
     return "\n".join(lines)
