@@ -47,6 +47,11 @@ from .seeds import derive
 TRUTH = "truth"
 
 
+def _rounded(theta) -> tuple:
+    """θ as a tuple of floats rounded to 1e-12 of its units (−0 → 0)."""
+    return tuple(float(v) for v in np.round(np.atleast_1d(np.asarray(theta, dtype=np.float64)), 12) + 0.0)
+
+
 def theta_key(theta) -> int:
     """A 64-bit integer naming θ (rounded to 1e-12 of its units) for seed derivation."""
     import hashlib
@@ -65,7 +70,8 @@ class Request:
 
     @classmethod
     def of(cls, theta, spp: int, seed: int) -> Request:
-        return cls(tuple(float(v) for v in np.atleast_1d(np.asarray(theta, dtype=np.float64))), int(spp), int(seed))
+        """θ rounded to 1e-12 of its units, so θ + ξ and a grid point equal to it are one request."""
+        return cls(_rounded(theta), int(spp), int(seed))
 
 
 @dataclass(frozen=True)
@@ -85,8 +91,8 @@ class JacobianRequest:
     @classmethod
     def of(cls, theta, spp: int, seed: int, step: float, rounds: int = 1, method: str = "fd",
            ad: dict | None = None) -> JacobianRequest:
-        t = tuple(float(v) for v in np.atleast_1d(np.asarray(theta, dtype=np.float64)))
-        return cls(t, int(spp), int(seed), float(step), int(rounds), method, tuple(sorted((ad or {}).items())))
+        return cls(_rounded(theta), int(spp), int(seed), float(step), int(rounds), method,
+                   tuple(sorted((ad or {}).items())))
 
     def settings(self) -> GradientSettings:
         """The forward layer's GradientSettings for this request."""

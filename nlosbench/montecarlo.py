@@ -1,10 +1,14 @@
 """Monte Carlo trials of estimators and their summary against the bounds.
 
 For each noise model j, θ* (index i) and trial k: a fresh noisy image y = noise.sample(L_θ*) of the
-clean image (rendered once at N_eff and reused), a fresh start, and one fit per estimator setting —
-every setting sees the same y and start (paired comparison). Seeds derive from the experiment seed,
-the purpose and the indices: the noise of y from (j, i, k); the start and the fit's generator (its
-render seeds) from (i, k), so the noise models are compared from the same starts too. Each finished
+clean image (the observation's mean, from the bank's TRUTH set), a fresh start, and one fit per
+estimator setting — every setting sees the same y and start (paired comparison). At a fixed θ* the
+clean image comes in C independent replicates and trial k uses replicate k mod C (its `cluster`), so
+the clean image's own Monte Carlo error enters the bias test's standard error (`summarize`). In the
+Bayesian protocol every trial has its own θ* drawn from the prior (`summarize_bayes`). Seeds derive
+from the experiment seed, the purpose and the indices: the noise of y from (j, i, k); the start and the
+fit's generator (its render seeds) from (i, k), so the noise models are compared from the same starts
+too. Each finished
 trial is appended to `trials.jsonl` with flush + fsync, so a killed run resumes without losing or
 repeating a trial; the summary sorts records first, so it does not depend on the order in which
 trials finished.
@@ -24,6 +28,7 @@ import torch
 
 from . import estimators
 from .estimators import Budget, Problem
+from .estimators.base import BankGrid
 from .forward.gradients import GradientSettings
 from .forward.model import ForwardModel
 from .noise import NoiseModel
@@ -50,7 +55,8 @@ class Setting:
 
 @dataclass(frozen=True)
 class Trial:
-    """One fit of one setting: noise j, θ* index i, trial k; `clean` is the image at θ* (H, W, C)."""
+    """One fit of one setting: noise j, θ* index i, trial k; `clean` is the observation's mean at θ*
+    (H, W, C), clean-image replicate `cluster`; `bank`: grid renders the estimator may use (Problem.bank)."""
 
     noise_index: int
     theta_index: int
@@ -63,6 +69,8 @@ class Trial:
     budget: Budget = Budget()
     start_width: float | None = None
     keep_trace: bool = False
+    cluster: int = 0
+    bank: BankGrid | None = None
 
     @property
     def key(self) -> tuple:
@@ -75,17 +83,36 @@ def record_key(rec: dict) -> tuple:
 
 
 def make_trials(thetas: np.ndarray, n: int, settings: Sequence[Setting], noises: dict[int, NoiseModel],
-                cleans: dict[int, torch.Tensor], seed: int, budget: Budget = Budget(),
-                start_width: float | None = None, keep_trace: bool = False) -> list[Trial]:
-    """All trials, in the order noise → θ* → trial → setting. thetas: (T, P); noises: index → model."""
+                cleans: dict, seed: int, budget: Budget = Budget(), start_width: float | None = None,
+                keep_trace: bool = False, bank: BankGrid | None = None, clusters: int = 1) -> list[Trial]:
+    """All trials, in the order noise → θ* → trial → setting. thetas: (T, P); noises: index → model;
+    cleans: (θ index, replicate) → image for replicates 0 … clusters − 1 (or θ index → image, one replicate);
+    trial k uses replicate k mod clusters."""
     if n < 1:
         raise ValueError(f"n (trials per θ*) must be >= 1, got {n}")
     labels = [s.label for s in settings]
     if len(set(labels)) != len(labels):
         raise ValueError(f"estimator labels must be unique, got {labels}")
-    return [Trial(j, i, k, s, noise, tuple(float(v) for v in thetas[i]), cleans[i], seed, budget, start_width,
-                  keep_trace)
+
+    def clean(i: int, c: int) -> torch.Tensor:
+        return cleans[(i, c)] if (i, c) in cleans else cleans[i]
+
+    return [Trial(j, i, k, s, noise, tuple(float(v) for v in thetas[i]), clean(i, k % clusters), seed, budget,
+                  start_width, keep_trace, k % clusters, bank)
             for j, noise in noises.items() for i in range(len(thetas)) for k in range(n) for s in settings]
+
+
+def make_bayes_trials(thetas: np.ndarray, settings: Sequence[Setting], noises: dict[int, NoiseModel],
+                      cleans: Sequence[torch.Tensor], seed: int, budget: Budget = Budget(), keep_trace: bool = False,
+                      bank: BankGrid | None = None) -> list[Trial]:
+    """The Bayesian protocol: trial k has its own θ*_k (thetas (n, P), drawn from the prior by the caller)
+    and clean image cleans[k]; starts are uniform over Θ. θ index = k, one trial each."""
+    labels = [s.label for s in settings]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"estimator labels must be unique, got {labels}")
+    return [Trial(j, k, 0, s, noise, tuple(float(v) for v in thetas[k]), cleans[k], seed, budget, None, keep_trace,
+                  0, bank)
+            for j, noise in noises.items() for k in range(len(thetas)) for s in settings]
 
 
 def draw_start(params: ParamSpace, theta_true: np.ndarray, width: float | None, rng: np.random.Generator) -> np.ndarray:
@@ -111,12 +138,12 @@ def run_trial(model: ForwardModel, trial: Trial) -> dict:
     j, i, k = trial.noise_index, trial.theta_index, trial.trial
     theta_true = np.array(trial.theta_true)
     rec = {"noise": j, "theta_index": i, "trial": k, "estimator": trial.setting.label, "name": trial.setting.name,
-           "theta_true": list(trial.theta_true)}
+           "theta_true": list(trial.theta_true), "cluster": trial.cluster}
     y = trial.noise.sample(trial.clean, torch.Generator().manual_seed(derive(trial.seed, "trial-noise", j, i, k)))
     init = draw_start(model.params, theta_true, trial.start_width,
                       np.random.default_rng(derive(trial.seed, "trial-start", i, k)))
     rec["init"] = init.tolist()
-    problem = Problem(model, trial.noise, trial.setting.gradient, derive(trial.seed, "problem"))
+    problem = Problem(model, trial.noise, trial.setting.gradient, derive(trial.seed, "problem"), trial.bank)
     before, t0 = model.stats.snapshot(), time.perf_counter()
     try:
         est = _estimator(trial.setting).fit(
@@ -128,6 +155,7 @@ def run_trial(model: ForwardModel, trial: Trial) -> dict:
             theta_hat=None,
             error=f"{type(e).__name__}: {e}",
             converged=False,
+            status="failed",
             reason="failed",
             iterations=0,
             renders=used.renders,
@@ -141,6 +169,7 @@ def run_trial(model: ForwardModel, trial: Trial) -> dict:
         theta_hat=est.theta.tolist(),
         error=None,
         converged=est.converged,
+        status=est.status,
         reason=est.reason,
         iterations=est.iterations,
         renders=est.renders,
@@ -225,6 +254,57 @@ def _ratio(mse: float, bound_log10: float) -> float:
     return 10.0**r if r < 300 else math.inf
 
 
+def status_counts(records: Sequence[dict]) -> str:
+    """How the fits stopped, e.g. "converged 4, stalled 2" (records without a status: from `converged`)."""
+    counts: dict[str, int] = {}
+    for r in records:
+        k = r.get("status") or ("converged" if r.get("converged") else "failed")
+        counts[k] = counts.get(k, 0) + 1
+    return ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
+
+
+def bias_test(E: np.ndarray, clusters: np.ndarray, level: float = 0.95) -> dict:
+    """Is the mean error zero? E (n, P) errors θ̂ − θ*, clusters (n,) the clean-image replicate of each
+    trial. With C ≥ 2 clusters the standard error comes from the C cluster means (their spread holds the
+    clean image's own Monte Carlo error and the trials' noise), Student t with C − 1 degrees of freedom;
+    with one cluster from the trials (the clean image's error then is not in it: `truth_in_se` False).
+    Returns bias (P,), its SE (P,), the largest |t| and `biased` (some component beyond the two-sided
+    `level` quantile, Bonferroni over P)."""
+    from scipy import stats
+
+    P = E.shape[1]
+    ids = np.unique(clusters)
+    if len(ids) >= 2:
+        means = np.stack([E[clusters == c].mean(axis=0) for c in ids])
+        se, dof, in_se = means.std(axis=0, ddof=1) / math.sqrt(len(ids)), len(ids) - 1, True
+        bias = means.mean(axis=0)
+    else:
+        bias = E.mean(axis=0)
+        se, dof, in_se = (E.std(axis=0, ddof=1) / math.sqrt(len(E)) if len(E) > 1 else np.full(P, np.nan),
+                          len(E) - 1, False)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.abs(bias) / se
+    q = float(stats.t.ppf(1 - (1 - level) / (2 * P), dof)) if dof >= 1 else math.nan
+    tmax = float(np.nanmax(t)) if np.isfinite(t).any() else math.nan
+    return {"bias": bias, "se": se, "t": tmax, "biased": bool(math.isfinite(tmax) and tmax > q),
+            "clusters": int(len(ids)), "truth_in_se": in_se}
+
+
+def compare(mse: float, mse_se: float, bound: dict) -> str:
+    """Where the MSE sits against a bound's interval (log10 ends `lower` ≤ `upper`, or just `log10`):
+    "below" when MSE + 2 SE < the lower end (an unbiased estimator cannot: bias, or too few trials),
+    "above" when MSE − 2 SE > the upper end (room left: a better estimator may exist), else "inside"."""
+    if math.isnan(mse):
+        return ""
+    lo = bound.get("lower", bound["log10"])
+    up = bound.get("upper", bound["log10"])
+    if math.isfinite(lo) and mse + 2 * mse_se < 10.0 ** min(lo, 300):
+        return "below"
+    if math.isfinite(up) and mse - 2 * mse_se > 10.0 ** min(up, 300):
+        return "above"
+    return "inside"
+
+
 def summarize(
     records: Sequence[dict],
     names: Sequence[str],
@@ -233,15 +313,15 @@ def summarize(
     bootstrap: int = 1000,
     seed: int = 0,
     labels: Sequence[str] | None = None,
+    level: float = 0.95,
 ) -> list[dict]:
-    """One row per (noise, θ*, estimator label): counts (failed / not converged shown, failures
-    excluded from the statistics, non-converged fits included), MSE, variance and bias with
-    bootstrap standard errors (`bootstrap` resamples of the trials), time and renders, and for every
-    bound b in bounds[(noise, θ index)] = {b: {"value", "log10"}} the ratio mse_over_b (units² / units²).
-
-    Flags: `far_above` lists the bounds with MSE / bound > far_above; `below` lists those with
-    MSE + 2 SE < bound (an unbiased estimator cannot do that: bias, too few trials, or a bound
-    overestimated by rendering noise). Rows follow `labels` (default: sorted estimator labels)."""
+    """One row per (noise, θ*, estimator label): counts (failed shown and excluded from the statistics;
+    each fit's stopping status counted), MSE, variance and bias with bootstrap standard errors
+    (`bootstrap` resamples of the trials), the bias test (`bias_test`, its SE over clean-image replicates),
+    time and renders, and for every bound b in bounds[(noise, θ index)] = {b: {"log10", "lower", "upper"}}
+    (log10: the value to quote; the ends where b is an interval) the ratio mse_over_b and `vs_<b>` =
+    `compare` (below / inside / above). `far_above` lists the bounds with MSE / bound > far_above. Variance
+    is never flagged against a bound (that needs the bias gradient). Rows follow `labels`."""
     groups: dict[tuple, list[dict]] = {}
     for r in sorted(records, key=record_key):
         groups.setdefault((r["noise"], r["theta_index"], r["estimator"]), []).append(r)
@@ -259,31 +339,32 @@ def summarize(
             "n": len(rs),
             "n_failed": len(rs) - len(ok),
             "n_nonconverged": sum(1 for r in ok if not r["converged"]),
+            "status": status_counts(rs),
         }
         E = np.array([r["theta_hat"] for r in ok], dtype=np.float64).reshape(len(ok), len(truth)) - truth
         if len(ok):
             mse, var, bias = _stats(E)
             rng = np.random.default_rng(derive(seed, "bootstrap", j, i, labels.index(label)))
             boot = [_stats(E[rng.integers(0, len(E), len(E))]) for _ in range(bootstrap)]
+            bt = bias_test(E, np.array([r.get("cluster", 0) for r in ok]), level)
             row.update(
                 mse=mse,
                 mse_se=_se([b[0] for b in boot]),
                 var=var,
                 var_se=_se([b[1] for b in boot]),
                 bias=float(np.linalg.norm(bias)),
-                bias_se=_se([np.linalg.norm(b[2]) for b in boot]),
+                bias_se=float(np.linalg.norm(bt["se"])),
+                bias_t_stat=bt["t"],
+                biased=bt["biased"],
+                bias_clusters=bt["clusters"],
+                bias_se_has_truth_error=bt["truth_in_se"],
                 **{f"bias_{n}": float(b) for n, b in zip(names, bias, strict=True)},
+                **{f"bias_se_{n}": float(b) for n, b in zip(names, bt["se"], strict=True)},
             )
         else:
-            row.update(
-                mse=math.nan,
-                mse_se=math.nan,
-                var=math.nan,
-                var_se=math.nan,
-                bias=math.nan,
-                bias_se=math.nan,
-                **{f"bias_{n}": math.nan for n in names},
-            )
+            row.update(mse=math.nan, mse_se=math.nan, var=math.nan, var_se=math.nan, bias=math.nan, bias_se=math.nan,
+                       bias_t_stat=math.nan, biased=False, bias_clusters=0, bias_se_has_truth_error=False,
+                       **{f"bias_{n}": math.nan for n in names}, **{f"bias_se_{n}": math.nan for n in names})
         secs, rend, grads = ([r[k] for r in rs] for k in ("seconds", "renders", "grad_passes"))
         row.update(
             mean_seconds=float(np.mean(secs)),
@@ -294,15 +375,48 @@ def summarize(
             total_grad_passes=int(np.sum(grads)),
             mean_iterations=float(np.mean([r["iterations"] for r in rs])),
         )
-        far, below = [], []
+        far = []
         for b, v in (bounds or {}).get((j, i), {}).items():
-            row[b] = v["value"]
+            row[b] = _exp10(v["log10"])
             row[f"mse_over_{b}"] = ratio = _ratio(row["mse"], v["log10"])
+            row[f"vs_{b}"] = compare(row["mse"], row["mse_se"], v)
             if ratio > far_above:
                 far.append(b)
-            if row["mse"] + 2 * row["mse_se"] < v["value"]:
-                below.append(b)
         row["far_above"] = ",".join(far)
-        row["below"] = ",".join(below)
+        row["below"] = ",".join(b for b in (bounds or {}).get((j, i), {}) if row.get(f"vs_{b}") == "below")
         rows.append(row)
     return rows
+
+
+def summarize_bayes(records: Sequence[dict], zzb: dict | None = None,
+                    labels: Sequence[str] | None = None) -> list[dict]:
+    """The Bayesian protocol: one row per (noise, estimator label) over all trials (each its own θ* drawn
+    from the prior): the Bayesian MSE E[(θ̂ − θ)²] (sum over components) with its SE (standard deviation
+    over trials / √n), and against the ZZB (zzb[noise] = {"log10", "lower", "upper"} on the MSE averaged
+    over the prior, for any estimator): `vs_zzb` "below" would contradict the bound (a bug, or a ZZB
+    grid too coarse: see its flags), else "inside"/"above"."""
+    groups: dict[tuple, list[dict]] = {}
+    for r in sorted(records, key=record_key):
+        groups.setdefault((r["noise"], r["estimator"]), []).append(r)
+    labels = list(labels or sorted({k[1] for k in groups}))
+    rows = []
+    for (j, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], labels.index(kv[0][1]))):
+        ok = [r for r in rs if r["error"] is None]
+        sq = np.array([float(((np.array(r["theta_hat"]) - np.array(r["theta_true"])) ** 2).sum()) for r in ok])
+        mse = float(sq.mean()) if len(sq) else math.nan
+        se = float(sq.std(ddof=1) / math.sqrt(len(sq))) if len(sq) > 1 else math.nan
+        row = {"noise": j, "estimator": label, "name": rs[0]["name"], "n": len(rs), "n_failed": len(rs) - len(ok),
+               "n_nonconverged": sum(1 for r in ok if not r["converged"]), "status": status_counts(rs),
+               "bayes_mse": mse, "bayes_mse_se": se,
+               "mean_seconds": float(np.mean([r["seconds"] for r in rs])),
+               "mean_renders": float(np.mean([r["renders"] + r["grad_passes"] for r in rs]))}
+        z = (zzb or {}).get(j)
+        if z is not None:
+            row.update(zzb=_exp10(z["log10"]), zzb_upper=_exp10(z.get("upper", z["log10"])),
+                       mse_over_zzb=_ratio(mse, z["log10"]), vs_zzb=compare(mse, se, z))
+        rows.append(row)
+    return rows
+
+
+def _exp10(lg: float) -> float:
+    return math.inf if lg > 308 else (10.0 ** lg if lg > -400 else 0.0)

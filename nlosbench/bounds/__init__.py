@@ -25,6 +25,12 @@ from nlosbench.bounds.inexact import (  # noqa: E402
 
 __all__ += ["DecayResult", "decay_check", "pixel_variances", "InexactHCR", "LambdaFit", "check_levels",
             "fit_lambda", "half_sample_lambda", "inexact_hcr", "replicate_grams"]
-from nlosbench.bounds.service import Bound, BoundPoint, BoundService, FisherPoint  # noqa: E402
+from nlosbench.bounds.hcr_interval import HCRInterval, hcr_interval  # noqa: E402
+from nlosbench.bounds.service import Bound, BoundPoint, BoundService, Curve, FisherPoint  # noqa: E402
+from nlosbench.bounds.unbiased_fisher import UnbiasedFisher, unbiased_fisher  # noqa: E402
+from nlosbench.bounds.ustat import UStat, pairwise_ustat, u_statistic  # noqa: E402
+from nlosbench.bounds.zzb import ZZBInterval, ZZBResult, ziv_zakai, zzb_interval  # noqa: E402
 
-__all__ += ["Bound", "BoundPoint", "BoundService", "FisherPoint"]
+__all__ += ["Bound", "BoundPoint", "BoundService", "Curve", "FisherPoint", "HCRInterval", "hcr_interval",
+            "UnbiasedFisher", "unbiased_fisher", "UStat", "pairwise_ustat", "u_statistic", "ZZBInterval", "ZZBResult",
+            "ziv_zakai", "zzb_interval"]

@@ -43,7 +43,7 @@ def save_fisher_maps(maps: np.ndarray, names: Sequence[str], outdir: str | Path,
     paths = []
     for m, name in zip(maps, names, strict=True):
         paths.append(io.write_exr(outdir / f"{prefix}_{name}.exr", m))
-        paths.append(io.write_png(outdir / f"{prefix}_{name}.png", m, log=True,
-                                  title=f"Fisher information per pixel: {name}",
+        paths.append(io.write_png(outdir / f"{prefix}_{name}.png", m, log=bool(np.all(m >= 0)),
+                                  symmetric=bool(np.any(m < 0)), title=f"Fisher information per pixel: {name}",
                                   cbar_label=f"FI [1/({name} unit)²]"))
     return paths

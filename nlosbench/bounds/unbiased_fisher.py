@@ -36,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from nlosbench.bounds.ustat import u_statistic
 from nlosbench.noise import QuadraticNoise, check_finite, to_float64
 
 
@@ -121,15 +122,8 @@ def unbiased_fisher(J, weight, L=None) -> UnbiasedFisher:
     G = ((Jf * w) @ Jf.T).reshape(R, P, R, P).transpose(0, 2, 1, 3)  # (R, R, P, P): Σ_ω w J_r,p J_s,q
     G = 0.5 * (G + G.transpose(1, 0, 3, 2))  # exact symmetry (r, p) ↔ (s, q) against rounding
     diag = np.einsum("rrpq->rpq", G).copy()  # (R, P, P): G_rr, each round's own single-pair estimate
-    cross = G.sum(axis=(0, 1)) - diag.sum(axis=0)
-    F = cross / (R * (R - 1))
-    if R >= 3:
-        # leave round k out: drop the pairs (k, s) and (r, k) from the sum over r ≠ s
-        row, col = G.sum(axis=1), G.sum(axis=0)  # Σ_s G_ks, Σ_r G_rk
-        loo = (cross[None] - (row - diag) - (col - diag)) / ((R - 1) * (R - 2))
-        se = np.sqrt((R - 1) / R * ((loo - loo.mean(axis=0)) ** 2).sum(axis=0))
-    else:
-        loo, se = np.empty((0, P, P)), np.full((P, P), math.nan)
+    u = u_statistic(G)
+    F, se, loo = u.est, u.se, u.loo
     # per-pixel map of the diagonal: Σ_{r≠s} w J_r J_s = w((Σ_r J_r)² − Σ_r J_r²)
     Jr = Jf.reshape(R, P, -1)
     pix = w * (Jr.sum(axis=0) ** 2 - (Jr ** 2).sum(axis=0)) / (R * (R - 1))

@@ -13,7 +13,7 @@ import difflib
 import importlib.metadata
 from collections.abc import Callable
 
-from .base import Budget, Estimate, Estimator, Outcome, Problem, Tracker
+from .base import BankGrid, Budget, Estimate, Estimator, Outcome, Problem, Tracker
 from .gauss_newton import GaussNewton
 from .grid_search import GridSearch
 from .mle_adam import AdamMLE
@@ -86,5 +86,5 @@ def describe() -> dict[str, str]:
     return out
 
 
-__all__ = ["Budget", "Estimate", "Estimator", "Outcome", "Problem", "Tracker", "AdamMLE", "GridSearch",
+__all__ = ["BankGrid", "Budget", "Estimate", "Estimator", "Outcome", "Problem", "Tracker", "AdamMLE", "GridSearch",
            "GaussNewton", "MultiStart", "ENTRY_POINT_GROUP", "register", "available", "factory", "get", "describe"]

@@ -1,7 +1,11 @@
 """The estimator contract: `fit(problem, y, init, rng, budget) → Estimate`.
 
 A `Problem` bundles what an estimator may use: the forward model (and so Θ), the noise model, the
-gradient settings and a seed for renders shared across fits (e.g. cached grid renders). A subclass
+gradient settings, a seed for renders shared across fits, and optionally a `BankGrid`: renders of a θ
+grid the run made already (the bound service's render sets, never the observation's own), over which a
+profile-likelihood start costs no render (`profile_start`). The negative log-likelihood goes through
+`Problem.nll`, whose Poisson policy (a model mean floored at `POISSON_FLOOR` photons per pixel) keeps it
+finite where a Monte Carlo render left a pixel at 0 and y > 0, so no fit is dropped for an infinite NLL. A subclass
 of `Estimator` implements `_fit`; the base class validates the inputs, draws a uniform random start
 when none is given, enforces the `Budget`, and measures renders and wall time from the model's own
 counters, so every estimator is accounted for the same way.
@@ -20,8 +24,25 @@ import torch
 from ..diagnostics import resolve_gradient
 from ..forward.gradients import GradientSettings
 from ..forward.model import ForwardModel, RenderStats
-from ..noise import NoiseModel, check_finite
+from ..noise import NoiseModel, Poisson, check_finite
 from ..params import ParamSpace
+
+#: Poisson NLL policy: model means below this many expected photons per pixel are raised to it
+POISSON_FLOOR = 1e-3
+#: how a fit stopped: its own convergence rule, steps shrunk by the schedule, no acceptable step, the
+#: budget, or the iteration cap (only "converged" counts as converged)
+STATUSES = ("converged", "stalled", "step-rejected", "budget", "max-iterations")
+
+
+@dataclass(frozen=True)
+class BankGrid:
+    """Renders the run made already at a θ grid: thetas (G, P), images (G, H, W, C) float32, their spp.
+    They never share a seed with an observation's mean (the bank's TRUTH set), so fitting to them does
+    not fit the observation's own rendering noise."""
+
+    thetas: np.ndarray
+    images: torch.Tensor
+    spp: int
 
 
 @dataclass(frozen=True)
@@ -30,12 +51,14 @@ class Problem:
 
     gradient: how estimators that need ∂L/∂θ get it (forward.GradientSettings: FD with CRN, AD, mixed,
     or auto — resolved here, once per model, by `diagnostics.resolve_gradient`);
-    seed: seed for renders that are the same for every fit (derive it from the experiment seed)."""
+    seed: seed for renders that are the same for every fit (derive it from the experiment seed);
+    bank: grid renders an estimator may use without rendering (e.g. a profile-likelihood start)."""
 
     model: ForwardModel
     noise: NoiseModel
     gradient: GradientSettings = field(default_factory=GradientSettings)
     seed: int = 0
+    bank: BankGrid | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "gradient", resolve_gradient(self.model, self.gradient))
@@ -43,6 +66,10 @@ class Problem:
     @property
     def params(self) -> ParamSpace:
         return self.model.params
+
+    def nll(self, y: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
+        """−log p_L(y) (float64 scalar, differentiable in L) under the Poisson policy (module docstring)."""
+        return self.noise.nll(y, floored(self, L))
 
     def to_unit(self, theta) -> np.ndarray:
         """θ → u = (θ − lower) / (upper − lower) ∈ [0, 1]^P (Θ scaled to the unit box)."""
@@ -78,8 +105,8 @@ class Budget:
 @dataclass
 class Estimate:
     """Result of one fit. theta: θ̂ float64 (P,); renders / grad_passes / samples / seconds: work done
-    during the fit (from the model's counters; cached renders cost nothing); converged: the
-    estimator's own convergence rule fired (`reason` says which rule stopped it); final_loss: the
+    during the fit (from the model's counters; cached renders cost nothing); status: how it stopped (one
+    of STATUSES); converged: status == "converged" (`reason` says which rule stopped it); final_loss: the
     last negative log-likelihood evaluated; trace: one dict per iteration {iteration, loss, theta,
     renders, seconds} with cumulative renders and seconds."""
 
@@ -87,6 +114,7 @@ class Estimate:
     iterations: int
     converged: bool
     reason: str
+    status: str
     renders: int
     grad_passes: int
     samples: int
@@ -130,13 +158,19 @@ class Tracker:
 
 @dataclass
 class Outcome:
-    """What `_fit` returns: θ̂, iterations done, whether it converged and why it stopped, final loss."""
+    """What `_fit` returns: θ̂, iterations done, how it stopped (one of STATUSES) and why, final loss."""
 
     theta: np.ndarray
     iterations: int
-    converged: bool
+    status: str
     reason: str
     final_loss: float
+
+    def __post_init__(self):
+        if isinstance(self.status, bool):  # the 0.1 plug-in API returned `converged`: True / False
+            self.status = "converged" if self.status else "max-iterations"
+        if self.status not in STATUSES:
+            raise ValueError(f"fit status must be one of {list(STATUSES)}, got {self.status!r}")
 
 
 class Estimator(ABC):
@@ -145,24 +179,32 @@ class Estimator(ABC):
 
     name: ClassVar[str] = ""
     valid_when: ClassVar[str] = ""
+    #: "given": start at `init` (or a uniform random point); "profile": at the profile-likelihood minimum over
+    #: the problem's bank grid (`profile_start`, no render). Estimators that take a start set it from options.
+    start: str = "given"
 
     def fit(self, problem: Problem, y, init=None, rng: np.random.Generator | None = None,
             budget: Budget = Budget()) -> Estimate:
         """θ̂ from the observation y (same shape as a render, radiance units).
 
-        init: start θ (P,) in Θ, or None for a uniform random start drawn from `rng`;
+        init: start θ (P,) in Θ, or None for a uniform random start drawn from `rng` (ignored with
+        start "profile");
         rng: a numpy Generator seeded from the experiment seed (starts and render seeds come from it)."""
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy Generator seeded from a derived seed "
                             "(e.g. np.random.default_rng(nlosbench.seeds.derive(seed, purpose, i)))")
         y = torch.as_tensor(y)
         check_finite(y, "observation y")
-        theta0 = problem.params.sample_uniform(rng) if init is None else problem.params.validate(init)
+        if self.start == "profile":
+            theta0 = profile_start(problem, y)[0]
+        else:
+            theta0 = problem.params.sample_uniform(rng) if init is None else problem.params.validate(init)
         tracker = Tracker(problem.model, budget)
         out = self._fit(problem, y, theta0, rng, tracker)
         used = tracker.used()
         return Estimate(theta=problem.params.validate(out.theta), iterations=int(out.iterations),
-                        converged=bool(out.converged), reason=out.reason, renders=used.renders,
+                        converged=out.status == "converged", reason=out.reason, status=out.status,
+                        renders=used.renders,
                         grad_passes=used.grad_passes, samples=used.samples, seconds=tracker.seconds(),
                         final_loss=float(out.final_loss), init=theta0, trace=tracker.trace)
 
@@ -176,14 +218,46 @@ class Estimator(ABC):
         return f"{type(self).__name__}({opts})"
 
 
+def check_start(name: str, start: str) -> str:
+    """A start option ("given" or "profile"), else ValueError naming the estimator."""
+    if start not in ("given", "profile"):
+        raise ValueError(f"{name}: start must be 'given' or 'profile', got {start!r}")
+    return start
+
+
 def render_seed(rng: np.random.Generator) -> int:
     """A 32-bit base seed for one fit's renders, drawn from the fit's generator."""
     return int(rng.integers(0, 2**32))
 
 
+def floored(problem: Problem, L: torch.Tensor) -> torch.Tensor:
+    """L with the Poisson policy's floor applied (unchanged for other noise models)."""
+    return L.clamp_min(POISSON_FLOOR / problem.noise.scale) if isinstance(problem.noise, Poisson) else L
+
+
 def nll(problem: Problem, y: torch.Tensor, L: torch.Tensor) -> float:
-    """The noise model's negative log-likelihood of y at the image L, as a Python float."""
-    return float(problem.noise.nll(y, L))
+    """The problem's negative log-likelihood of y at the image L (`Problem.nll`), as a Python float."""
+    return float(problem.nll(y, L))
+
+
+def profile_start(problem: Problem, y: torch.Tensor) -> tuple[np.ndarray, int]:
+    """(θ0, grid index): the minimum of the NLL of y over the problem's bank grid renders (no render),
+    refined for a scalar θ by the vertex of the parabola through the minimum and its two neighbours
+    (kept inside them). ValueError when the problem has no bank grid."""
+    if problem.bank is None:
+        raise ValueError("start: profile needs grid renders from the run (Problem.bank); the trials study "
+                         "provides them, a direct fit must pass a BankGrid")
+    T, imgs = np.asarray(problem.bank.thetas, dtype=np.float64), problem.bank.images
+    prof = np.array([nll(problem, y, L) for L in imgs])
+    g = int(np.argmin(prof))
+    theta = T[g].copy()
+    if T.shape[1] == 1 and 0 < g < len(T) - 1:
+        (x0, x1, x2), (f0, f1, f2) = T[g - 1:g + 2, 0], prof[g - 1:g + 2]
+        den = (x1 - x0) * (f1 - f2) - (x1 - x2) * (f1 - f0)
+        if den != 0 and np.isfinite(den):
+            v = x1 - 0.5 * ((x1 - x0) ** 2 * (f1 - f2) - (x1 - x2) ** 2 * (f1 - f0)) / den
+            theta[0] = float(np.clip(v, x0, x2))
+    return problem.params.validate(np.clip(theta, problem.params.lower, problem.params.upper)), g
 
 
 def finite_or_raise(value: float, what: str) -> float:

@@ -2,7 +2,8 @@
 
 Each iteration renders L_θ and its Jacobian J = ∂L/∂θ (FD with common random numbers, or AD, as the
 problem says) with one seed, and proposes θ + (F + μ·diag F)⁻¹ s with the score s = −Jᵀ ∂NLL/∂L and
-F = `bounds.fisher_matrix(L, J, noise)` (for AWGN this is Gauss–Newton: F = JᵀJ/σ²). The step is
+F = `bounds.fisher_matrix(L, J, noise)` (for AWGN this is Gauss–Newton: F = JᵀJ/σ²) — a plug-in FI from one
+FD pair, biased high by rendering noise, which only scales the step (not the FI any bound uses). The step is
 clipped to Θ and accepted when the NLL at the new θ, rendered with the *same* seed (so rendering noise
 cancels in the comparison), is not higher; otherwise μ grows and the step shrinks.
 """
@@ -14,7 +15,7 @@ import torch
 from ..bounds.crlb import fisher_matrix
 from ..forward.gradients import jacobian
 from ..seeds import derive
-from .base import Estimator, Outcome, Problem, Tracker, finite_or_raise, nll, render_seed
+from .base import Estimator, Outcome, Problem, Tracker, check_start, finite_or_raise, floored, nll, render_seed
 
 
 class GaussNewton(Estimator):
@@ -31,7 +32,7 @@ class GaussNewton(Estimator):
                   "likelihoods (wrap it in multi-start), nor where the Jacobian is unreliable.")
 
     def __init__(self, iterations: int = 30, spp: int = 512, damping: float = 1e-3, tol: float = 1e-6,
-                 max_tries: int = 10):
+                 max_tries: int = 10, start: str = "given"):
         if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
             raise ValueError(f"gauss-newton: iterations must be a positive integer, got {iterations!r}")
         if isinstance(spp, bool) or int(spp) != spp or spp < 1:
@@ -41,6 +42,7 @@ class GaussNewton(Estimator):
                              f"{damping}, {tol}, {max_tries}")
         self.iterations, self.spp, self.damping, self.tol, self.max_tries = (
             int(iterations), int(spp), float(damping), float(tol), int(max_tries))
+        self.start = check_start(self.name, start)
 
     def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,
              tracker: Tracker) -> Outcome:
@@ -51,20 +53,20 @@ class GaussNewton(Estimator):
         for it in range(n):
             stop = tracker.exhausted()
             if stop:
-                return Outcome(theta, it, False, stop, loss)
+                return Outcome(theta, it, "budget", stop, loss)
             seed = derive(base, "gauss-newton", it)
             L = model.render(theta, self.spp, seed)
             loss = finite_or_raise(nll(problem, y, L), f"NLL at iteration {it}")
             tracker.record(it, loss, theta)
             J = jacobian(model, theta, self.spp, seed, problem.gradient)
             Lg = L.to(torch.float64).requires_grad_(True)
-            (dnll,) = torch.autograd.grad(noise.nll(y, Lg), Lg)
+            (dnll,) = torch.autograd.grad(problem.nll(y, Lg), Lg)
             score = -torch.einsum("p...,...->p", J.double(), dnll).numpy()
-            F = fisher_matrix(L, J, noise)
+            F = fisher_matrix(floored(problem, L), J, noise)  # the step's plug-in FI (one FD pair: biased high)
             d = np.diag(F)
             if not (d > 0).all():
                 dead = [p.names[j] for j in np.flatnonzero(~(d > 0))]
-                return Outcome(theta, it + 1, False, f"zero Fisher information for {dead} at θ = "
+                return Outcome(theta, it + 1, "stalled", f"zero Fisher information for {dead} at θ = "
                                                      f"{theta.tolist()}: the image does not depend on it here", loss)
             for _ in range(self.max_tries):
                 step = np.linalg.solve(F + mu * np.diag(d), score)
@@ -75,10 +77,10 @@ class GaussNewton(Estimator):
                     break
                 mu *= 4.0
             else:
-                return Outcome(theta, it + 1, True, f"no damped step lowers the NLL after {self.max_tries} tries "
-                                                    "(a minimum at this render noise)", loss)
+                return Outcome(theta, it + 1, "step-rejected", f"no damped step lowers the NLL after "
+                               f"{self.max_tries} tries (a minimum at this render noise, or a stall)", loss)
             moved = float(np.max(np.abs(problem.to_unit(new) - problem.to_unit(theta))))
             theta, loss = new, new_loss
             if moved < self.tol:
-                return Outcome(theta, it + 1, True, f"step < {self.tol:g} of Θ's width", loss)
-        return Outcome(theta, n, False, f"reached max iterations ({n})", loss)
+                return Outcome(theta, it + 1, "converged", f"step < {self.tol:g} of Θ's width", loss)
+        return Outcome(theta, n, "max-iterations", f"reached max iterations ({n})", loss)

@@ -74,7 +74,7 @@ class GridSearch(Estimator):
         best = [problem.to_unit(thetas[g]), finite_or_raise(float(profile[g]), "NLL at the grid minimum")]
         tracker.record(0, best[1], thetas[g])
         if not self.refine:
-            return Outcome(thetas[g], 1, True, f"grid minimum of {len(thetas)} points (no refinement)", best[1])
+            return Outcome(thetas[g], 1, "converged", f"grid minimum of {len(thetas)} points (no refinement)", best[1])
         seed = derive(render_seed(rng), "grid-search-refine")
         h = 1.0 / (self.num - 1)
         box = [(max(0.0, c - h), min(1.0, c + h)) for c in best[0]]
@@ -104,7 +104,7 @@ class GridSearch(Estimator):
                 # ftol: relative NLL change; float32 renders make smaller changes noise
                 res = scipy.optimize.minimize(objective, best[0], method="Powell", bounds=box,
                                               options={"xtol": self.xtol, "ftol": 1e-7, "maxfev": self.refine_evals})
-            converged, reason = bool(res.success), f"refined: {res.message}"
+            status, reason = ("converged" if res.success else "max-iterations"), f"refined: {res.message}"
         except _OutOfBudget as e:
-            converged, reason = False, str(e)
-        return Outcome(problem.from_unit(best[0]), 1 + evals[0], converged, reason, best[1])
+            status, reason = "budget", str(e)
+        return Outcome(problem.from_unit(best[0]), 1 + evals[0], status, reason, best[1])

@@ -17,9 +17,11 @@ import torch
 
 from ..forward.autograd import render
 from ..seeds import derive
-from .base import Estimator, Outcome, Problem, Tracker, finite_or_raise, render_seed
+from .base import Estimator, Outcome, Problem, Tracker, check_start, finite_or_raise, render_seed
 
 LR_SCHEDULES = ("constant", "cosine", "exponential")
+#: steps that stop moving once the schedule has cut the learning rate below this fraction have stalled
+STALL = 0.1
 
 
 def spp_schedule(spp) -> tuple[tuple[float, int], ...]:
@@ -47,9 +49,11 @@ class AdamMLE(Estimator):
     iterations: maximum iterations; spp: int or schedule [[fraction, spp], ...] (paper: 512 then 1024);
     lr_schedule: constant | cosine | exponential, decaying to lr·lr_final at the last iteration;
     tol, patience: converged when every component of u moved less than tol (fraction of Θ's width)
-    for `patience` consecutive iterations; betas: Adam's moment decay rates. The defaults (0.5, 0.99)
-    rather than torch's (0.9, 0.999): the NLL's gradient shrinks by orders of magnitude between a far
-    start and θ̂, and a long second-moment memory then freezes the steps near θ̂ while heavy momentum
+    for `patience` consecutive iterations while the learning rate is still at least STALL of its start
+    (later, the schedule made the steps small: status "stalled"); start: "given" or "profile" (the
+    profile-likelihood minimum over the problem's bank grid); betas: Adam's moment decay rates. The
+    defaults (0.5, 0.99) rather than torch's (0.9, 0.999): the NLL's gradient shrinks by orders of magnitude
+    between a far start and θ̂, and a long second-moment memory then freezes the steps near θ̂ while heavy momentum
     overshoots (on blob2d at high SNR, (0.9, 0.999) ends at ≈ 5 × CRLB after 100 iterations,
     (0.5, 0.99) at the CRLB after ≈ 30)."""
 
@@ -61,7 +65,7 @@ class AdamMLE(Estimator):
 
     def __init__(self, lr: float = 0.05, iterations: int = 200, spp=((0.0, 512), (0.5, 1024)),
                  lr_schedule: str = "cosine", lr_final: float = 1e-3, tol: float = 1e-4, patience: int = 3,
-                 betas: tuple[float, float] = (0.5, 0.99)):
+                 betas: tuple[float, float] = (0.5, 0.99), start: str = "given"):
         if not lr > 0:
             raise ValueError(f"mle-adam: lr must be > 0, got {lr}")
         if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
@@ -80,6 +84,7 @@ class AdamMLE(Estimator):
             int(patience),
         )
         self.betas = (float(betas[0]), float(betas[1]))
+        self.start = check_start(self.name, start)
 
     def lr_factor(self, k: int, n: int) -> float:
         """Learning-rate multiplier at iteration k of n (1 at the start, lr_final at the end)."""
@@ -105,17 +110,17 @@ class AdamMLE(Estimator):
         opt = torch.optim.Adam([u], lr=self.lr, betas=self.betas)
         sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda k: self.lr_factor(k, n))
         still, done, loss = 0, 0, math.nan
-        reason, converged = f"reached max iterations ({n})", False
+        reason, status = f"reached max iterations ({n})", "max-iterations"
         while done < n:
             stop = tracker.exhausted()
             if stop:
-                reason = stop
+                reason, status = stop, "budget"
                 break
             theta = torch.clamp(lo + u * width, lo, hi)  # rounding may step past `upper`
             L = render(
                 problem.model, theta, self.spp_at(done, n), derive(base, "mle-adam", done), grad=problem.gradient
             )
-            loss_t = problem.noise.nll(y, L)
+            loss_t = problem.nll(y, L)
             loss = finite_or_raise(float(loss_t.detach()), f"NLL at iteration {done}")
             tracker.record(done, loss, theta.detach().numpy())
             opt.zero_grad()
@@ -128,7 +133,9 @@ class AdamMLE(Estimator):
             done += 1
             still = still + 1 if float((u.detach() - before).abs().max()) < self.tol else 0
             if still >= self.patience:
-                converged = True
-                reason = f"θ moved < {self.tol:g} of Θ's width for {self.patience} iterations"
+                factor = self.lr_factor(done - 1, n)
+                status = "converged" if factor >= STALL else "stalled"
+                reason = (f"θ moved < {self.tol:g} of Θ's width for {self.patience} iterations at "
+                          f"{factor:.3g} × the initial learning rate")
                 break
-        return Outcome(problem.from_unit(u.detach().numpy()), done, converged, reason, loss)
+        return Outcome(problem.from_unit(u.detach().numpy()), done, status, reason, loss)

@@ -62,4 +62,4 @@ class MultiStart(Estimator):
         reason = f"best of {done} start(s) is start {s}: {est.reason}"
         if done < self.starts:
             reason += f"; only {done} of {self.starts} starts fitted the budget"
-        return Outcome(est.theta, iterations, est.converged and done == self.starts, reason, score)
+        return Outcome(est.theta, iterations, est.status if done == self.starts else "budget", reason, score)

@@ -62,7 +62,9 @@ SCHEMA = {
                                  "[]: the scene's own depth, not swept", items=int),
     "gradient": Field(list, ["fd"], "Jacobian methods for the CRLB; fd (central, common random numbers) is "
                                     "the reference", items=Field(str, choices=GRADIENTS)),
-    "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
+    "fd_step": Field(float, None, "FD step ξ of the CRLB term (parameter units; null: the grid neighbours)",
+                     nullable=True),
+    "replicates": Field(int, 2, "independent replicate render sets per setting (unbiased U-statistics need 2)"),
     "ad": Field(dict, {}, "AD integrator options, e.g. {sppc: 4, sppp: 4, sppi: 0} for prb_projective on CPU"),
     "seeds": Field(str, "independent", "render seeds across the θ grid: independent or common (as in `bounds`)",
                    choices=("independent", "common")),
@@ -161,8 +163,9 @@ class _Sweep:
         noises = [n.binned(s.bin) if s.bin > 1 else n for n in self.ctx.noises]
         svc = BoundService(RenderBank(model, progress=self.ctx.progress, seed=self.ctx.seed), noises)
         before, t0 = base.stats.snapshot(), time.perf_counter()
-        points = svc.curve(self.thetas, s.spp, self.cfg["seeds"], crlb=True, fd_step=self.cfg["fd_step"],
-                           gradient=s.gradient, ad=dict(self.cfg["ad"]))
+        curve = svc.curve(self.thetas, s.spp, self.cfg["seeds"], self.cfg["replicates"], crlb=True, zzb=False,
+                          fd_step=self.cfg["fd_step"], gradient=s.gradient, ad=dict(self.cfg["ad"]), check_step=False)
+        points = curve.points
         spent, seconds = base.stats.since(before), time.perf_counter() - t0
         cost = RenderStats(spent.renders, spent.grad_passes,
                            spent.samples + spent.grad_passes * s.render_spp * self.pixels, seconds)
@@ -455,7 +458,8 @@ def report(study_dir: Path, results: dict) -> str:
         f"**Overall:** {combo}; predicted speed-up {o['predicted_speedup']:.3g}× (product of the knobs'). "
         + (
             f"Computed: error {_pct(o['error'])} ({'within' if o['within'] else 'NOT within'} tolerance: "
-            + ("the errors do not compound here" if o["within"] else "the errors compound: keep one knob at its reference")
+            + ("the errors do not compound here" if o["within"]
+               else "the errors compound: keep one knob at its reference")
             + f"), speed-up {o['speedup']:.3g}×."
             if o["verified"]
             else f"Not computed ({o['reason']})."

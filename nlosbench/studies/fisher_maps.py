@@ -19,7 +19,8 @@ SCHEMA = {
     "labels": Field(list, None, "a label per θ (e.g. LOS, NLOS)", items=str, nullable=True),
     "spp": Field(int, 1024, "samples per pixel of the renders"),
     "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
-    "fd_rounds": Field(int, 1, "FD rounds averaged (independent seeds)"),
+    "fd_rounds": Field(int, 3, "independent FD rounds: the unbiased Fisher information is a U-statistic over them "
+                               "(>= 2; >= 3 for the CRLB's interval)"),
     "reduce": Field(str, "sum", "combine channels by", choices=("sum", "mean")),
 }
 
@@ -47,9 +48,11 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
             thetas.append(ctx.model.params.validate(np.atleast_1d(theta)))
         except (TypeError, ValueError) as e:
             raise ConfigError(f"{sid}.at[{i}]", str(e)) from None
-    for k in ("spp", "fd_rounds"):
-        if cfg[k] < 1:
-            raise ConfigError(f"{sid}.{k}", f"expected a positive integer, got {cfg[k]}")
+    if cfg["spp"] < 1:
+        raise ConfigError(f"{sid}.spp", f"expected a positive integer, got {cfg['spp']}")
+    if cfg["fd_rounds"] < 2:
+        raise ConfigError(f"{sid}.fd_rounds", f"the unbiased Fisher information needs >= 2 rounds, got "
+                                              f"{cfg['fd_rounds']}")
     return Plan(np.array(thetas), labels, cfg["spp"], cfg["fd_step"], cfg["fd_rounds"], cfg["reduce"])
 
 
@@ -75,7 +78,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
 def smoke(block: dict) -> dict:
     keep = block["at"][:2]
     return {**block, "at": keep, "labels": block["labels"] and block["labels"][:2], "spp": min(block["spp"], 16),
-            "fd_rounds": 1}
+            "fd_rounds": 2}
 
 
 def report(study_dir: Path, results: dict) -> str:

@@ -22,25 +22,48 @@ def _plt():
 
 
 def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = None, parameter: str = "θ",
-                      units: str = "units") -> Path:
-    """log10 bound vs θ from bound-service rows (theta_<parameter>, log10_<kind> per noise): one solid
-    line (HCR) and, where present, dashed CRLB and dotted Barankin per noise model."""
+                      units: str = "units", zzb: dict | None = None) -> Path:
+    """log10 bound vs θ from bound-service rows (theta_<parameter>, log10_<kind>, <kind>_upper per noise):
+    per noise model the HCR's lower end (solid) with a band to its upper end (open ends drawn to the top),
+    the CRLB (dashed), the paper's HCR_Neff (dotted, thin) and Barankin (dash-dot) where present; `zzb`
+    {noise: log10} adds the ZZB over Θ as a level line. The y-range follows the HCR and CRLB (a paper
+    HCR_Neff decades below is cut at the bottom, and said so in the legend)."""
     plt = _plt()
     series = defaultdict(list)
     for r in rows:
         series[r["noise"]].append(r)
-    fig, ax = plt.subplots(figsize=(7, 4))
+    fig, ax = plt.subplots(figsize=(7.5, 4.2))
+    lows, highs = [], []
+    for rs in series.values():
+        for key in ("log10_hcr", "hcr_upper", "log10_crlb"):
+            vals = [cell(r.get(key)) for r in rs]
+            lows += [v for v in vals if np.isfinite(v)]
+        highs += [cell(r.get("hcr_upper")) for r in rs if np.isfinite(cell(r.get("hcr_upper")))]
+    bottom = (min(lows) - 1.0) if lows else -10.0
+    top = (max(lows + highs) + 0.5) if lows else 0.0
     for i, (noise, rs) in enumerate(series.items()):
-        x = [float(r[f"theta_{parameter}"]) for r in rs]
+        x = np.array([float(r[f"theta_{parameter}"]) for r in rs])
         color = f"C{i}"
-        ax.plot(x, [float(r["log10_hcr"]) for r in rs], "-", color=color, label=f"HCR, {noise}")
-        for key, style, name in (("log10_crlb", "--", "CRLB"), ("log10_barankin", ":", "Barankin")):
-            if rs and key in rs[0] and rs[0][key] not in ("", None):
-                ax.plot(x, [float(r[key]) for r in rs], style, color=color, label=f"{name}, {noise}")
+        low = np.array([cell(r["log10_hcr"]) for r in rs])
+        ax.plot(x, low, "-", color=color, label=f"HCR lower end, {noise}")
+        if "hcr_upper" in rs[0]:
+            up = np.array([cell(r["hcr_upper"]) for r in rs])
+            ax.fill_between(x, low, np.where(np.isfinite(up), up, top), color=color, alpha=0.15, lw=0)
+        for key, style, name, lw in (("log10_crlb", "--", "CRLB", 1.2),
+                                     ("log10_hcr_neff", ":", "HCR_Neff (paper)", 0.9),
+                                     ("log10_barankin", "-.", "Barankin", 1.0)):
+            if rs and rs[0].get(key) not in ("", None):
+                y = np.array([cell(r[key]) for r in rs])
+                cut = " (cut below)" if np.any(y < bottom) else ""
+                ax.plot(x, np.clip(y, bottom, None), style, color=color, lw=lw, label=f"{name}, {noise}{cut}")
+        if zzb and np.isfinite(zzb.get(noise, np.nan)):
+            ax.axhline(zzb[noise], color=color, lw=0.8, ls=(0, (6, 2, 1, 2)),
+                       label=f"ZZB over Θ (Bayesian MSE), {noise}")
+    ax.set_ylim(bottom, top)
     if los_until is not None:
         ax.axvline(float(los_until), color="gray", lw=0.8)
-        ax.text(float(los_until), ax.get_ylim()[1], " NLOS →", va="top", ha="left", fontsize=8, color="gray")
-        ax.text(float(los_until), ax.get_ylim()[1], "← LOS ", va="top", ha="right", fontsize=8, color="gray")
+        ax.text(float(los_until), top, " NLOS →", va="top", ha="left", fontsize=8, color="gray")
+        ax.text(float(los_until), top, "← LOS ", va="top", ha="right", fontsize=8, color="gray")
     ax.set_xlabel(f"θ = {parameter} [{units}]")
     ax.set_ylabel(f"log10 bound [{units}²]")
     return finish(fig, ax, path)
@@ -57,8 +80,11 @@ def finish(fig, ax, path: Path, dpi: int = 120) -> Path:
 
 
 def fisher_figure(out: Path, labels: list[str], names: list[str]) -> Path:
-    """fisher_maps.png: one row per point: the RGB render, then the log-scale FI map of each parameter
-    (first noise model), from the saved EXRs."""
+    """fisher_maps.png: one row per point: the RGB render, then the unbiased per-pixel FI map of each
+    parameter (first noise model; it is negative where rendering noise outweighs the signal) on a
+    symmetric log scale (linear within the 90th percentile of |FI| / 100), from the saved EXRs."""
+    from matplotlib.colors import SymLogNorm
+
     plt = _plt()
     cols = 1 + len(names)
     fig, axes = plt.subplots(len(labels), cols, figsize=(3.2 * cols, 3 * len(labels)), squeeze=False)
@@ -68,14 +94,10 @@ def fisher_figure(out: Path, labels: list[str], names: list[str]) -> Path:
         axes[r, 0].set_title(f"{label}: render")
         for c, name in enumerate(names, start=1):
             fi = read_exr(out / f"{label}_noise0_fisher_{name}.exr")[..., 0].astype(np.float64)
-            pos = fi[fi > 0]
-            im = axes[r, c].imshow(
-                np.log10(np.where(fi > 0, fi, np.nan)),
-                cmap="inferno",
-                vmin=np.log10(pos.min()) if pos.size else None,
-                vmax=np.log10(pos.max()) if pos.size else None,
-            )
-            axes[r, c].set_title(f"log10 FI, {name}")
+            top = float(np.abs(fi).max()) or 1.0
+            lin = max(float(np.percentile(np.abs(fi), 90)) / 100, top * 1e-8)
+            im = axes[r, c].imshow(fi, cmap="RdBu_r", norm=SymLogNorm(lin, vmin=-top, vmax=top, base=10))
+            axes[r, c].set_title(f"unbiased FI per pixel, {name}", fontsize=8)
             fig.colorbar(im, ax=axes[r, c], fraction=0.046, pad=0.04)
     for a in axes.ravel():
         a.set_axis_off()
@@ -121,9 +143,9 @@ def plot_mse(
     return path
 
 
-def plot_speed(rows: list[dict], units: str, path: Path) -> Path:
+def plot_speed(rows: list[dict], units: str, path: Path, bayes: bool = False) -> Path:
     """Speed against error: per estimator setting (and noise model), mean wall seconds and renders
-    (+ AD passes) per trial against the MSE averaged over θ*, log–log."""
+    (+ AD passes) per trial against the MSE averaged over θ* (bayes: the Bayesian MSE), log–log."""
     plt = _plt()
     from matplotlib.ticker import NullFormatter
 
@@ -131,12 +153,13 @@ def plot_speed(rows: list[dict], units: str, path: Path) -> Path:
     several = len({r["noise"] for r in rows}) > 1
     xs: list[list[float]] = [[], []]
     for j, label in dict.fromkeys((r["noise"], r["estimator"]) for r in rows):
-        rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r["mse"] > 0]
+        key = "bayes_mse" if bayes else "mse"
+        rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r[key] > 0]
         if not rs:  # every fit failed (or hit θ* exactly): nothing to place on a log axis
             continue
-        mse = float(np.mean([r["mse"] for r in rs]))
+        mse = float(np.mean([r[key] for r in rs]))
         secs = float(np.mean([r["mean_seconds"] for r in rs]))
-        rend = float(np.mean([r["mean_renders"] + r["mean_grad_passes"] for r in rs]))
+        rend = float(np.mean([r["mean_renders"] + r.get("mean_grad_passes", 0.0) for r in rs]))
         for ax, x, seen in zip(axes, (secs, rend), xs, strict=True):
             seen.append(x)
             ax.scatter([x], [mse], s=40)

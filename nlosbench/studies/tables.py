@@ -25,7 +25,8 @@ def fmt(v, digits: int = 3) -> str:
     return str(v)
 
 
-BOUND_TITLES = {"hcr": "HCR_Neff", "hcr_hat": "HCR-hat", "crlb": "CRLB", "barankin": "Barankin"}
+BOUND_TITLES = {"hcr": "HCR (lower end)", "hcr_neff": "HCR_Neff", "hcr_hat": "HCR-hat", "crlb": "CRLB",
+                "barankin": "Barankin"}
 
 
 def fmt_log10(lg: float) -> str:

@@ -1,0 +1,237 @@
+"""The Ziv–Zakai bound (ZZB) on the Bayesian MSE of a scalar θ over a prior on Θ: it holds for every
+estimator, biased or not (Bell, Steinberg, Ephraim & Van Trees 1997, the extended ZZB):
+
+    E[(θ̂ − θ)²] ≥ ½ ∫_0^T h · V{A}(h) dh,   A(h) = ∫ (p(φ) + p(φ+h)) P_min(φ, φ+h) dφ,
+
+with P_min the least error probability of the binary test θ = φ against θ = φ + h (priors ∝ p(φ), p(φ+h)),
+V valley filling (V{A}(h) = max_{η ≥ 0} A(h + η), so V{A} is non-increasing) and T the width of Θ. Here:
+
+* uniform prior on the grid's range by default (p = 1/T): (p(φ) + p(φ+h)) P_min = (2/T) P_e with the
+  equal-prior error P_e; a density `prior` on the grid uses the valid weaker form 2·min(p(φ), p(φ+h))·P_e;
+* AWGN: P_e = Q(√λ / 2), λ = ‖L1 − L0‖² / σ² (the HCR curve's pairwise λ: no extra renders);
+* Poisson: P_e ≥ ½(1 − √(1 − ρ²)) with the Bhattacharyya coefficient ρ = exp(−½ Σ s(√L1 − √L0)²) (it is
+  not a function of λ), a lower bound on P_e, so the ZZB stays a bound;
+* on a uniform grid θ_0 < … < θ_{n−1} (spacing δ, T = (n−1)δ): A(kδ) by the trapezoid rule over φ, then
+  valley filling, then a *lower* sum in h: ∫_{h_k}^{h_{k+1}} h V(h) dh ≥ V(h_{k+1}) (h_k + δ/2) δ, since V
+  is non-increasing. A sum over grid points cannot bound P_e between them: `halved` reports the change
+  when the spacing is halved (the bound on every other grid point against the full grid).
+No information (P_e = ½ everywhere) gives T²/12 − O(δ), the prior variance; as the SNR grows the ZZB tends
+to the CRLB. A non-uniform grid is refused (the h-integral needs a uniform lattice).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import erfc
+
+from nlosbench.bounds.grid import pairwise_lambda
+from nlosbench.bounds.hcr import as_numpy
+from nlosbench.bounds.ustat import UStat, t_quantile
+from nlosbench.noise import AWGN, NoiseModel, Poisson, to_float64
+
+
+@dataclass
+class ZZBResult:
+    """value (units²) with an exact log10; A (n−1,) the valley-filled A(h_k) (k = 1 … n−1) and h (n−1,)
+    its offsets; prior_variance: T²/12 (uniform) or the density's variance; halved: log10 change of the
+    bound when the grid spacing is halved (NaN when the grid is too short); reason: how P_e was formed."""
+
+    value: float
+    log10: float
+    h: np.ndarray
+    A: np.ndarray
+    prior_variance: float
+    halved: float
+    reason: str
+
+
+def pe_from_lambda(lam) -> np.ndarray:
+    """Equal-prior binary error of two Gaussians at distance √λ: Q(√λ / 2) = ½ erfc(√λ / (2√2)); λ ≤ 0 → ½."""
+    lam = np.clip(np.asarray(lam, dtype=np.float64), 0.0, None)
+    return 0.5 * erfc(np.sqrt(lam) / (2.0 * math.sqrt(2.0)))
+
+
+def pe_from_bhattacharyya(b) -> np.ndarray:
+    """The lower bound ½(1 − √(1 − ρ²)) on the equal-prior error from the Bhattacharyya distance b = −log ρ
+    (b ≤ 0 → ½), computed as ½(1 − √(−expm1(−2b))) without cancellation."""
+    b = np.clip(np.asarray(b, dtype=np.float64), 0.0, None)
+    return 0.5 * (1.0 - np.sqrt(-np.expm1(-2.0 * b)))
+
+
+def bhattacharyya(renders, noise: Poisson) -> np.ndarray:
+    """Pairwise Bhattacharyya distances b[i, j] = ½ Σ_ω s (√L_i − √L_j)² of Poisson observations (G, G)."""
+    S = to_float64(renders, "renders")
+    noise.validate(S, "renders")
+    return 0.5 * noise.scale * _pairwise_sq(np.sqrt(as_numpy(S).reshape(len(S), -1)))
+
+
+def _pairwise_sq(X: np.ndarray) -> np.ndarray:
+    """Σ_ω (X_i − X_j)² for every pair, from direct differences (no ‖a‖² + ‖b‖² − 2⟨a, b⟩)."""
+    G = len(X)
+    out = np.zeros((G, G))
+    for i in range(G - 1):
+        d = X[i + 1:] - X[i]
+        out[i, i + 1:] = (d * d).sum(axis=1)
+    return out + out.T
+
+
+def error_matrix(renders, noise: NoiseModel) -> tuple[np.ndarray, str]:
+    """(equal-prior binary error P_e[i, j] (G, G) between the renders, how it was formed)."""
+    if isinstance(noise, AWGN):
+        return pe_from_lambda(pairwise_lambda(renders, noise)), "AWGN: P_e = Q(√λ/2)"
+    if isinstance(noise, Poisson):
+        return pe_from_bhattacharyya(bhattacharyya(renders, noise)), \
+            "Poisson: P_e ≥ ½(1 − √(1 − ρ²)), ρ the Bhattacharyya coefficient"
+    raise TypeError(f"the Ziv–Zakai bound is implemented for AWGN and Poisson noise, got {type(noise).__name__}")
+
+
+def uniform_spacing(thetas) -> float:
+    """The spacing of a uniform grid (G,) with G ≥ 2; ValueError for anything else."""
+    t = np.asarray(thetas, dtype=np.float64)
+    if t.ndim != 1 or t.size < 2:
+        raise ValueError(f"the Ziv–Zakai bound needs a scalar θ on a grid of >= 2 points, got shape {t.shape}")
+    d = np.diff(t)
+    if not (np.all(d > 0) and np.allclose(d, d[0], rtol=1e-6, atol=0)):
+        raise ValueError("the Ziv–Zakai bound needs a uniform θ grid (its h-integral runs over a lattice); got "
+                         f"spacings from {d.min():.4g} to {d.max():.4g}: give it a {{start, stop, num}} grid")
+    return float(d[0])
+
+
+def _prior(thetas, prior) -> tuple[np.ndarray, np.ndarray, float]:
+    """(trapezoid weights (n,), normalised density (n,), prior variance) on a uniform grid."""
+    t = np.asarray(thetas, dtype=np.float64)
+    delta, n = uniform_spacing(t), len(t)
+    w = np.full(n, delta)
+    w[[0, -1]] = delta / 2
+    if prior is None:
+        p = np.full(n, 1.0 / ((n - 1) * delta))
+    else:
+        p = np.asarray(prior, dtype=np.float64)
+        if p.shape != (n,) or np.any(p < 0) or not np.all(np.isfinite(p)) or not p.sum() > 0:
+            raise ValueError(f"prior must be a non-negative density on the {n} grid points")
+        p = p / (w * p).sum()
+    mean = (w * p * t).sum()
+    return w, p, float((w * p * (t - mean) ** 2).sum())
+
+
+def a_of_h(Pe, thetas, prior=None) -> np.ndarray:
+    """A(kδ) (…, n) for k = 0 … n−1 (A(0) = 0) from equal-prior errors Pe (…, n, n): the trapezoid rule
+    over φ of 2·min(p(φ), p(φ+h))·P_e(φ, φ+h), before valley filling."""
+    Pe = np.asarray(Pe, dtype=np.float64)
+    n = len(thetas)
+    if Pe.shape[-2:] != (n, n):
+        raise ValueError(f"Pe must be (…, {n}, {n}), got {Pe.shape}")
+    delta = uniform_spacing(thetas)
+    _, p, _ = _prior(thetas, prior)
+    A = np.zeros(Pe.shape[:-2] + (n,))
+    for k in range(1, n):
+        i = np.arange(n - k)
+        wk = np.full(n - k, delta)
+        if n - k > 1:
+            wk[[0, -1]] = delta / 2
+        else:
+            wk[:] = 0.0  # a single pair spans no φ-interval
+        A[..., k] = (wk * 2.0 * np.minimum(p[i], p[i + k]) * Pe[..., i, i + k]).sum(axis=-1)
+    return A
+
+
+def integrate(A, delta: float) -> float:
+    """½ Σ_k (h_k + δ/2) · V{A}(h_{k+1}) · δ: valley filling, then a lower sum in h (A (n,), A[0] = A(0)):
+    on [h_k, h_{k+1}] V ≥ V(h_{k+1}) (non-increasing) and ∫ h dh = (h_k + δ/2) δ exactly."""
+    V = np.maximum.accumulate(np.asarray(A, dtype=np.float64)[::-1])[::-1]
+    h = np.arange(len(V)) * delta
+    return 0.5 * float(((h[:-1] + delta / 2) * V[1:]).sum() * delta)
+
+
+def zzb_from_errors(Pe, thetas, prior=None) -> ZZBResult:
+    """The ZZB from an equal-prior error matrix Pe (G, G) on a uniform grid (see the module docstring);
+    prior: a density (G,) on the grid (default uniform), normalised here by the trapezoid rule."""
+    t = np.asarray(thetas, dtype=np.float64)
+    delta = uniform_spacing(t)
+    A = a_of_h(Pe, t, prior)
+    value = integrate(A, delta)
+    halved = math.nan
+    if len(t) >= 5:
+        coarse = integrate(a_of_h(np.asarray(Pe)[::2, ::2], t[::2], None if prior is None else np.asarray(prior)[::2]),
+                           2 * delta)
+        halved = math.log10(value / coarse) if value > 0 and coarse > 0 else math.nan
+    V = np.maximum.accumulate(A[::-1])[::-1]
+    return ZZBResult(value=value, log10=math.log10(value) if value > 0 else -math.inf,
+                     h=np.arange(1, len(t)) * delta, A=V[1:], prior_variance=_prior(t, prior)[2], halved=halved,
+                     reason="")
+
+
+def ziv_zakai(renders, thetas, noise: NoiseModel, prior=None, lower=None, upper=None) -> ZZBResult:
+    """The Ziv–Zakai bound on the Bayesian MSE of a scalar θ (units²) from renders (G, *S) at a uniform
+    grid thetas (G,) over the prior's support (default: uniform on the grid's range); lower/upper: the
+    prior's support, which must be the grid's ends (the bound integrates over the grid). `.value` may
+    underflow, `.log10` stays exact; `.halved` is the change when the grid spacing is halved."""
+    t = np.asarray(thetas, dtype=np.float64)
+    for end, name, at in ((lower, "lower", t[0]), (upper, "upper", t[-1])):
+        if end is not None and not math.isclose(float(end), float(at), rel_tol=0, abs_tol=1e-9 * (1 + abs(at))):
+            raise ValueError(f"the grid must span the prior's support: {name} = {end} but the grid ends at {at}")
+    Pe, how = error_matrix(renders, noise)
+    r = zzb_from_errors(Pe, t, prior)
+    r.reason = how
+    return r
+
+
+__all__ = ["ZZBInterval", "ZZBResult", "zzb_interval", "a_of_h", "bhattacharyya", "error_matrix", "integrate",
+           "pe_from_bhattacharyya", "pe_from_lambda", "uniform_spacing", "zzb_from_errors", "ziv_zakai"]
+
+
+@dataclass
+class ZZBInterval:
+    """log10 of the ZZB (units²) from replicated renders: point (from the U-statistic λ̂ or Bhattacharyya
+    distance), lower end (quote it: valley filling of a lower confidence band of A(h)), upper end (from the
+    upper band); level: one-sided confidence of each end (Bonferroni over the n − 1 offsets h);
+    estimate_only: fewer than 3 replicates (no band: both ends are the point); halved: log10 change of the
+    point when the grid spacing is halved; prior_variance: units²; how: how P_e was formed."""
+
+    point: float
+    lower: float
+    upper: float
+    level: float
+    replicates: int
+    estimate_only: bool
+    halved: float
+    prior_variance: float
+    how: str
+
+
+def zzb_interval(stat: UStat, thetas, kind: str, prior=None, level: float = 0.95) -> ZZBInterval:
+    """The ZZB with a confidence interval from a pairwise U-statistic `stat` (est (G, G), loo (R, G, G); see
+    `ustat.pairwise_ustat`) of λ (kind "lambda": AWGN, P_e = Q(√λ/2)) or of the Bhattacharyya distance
+    (kind "bhattacharyya": Poisson, P_e ≥ ½(1 − √(1 − ρ²)) with b = −log ρ). A(h) and its delete-one
+    jackknife over replicates give one-sided limits A ∓ t·SE (Student t, R − 1 degrees of freedom,
+    Bonferroni over the h values), clipped to [0, max A]; each is valley-filled and integrated (the
+    lower sum). The U-statistic is unbiased for λ, but P_e is not linear in it: the point carries a small
+    bias of order SE², inside the interval."""
+    if kind not in ("lambda", "bhattacharyya"):
+        raise ValueError(f"kind must be 'lambda' or 'bhattacharyya', got {kind!r}")
+    pe = pe_from_lambda if kind == "lambda" else pe_from_bhattacharyya
+    t = np.asarray(thetas, dtype=np.float64)
+    delta = uniform_spacing(t)
+    A = a_of_h(pe(stat.est), t, prior)
+    point = integrate(A, delta)
+    halved = math.nan
+    if len(t) >= 5:
+        coarse = integrate(a_of_h(pe(stat.est[::2, ::2]), t[::2], None if prior is None else np.asarray(prior)[::2]),
+                           2 * delta)
+        halved = math.log10(point / coarse) if point > 0 and coarse > 0 else math.nan
+    R = stat.replicates
+    lo = hi = point
+    if R >= 3 and stat.loo.size:
+        A_loo = a_of_h(pe(stat.loo), t, prior)  # (R, n)
+        se = np.sqrt((R - 1) / R * ((A_loo - A_loo.mean(axis=0)) ** 2).sum(axis=0))
+        q = t_quantile(level, R, len(t) - 1)
+        top = A.max()
+        lo = integrate(np.clip(A - q * se, 0.0, top), delta)
+        hi = integrate(np.clip(A + q * se, 0.0, max(top, float((A + q * se).max()))), delta)
+    log = (lambda v: math.log10(v) if v > 0 else -math.inf)
+    _, _, prior_var = _prior(t, prior)
+    how = "AWGN: P_e = Q(√λ/2)" if kind == "lambda" else "Poisson: P_e ≥ ½(1 − √(1 − ρ²))"
+    return ZZBInterval(point=log(point), lower=log(lo), upper=log(hi), level=level, replicates=R,
+                       estimate_only=R < 3, halved=halved, prior_variance=prior_var, how=how)
