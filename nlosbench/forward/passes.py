@@ -5,39 +5,48 @@ Passes. A render is split into power-of-two spp passes (largest first), each wit
 `derive(seed, "pass", i)`; the image is their spp-weighted mean, accumulated in float64. The pass
 size (pixel-samples per pass) is chosen per backend by `pass_samples`:
 
-  llvm (CPU)   2**20  — Python sees Ctrl-C (KeyboardInterrupt) only between `mi.render` calls, so a
-                        pass must be short: 2**20 pixel-samples are 1–2.5 s at the 1–2.3 µs per
-                        pixel-sample measured for pi_hallway (max_depth 8) on 2 shared cores, while
-                        the per-pass overhead (a frozen replay, a copy and a float64 add) is a few ms.
-  cuda (GPU)   2**30  — a quarter of Dr.Jit's wavefront limit (2**32): one pass up to 8192 spp at
-                        360 × 360, so at the benchmark sizes a render is the same single call as raw
-                        `mi.render` (ours / raw ≈ 1); a GPU pass of 2**30 samples is ~1 s.
+  llvm (CPU)   2**20  Python sees Ctrl-C (KeyboardInterrupt) only when `mi.render` returns, i.e.
+                      between passes, so a pass must be short: 2**20 pixel-samples took 1.4–1.7 s
+                      for cornell_ball and ≈ 2.4 s for pi_hallway (max_depth 8: 2.3 µs per
+                      pixel-sample) on 2 shared cores;
+                      SIGINT stopped a 2**17-spp render within 2–3 s (2**24-sample passes: 27 s).
+                      The per-pass cost (a frozen replay, a copy and a float64 add) is milliseconds.
+  cuda (GPU)   2**30  a quarter of Dr.Jit's wavefront limit (2**32): 8192 spp up to 360 × 360 pixels
+                      is one pass, so at the benchmark sizes a render is the same single call as raw
+                      `mi.render`. Not measured on a GPU yet: `python -m nlosbench.benchmarks.forward`
+                      prints ours / raw (render_overhead) on whatever backend it runs on.
 
 The split is a pure function of (spp, pixels, pass size), so with the box filter the same (θ, spp,
 seed) gives the same image bit for bit on the CPU; a different pass size splits differently and
 changes the image (the pass size is therefore part of `MitsubaModel.content_key`).
 
-Freezing. `FrozenRender` wraps `mi.render(scene, spp=s, seed=UInt32)` in `drjit.freeze`: the first
-call for a pass spp `s` traces and records the kernels; later calls with the same `s` replay them
-(new seed and new scene contents are inputs: the seed is an opaque UInt32, the scene is traversed).
-The θ → scene update (`SceneBinder.apply` + `params.update()`) stays *outside* the frozen function:
-`params.update()` rebuilds the ray-tracing acceleration structure on the host (Embree / OptiX), which
-Dr.Jit cannot record — a frozen scene update replays the recording's geometry (measured: frozen
-images at other θ were wrong by up to 0.13) — and the `path` binding picks its polyline segment in
-Python from θ's value, which a recording would bake in. With the update outside, every binding kind
-(translate, path, radius, reflectance, radiance) renders through the frozen function.
+Freezing. `FrozenRender` wraps `mi.render(scene, spp=s, seed=UInt32)` in `drjit.freeze`: the scene is
+a traversed input (its variables may change between calls), the seed an opaque UInt32, the pass spp `s`
+a Python int. The θ → scene update (`SceneBinder.apply` + `params.update()`) stays *outside* the frozen
+function, for two reasons: `params.update()` rebuilds the ray-tracing acceleration structure on the host
+(Embree; OptiX on CUDA), which Dr.Jit cannot record — freezing the update replays the recording's BVH
+(measured on LLVM: frozen images at other θ off by up to 0.13 while traced ones moved the object) —
+and the `path` binding picks its polyline segment in Python from θ's value, which a recording would
+bake in. With the update outside, every binding kind (translate, path, radius, reflectance, radiance)
+renders through the frozen function, and the θ write is a few small traced kernels.
 
-Re-recording happens on (see `dr.freeze`): a pass spp not seen before (a Python int, so part of the
-recording's key — power-of-two passes keep this to ≤ log2(pass size) + 1 recordings per model); a
-change of a scene variable's type, size, AD status or literal-ness (e.g. a scene variable written as a
-different literal: `auto_opaque` makes it opaque at the second recording; `MitsubaModel` writes θ as
-opaque values, so moving θ never re-records); a different scene object. `FrozenRender.limit` bounds
-the recordings kept (LRU).
+Re-recording (see `dr.freeze`'s docstring) happens on:
+  - a pass spp not seen before (part of the recording's key; power-of-two passes keep this to at most
+    log2(pass size / pixels) + 1 recordings per model);
+  - a change in the layout of the scene's variables: the first render of a scene allocates the film's
+    storage (so that render runs traced, not recorded), and the first AD pass (`vjp`/`jvp`) leaves the
+    scene with more state — one or two re-recordings, once; then AD and primal renders alternate freely;
+  - a scene variable changing type, size or AD status, or a *literal* changing value (`auto_opaque`
+    makes it opaque at a second recording; `MitsubaModel` writes θ as opaque values, so moving θ does
+    not record);
+  - another scene object.
+`FrozenRender.limit` bounds the recordings kept (least recently used is dropped).
 
-Switch: `MitsubaModel(..., freeze=False)` or the environment variable NLOSBENCH_FREEZE=0 renders every
-pass traced (for debugging); on LLVM both paths give bit-identical images (tests/test_frozen_render.py),
-on CUDA they agree within float32 atomic-accumulation noise (stated there). A recording that raises
-(an integrator that cannot be frozen) warns once and falls back to the traced path for that model.
+Switch: `MitsubaModel(..., freeze=False)`, `model.freeze = False`, or the environment variable
+NLOSBENCH_FREEZE=0 renders every pass traced (for debugging). On LLVM both paths give bit-identical
+images (tests/test_frozen_render.py); on CUDA they agree within float32 atomic-accumulation noise
+(tolerance stated there). A recording that raises (e.g. an integrator that cannot be frozen) warns once
+and falls back to the traced path for that model.
 """
 from __future__ import annotations
 
