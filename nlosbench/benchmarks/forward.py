@@ -6,7 +6,7 @@
   (total derivative of the image w.r.t. ball position; ratio = var_independent / var_crn);
 - AD (prb_projective) variance and cost per gradient relative to one forward render.
 
-And on pi_hallway at 40×30 and 160×120 (reduced: 16×12 and 40×30 at max_depth 3):
+And on pi_hallway at 40×30 and 160×120 (reduced: 16×12 and 40×30 at max_depth 3, render_overhead at 16×12):
 
 - frozen_render: ForwardModel.render through the frozen `mi.render` vs the traced one, same model,
   θ moving every call (ratio = traced / frozen seconds per render; > 1: freezing pays);

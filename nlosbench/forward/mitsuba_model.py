@@ -145,9 +145,8 @@ class MitsubaModel(ForwardModel):
     def _apply(self, theta: np.ndarray) -> None:
         if self._applied is not None and np.array_equal(self._applied, theta):
             return
-        import mitsuba as mi
-
         import drjit as dr
+        import mitsuba as mi
 
         # opaque θ: the scene holds evaluated values (not literals), so a new θ never re-records the frozen render
         self.binder.apply(self._params, [dr.opaque(mi.Float, float(v)) for v in theta])
