@@ -58,13 +58,13 @@ def test_split_spp_into_power_of_two_passes_under_the_wavefront_limit():
 
 
 def test_more_samples_than_a_pass_uses_distinct_seeds(cornell):
-    cornell.max_pass_samples = 32 * 32 * 16  # force passes of 16 spp
+    saved, cornell.max_pass_samples = cornell.max_pass_samples, 32 * 32 * 16  # force passes of 16 spp
     try:
         passes = cornell._passes(64, 3)
         assert [s for s, _ in passes] == [16] * 4 and len({sd for _, sd in passes}) == 4
         img = cornell.render(THETA, 64, 3)
     finally:
-        cornell.max_pass_samples = 1 << 24
+        cornell.max_pass_samples = saved
     one = cornell.render(THETA, 64, 3)
     # same estimator, different random numbers: close in mean, not identical
     assert not torch.equal(img, one)

@@ -2,10 +2,16 @@
 `mi.traverse` + `params.update()` (never a reload), rendered with `mi.render`.
 
 Passes: a render of spp samples is split into passes whose spp are powers of two (at most
-`max_pass_samples` pixel-samples each, and never more than 2³² — Dr.Jit's wavefront limit), each
-with its own seed derived from (seed, pass index); the image is their spp-weighted mean. With the box
-pixel filter each sample lands in one pixel, and power-of-two passes keep Dr.Jit's parallel
-accumulation order fixed, so the same (θ, spp, seed) gives the same image bit for bit.
+`max_pass_samples` pixel-samples each: the backend's policy in `passes.PASS_SAMPLES`, capped by the
+constructor option, and never more than 2³² — Dr.Jit's wavefront limit), each with its own seed
+derived from (seed, pass index); the image is their spp-weighted mean. With the box pixel filter each
+sample lands in one pixel, and power-of-two passes keep Dr.Jit's parallel accumulation order fixed, so
+on the CPU the same (θ, spp, seed) gives the same image bit for bit (CUDA: within float32 atomic noise).
+
+Frozen path: θ is written to the scene traced (`SceneBinder.apply`, which rebuilds the acceleration
+structure), then each pass runs through a `drjit.freeze`d `mi.render` (`passes.FrozenRender`): one
+recording per distinct pass spp, replayed for every θ and seed. `freeze=False` or NLOSBENCH_FREEZE=0
+turns it off. What is frozen, what re-records and why the scene update is not frozen: `passes.py`.
 """
 from __future__ import annotations
 
@@ -22,22 +28,12 @@ from ..params import ParamSpace
 from ..seeds import derive
 from .bindings import GEOMETRY_KINDS, Binding, SceneBinder
 from .model import ForwardModel, check_spp_seed
+from .passes import WAVEFRONT_LIMIT, FrozenRender, backend_of, freeze_default, pass_samples, split_spp
 
-WAVEFRONT_LIMIT = 2 ** 32
+__all__ = ["MitsubaModel", "WAVEFRONT_LIMIT", "split_spp", "pruned_xml", "AD_INTEGRATORS"]
+
 #: AD integrators by the kind of parameter: geometry needs the visibility-aware projective ones
 AD_INTEGRATORS = ("prb", "direct_projective", "prb_projective")
-
-
-def split_spp(spp: int, pixels: int, max_pass_samples: int) -> list[int]:
-    """spp split into power-of-two passes of at most max_pass_samples pixel-samples (largest first)."""
-    limit = min(max_pass_samples, WAVEFRONT_LIMIT - 1)
-    cap = 1 << max(0, (limit // max(pixels, 1)).bit_length() - 1)
-    if pixels * cap > limit and cap > 1:
-        cap >>= 1
-    passes = [cap] * (spp // cap)
-    rest = spp % cap
-    passes += [1 << b for b in range(rest.bit_length() - 1, -1, -1) if rest >> b & 1]
-    return passes
 
 
 def _scene_hash(path: Path) -> str:
@@ -75,14 +71,23 @@ def pruned_xml(scene_file: Path, remove: list[str]) -> str:
 
 
 class MitsubaModel(ForwardModel):
-    """A Mitsuba scene file plus parameter bindings (see `bindings.py`)."""
+    """A Mitsuba scene file plus parameter bindings (see `bindings.py`).
+
+    max_pass_samples: a cap (pixel-samples per pass) below the backend's pass size
+    (`passes.PASS_SAMPLES`: 2**20 on the CPU, 2**30 on CUDA); None = the backend's. The effective value
+    is the attribute `max_pass_samples` and is part of `content_key`.
+    freeze: render passes through a `drjit.freeze`d `mi.render` (default: on unless the environment
+    variable NLOSBENCH_FREEZE=0); False renders every pass traced, for debugging. Same images either way
+    on the CPU (bit for bit).
+    """
 
     #: scene loads in this process, across all models (tests check that θ changes never reload)
     loads = 0
 
     def __init__(self, name: str, scene_file: str | Path, params: list[dict], variant: str | None = None,
                  defines: dict | None = None, ad_integrator: dict | None = None,
-                 max_pass_samples: int = 1 << 24, cache=None, remove: list[str] | None = None):
+                 max_pass_samples: int | None = None, cache=None, remove: list[str] | None = None,
+                 freeze: bool | None = None):
         self.variant = _variant.select(variant)
         import mitsuba as mi
 
@@ -102,7 +107,7 @@ class MitsubaModel(ForwardModel):
         bindings = [Binding.from_spec(p) for p in params]
         self.binder = SceneBinder(self._params, bindings)
         super().__init__(name, ParamSpace([b.param for b in bindings]), cache)
-        self.max_pass_samples = int(max_pass_samples)
+        self.max_pass_samples = pass_samples(self.variant, max_pass_samples)
         film = self.scene.sensors()[0].film()
         self.size = tuple(int(v) for v in film.crop_size())  # (W, H)
         if not str(film.rfilter()).startswith("BoxFilter"):
@@ -120,14 +125,31 @@ class MitsubaModel(ForwardModel):
         self._ad_cache: dict = {}
         self._applied: np.ndarray | None = None
         self._hash = _scene_hash(self.scene_file)
+        self._renderer = FrozenRender(freeze_default(freeze), label=f"scene {name!r}")
+
+    @property
+    def freeze(self) -> bool:
+        """Whether primal passes render through the frozen function (settable; see `passes.py`)."""
+        return self._renderer.enabled
+
+    @freeze.setter
+    def freeze(self, on: bool) -> None:
+        self._renderer.enabled = bool(on)
+
+    @property
+    def backend(self) -> str:
+        """'llvm' (CPU) or 'cuda' (GPU): the Dr.Jit backend of this model's variant."""
+        return backend_of(self.variant)
 
     # -- θ → scene ----------------------------------------------------------------------------
     def _apply(self, theta: np.ndarray) -> None:
         if self._applied is not None and np.array_equal(self._applied, theta):
             return
+        import drjit as dr
         import mitsuba as mi
 
-        self.binder.apply(self._params, [mi.Float(float(v)) for v in theta])
+        # opaque θ: the scene holds evaluated values (not literals), so a new θ never re-records the frozen render
+        self.binder.apply(self._params, [dr.opaque(mi.Float, float(v)) for v in theta])
         self._applied = theta.copy()
 
     def _passes(self, spp: int, seed: int):
@@ -135,15 +157,15 @@ class MitsubaModel(ForwardModel):
         return [(s, derive(seed, "pass", i)) for i, s in enumerate(split_spp(spp, W * H, self.max_pass_samples))]
 
     def _render(self, theta: np.ndarray, spp: int, seed: int) -> torch.Tensor:
-        import mitsuba as mi
-
+        """Image (H, W, C) float32: θ written traced, then the passes (frozen unless `freeze` is off).
+        Ctrl-C takes effect between passes (Python raises KeyboardInterrupt when `mi.render` returns)."""
         self._apply(theta)
         passes = self._passes(spp, seed)
         if len(passes) == 1:
-            return torch.from_numpy(np.asarray(mi.render(self.scene, spp=spp, seed=passes[0][1])))
+            return torch.from_numpy(np.asarray(self._renderer(self.scene, spp, passes[0][1])))
         acc = 0.0
         for s, pass_seed in passes:
-            acc = acc + np.asarray(mi.render(self.scene, spp=s, seed=pass_seed), dtype=np.float64) * (s / spp)
+            acc = acc + np.asarray(self._renderer(self.scene, s, pass_seed), dtype=np.float64) * (s / spp)
         return torch.from_numpy(acc.astype(np.float32))
 
     # -- AD ------------------------------------------------------------------------------------
@@ -180,7 +202,8 @@ class MitsubaModel(ForwardModel):
         self.binder.apply(self._params, th)
         self._applied = None  # the scene now holds tracked values; the next primal render re-applies θ
         img = mi.render(self.scene, self._params, integrator=integrator, spp=spp,
-                        seed=derive(seed, "pass", pass_seed_index), seed_grad=derive(seed, "seed_grad", pass_seed_index))
+                        seed=derive(seed, "pass", pass_seed_index),
+                        seed_grad=derive(seed, "seed_grad", pass_seed_index))
         return img, th
 
     def vjp(self, theta, grad_out: torch.Tensor, spp: int, seed: int, indices=None, **ad) -> np.ndarray:
@@ -220,6 +243,14 @@ class MitsubaModel(ForwardModel):
         return out
 
     def content_key(self) -> dict:
+        """Everything besides (θ, spp, seed) that changes an image: scene files (hash), defines, removed
+        ids, variant, the primal integrator's settings, the bindings, the pass size (it decides the pass
+        split, hence the random numbers), and the Mitsuba and Dr.Jit versions. Freezing is not in it: the
+        frozen and traced paths give the same image (bit for bit on the CPU)."""
+        import drjit as dr
+        import mitsuba as mi
+
         key = {"scene": self._hash, "defines": self.defines, "variant": self.variant,
-               "params": [repr(b) for b in self.binder.bindings], "max_pass_samples": self.max_pass_samples}
+               "integrator": str(self.scene.integrator()), "params": [repr(b) for b in self.binder.bindings],
+               "max_pass_samples": self.max_pass_samples, "mitsuba": mi.__version__, "drjit": dr.__version__}
         return {**key, "remove": self.remove} if self.remove else key

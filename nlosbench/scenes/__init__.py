@@ -45,7 +45,8 @@ def register(name: str, factory: Callable[..., ForwardModel]) -> None:
 def load_spec(path: str | Path, **options) -> ForwardModel:
     """A MitsubaModel from a scene spec: `file` (XML, relative to the spec), `params`, optional
     `defines` (XML $-defaults such as res, max_depth), `ad_integrator`, `variant`, `remove` (element ids
-    dropped from the scene before loading, e.g. [light_c] to see what the bound owes it). Options given here
+    dropped from the scene before loading, e.g. [light_c] to see what the bound owes it), `max_pass_samples`
+    (a cap on the backend's pass size) and `freeze` (the frozen render path; default on). Options given here
     override the spec's top-level keys; `defines` are merged."""
     from ..forward.mitsuba_model import MitsubaModel
 
@@ -60,8 +61,8 @@ def load_spec(path: str | Path, **options) -> ForwardModel:
             raise ValueError(f"scene spec {path}: missing key {k!r}")
     return MitsubaModel(name=spec.get("name", path.stem), scene_file=path.parent / spec["file"], params=spec["params"],
                         variant=spec.get("variant"), defines={k: str(v) for k, v in defines.items()},
-                        ad_integrator=spec.get("ad_integrator"), max_pass_samples=spec.get("max_pass_samples", 1 << 24),
-                        cache=spec.get("cache"), remove=spec.get("remove"))
+                        ad_integrator=spec.get("ad_integrator"), max_pass_samples=spec.get("max_pass_samples"),
+                        cache=spec.get("cache"), remove=spec.get("remove"), freeze=spec.get("freeze"))
 
 
 def smoke_options(name: str) -> dict:
