@@ -13,7 +13,8 @@ EPILOG = """examples:
   nlosbench run configs/quick.yaml --out runs/try --resume   # continue a killed run
   nlosbench run configs/paper_pi_trials.yaml --smoke --out runs/check   # seconds-long dry run
   nlosbench render cornell_ball --theta 0.1 0.3 0.8 --spp 256 --out runs/render
-  nlosbench list scenes | estimators | noise | studies
+  nlosbench list                                         # every kind: scenes, estimators, noise, studies
+  nlosbench list estimators                              # one kind
   nlosbench report runs/try                              # re-make plots and report.md from saved data
   nlosbench bench --reduced"""
 
@@ -40,8 +41,9 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
                    help="scene XML default, e.g. --define res=64 (repeatable)")
     d.add_argument("--out", default="runs/render", help="output folder")
-    ls = sub.add_parser("list", help="list scenes, estimators, noise models or studies")
-    ls.add_argument("what", choices=("scenes", "estimators", "noise", "studies"))
+    ls = sub.add_parser("list", help="list scenes, estimators, noise models and studies (or one kind of them)")
+    ls.add_argument("what", nargs="?", choices=LIST_KINDS, help="one kind only (default: every kind, one "
+                    "section each)")
     rep = sub.add_parser("report", help="re-make plots and report.md of a finished run from its saved data")
     rep.add_argument("run_dir")
     b = sub.add_parser("bench", help="run the benchmarks side by side and print ratios")
@@ -73,7 +75,17 @@ def _render(args) -> None:
     )
 
 
-def _list(what: str) -> None:
+LIST_KINDS = ("scenes", "estimators", "noise", "studies")
+
+
+def _list(what: str | None) -> None:
+    if what is None:  # every kind, one section each under a heading
+        print("\n\n".join(f"{kind}:\n" + "\n".join(f"  {item}" for item in _items(kind)) for kind in LIST_KINDS))
+    else:
+        print("\n".join(_items(what)))
+
+
+def _items(what: str) -> list[str]:
     if what == "scenes":
         from . import scenes
 
@@ -90,7 +102,7 @@ def _list(what: str) -> None:
         from . import estimators
 
         items = [f"{name}: {text}" for name, text in estimators.describe().items()]
-    print("\n".join(items))
+    return items
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,10 +1,14 @@
 #!/usr/bin/env bash
 # One-time set-up, idempotent: system libLLVM >= 16 for Dr.Jit's LLVM backend, then .venv with
-# torch 2.13.0 (CPU build), Mitsuba 3 and the rest. A second run skips what is already done.
+# torch, Mitsuba 3 and the rest. A second run skips what is already done.
+# torch: a torch already in the venv (a CUDA build, say) is kept and pinned while nlosbench installs;
+# only a venv without torch gets $NLOSBENCH_TORCH (default torch==2.13.0, the CPU wheel).
+# Sourcing this file (tests do) defines the functions without running anything.
 set -euo pipefail
-cd "$(dirname "$0")/.."
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
 VENV=${VENV:-.venv}
 PY=${PYTHON:-python3}
+TORCH=${NLOSBENCH_TORCH:-torch==2.13.0}
 
 # --- libLLVM: Dr.Jit 1.5 needs >= 15; Debian's 14 and 15 crash it, so we want >= 16 (libllvm19).
 newest_llvm() {
@@ -14,36 +18,69 @@ newest_llvm() {
         ls "$d"/libLLVM*.so* "$d"/libLLVM*.dylib 2>/dev/null || true
     done | sed -n 's/.*libLLVM[-.]\{0,1\}\([0-9][0-9]*\).*/\1 &/p' | sort -n -k1,1 | tail -n 1
 }
-found=$(newest_llvm)
-major=${found%% *}
-if [ -z "$found" ] || [ "$major" -lt 16 ]; then
-    echo "setup: no usable system libLLVM (newest: ${found:-none}); Dr.Jit's llvm_ad_rgb needs libLLVM >= 16 here"
-    if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
-        echo "setup: installing libllvm19 with apt-get"
-        apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null
-        found=$(newest_llvm)
-    else
-        cat >&2 <<MSG
+
+check_llvm() {
+    found=$(newest_llvm)
+    major=${found%% *}
+    if [ -z "$found" ] || [ "$major" -lt 16 ]; then
+        echo "setup: no usable system libLLVM (newest: ${found:-none}); Dr.Jit's llvm_ad_rgb needs libLLVM >= 16 here"
+        if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+            echo "setup: installing libllvm19 with apt-get"
+            apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null
+            found=$(newest_llvm)
+        else
+            cat >&2 <<MSG
 setup: cannot install libLLVM here (needs root and apt-get). Install it yourself, then re-run:
     Debian/Ubuntu: sudo apt-get install libllvm19      Fedora: sudo dnf install llvm-libs
     macOS: brew install llvm
 or point DRJIT_LIBLLVM_PATH at a libLLVM.so of version >= 16. A CUDA GPU (cuda_ad_rgb) needs no libLLVM.
 MSG
-        [ -n "${DRJIT_LIBLLVM_PATH:-}" ] || exit 1
+            [ -n "${DRJIT_LIBLLVM_PATH:-}" ] || exit 1
+        fi
     fi
-fi
-echo "setup: libLLVM ${found:-from DRJIT_LIBLLVM_PATH=${DRJIT_LIBLLVM_PATH:-}}"
+    echo "setup: libLLVM ${found:-from DRJIT_LIBLLVM_PATH=${DRJIT_LIBLLVM_PATH:-}}"
+}
+
+# --- torch: which one the venv has (read from its metadata, without importing torch)
+installed_torch() {
+    # prints the version of torch installed in the venv $1 (e.g. 2.13.0+cpu, 2.6.0+cu124), or nothing
+    "$1/bin/python" -c 'import importlib.metadata as m
+try: print(m.version("torch"))
+except m.PackageNotFoundError: pass'
+}
 
 # --- virtual environment and packages; the stamp holds a hash of pyproject.toml.
-[ -x "$VENV/bin/python" ] || { echo "setup: creating $VENV"; "$PY" -m venv "$VENV"; }
-stamp="$VENV/.nlosbench-installed"
-want=$(sha256sum pyproject.toml | cut -d' ' -f1)
-if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
-    # torch first and pinned: a bare 'torch' would pull GBs of CUDA wheels.
-    "$VENV/bin/pip" install -q --disable-pip-version-check torch==2.13.0
-    "$VENV/bin/pip" install -q --disable-pip-version-check -e ".[dev,dask]"
+install_packages() {
+    [ -x "$VENV/bin/python" ] || { echo "setup: creating $VENV"; "$PY" -m venv "$VENV"; }
+    local stamp="$VENV/.nlosbench-installed" want have pins="$VENV/.nlosbench-torch-pin.txt"
+    want=$(sha256sum pyproject.toml | cut -d' ' -f1)
+    if [ "$(cat "$stamp" 2>/dev/null)" = "$want" ]; then
+        echo "setup: $VENV up to date"
+        return 0
+    fi
+    have=$(installed_torch "$VENV")
+    if [ -n "$have" ]; then
+        echo "setup: keeping the torch $have in $VENV"
+    else
+        # pinned: a bare 'torch' (or a range) would pull GBs of CUDA wheels onto a CPU machine.
+        echo "setup: no torch in $VENV; installing $TORCH"
+        "$VENV/bin/pip" install -q --disable-pip-version-check "$TORCH"
+        have=$(installed_torch "$VENV")
+        [ -n "$have" ] || { echo "setup: installing $TORCH left no torch in $VENV" >&2; return 1; }
+    fi
+    # The installed torch is a constraint: pip may not upgrade or replace it to satisfy pyproject.toml.
+    echo "torch==$have" > "$pins"
+    if ! "$VENV/bin/pip" install -q --disable-pip-version-check -c "$pins" -e ".[dev,dask]"; then
+        echo "setup: pip could not install nlosbench next to torch $have (pyproject.toml asks for" \
+             "$(sed -n 's/^ *"\(torch[<>=!~][^"]*\)".*/\1/p' pyproject.toml)); upgrade torch yourself (the build you" \
+             "want, e.g. from the PyTorch index for your CUDA), then re-run" >&2
+        return 1
+    fi
     echo "$want" > "$stamp"
-    echo "setup: installed packages into $VENV"
-else
-    echo "setup: $VENV up to date"
+    echo "setup: installed packages into $VENV (torch $have)"
+}
+
+if [ "${BASH_SOURCE[0]}" = "$0" ]; then
+    check_llvm
+    install_packages
 fi
