@@ -150,19 +150,38 @@ def test_poisson_negative_mean_raises():
         Poisson(1.0).chi2_exponent(torch.ones(3), -torch.ones(3))
 
 
-@pytest.mark.parametrize("model", [AWGN(0.2), Poisson(3.0)])
-def test_gram_exponent(model):
-    g = torch.Generator().manual_seed(2)
-    L0 = torch.rand(8, 3, generator=g) + 0.5
-    Ls = L0 + 0.1 * torch.rand(4, 8, 3, generator=g)
-    G = model.gram_exponent(L0, Ls, Ls)
-    assert G.shape == (4, 4)
-    torch.testing.assert_close(G, G.T, rtol=1e-15, atol=0)
-    torch.testing.assert_close(torch.diagonal(G), model.chi2_exponent(L0, Ls), rtol=1e-14, atol=0)
-    D = (Ls.double() - L0.double()).reshape(4, -1)
-    w = model.weight(L0.double()).expand(L0.shape).reshape(-1)
-    torch.testing.assert_close(G, (D * w) @ D.T, rtol=1e-14, atol=0)
-    assert model.gram_exponent(L0, Ls[0], Ls[1]).shape == ()
+def test_gram_exponent_equals_direct_summation_over_poisson_counts():
+    """log E_L0[ℓ_i ℓ_j] by brute force: each pixel's Σ_k p_i(k) p_j(k) / p_0(k) over counts k = 0 … 120
+    (scale 2, means 0.4–3 photons: the tail beyond 120 is < 1e-80), multiplied over 3 pixels, against
+    `gram_exponent` (a closed form) — rel 1e-12."""
+    from scipy.stats import poisson
+
+    scale = 2.0
+    L0 = torch.tensor([0.2, 1.0, 1.5], dtype=torch.float64)
+    Li = torch.tensor([0.5, 0.7, 1.4], dtype=torch.float64)
+    Lj = torch.tensor([0.3, 1.2, 1.1], dtype=torch.float64)
+    k = np.arange(121)
+    brute = 0.0
+    for a, b, c in zip((scale * L0).tolist(), (scale * Li).tolist(), (scale * Lj).tolist(), strict=True):
+        brute += math.log((poisson.pmf(k, b) * poisson.pmf(k, c) / poisson.pmf(k, a)).sum())
+    got = float(Poisson(scale).gram_exponent(L0, Li, Lj))
+    assert got == pytest.approx(brute, rel=1e-12)
+    assert float(Poisson(scale).gram_exponent(L0, Li, Li)) == pytest.approx(
+        float(Poisson(scale).chi2_exponent(L0, Li)), rel=1e-14)
+
+
+def test_gram_exponent_equals_quadrature_for_awgn():
+    """log E_L0[ℓ_i ℓ_j] for AWGN by Gauss–Hermite quadrature over each pixel's y (80 nodes), 2 pixels."""
+    sigma = 0.5
+    L0, Li, Lj = (torch.tensor(v, dtype=torch.float64) for v in ([0.1, 0.4], [0.3, 0.2], [0.6, 0.5]))
+    x, w = np.polynomial.hermite_e.hermegauss(80)  # ∫ f(x) e^{−x²/2} dx
+    brute = 0.0
+    for a, b, c in zip(L0.tolist(), Li.tolist(), Lj.tolist(), strict=True):
+        y = a + sigma * x  # y ~ N(a, σ²)
+        li = np.exp(((y - a) ** 2 - (y - b) ** 2) / (2 * sigma**2))
+        lj = np.exp(((y - a) ** 2 - (y - c) ** 2) / (2 * sigma**2))
+        brute += math.log((w * li * lj).sum() / math.sqrt(2 * math.pi))
+    assert float(AWGN(sigma).gram_exponent(L0, Li, Lj)) == pytest.approx(brute, rel=1e-10)
 
 
 @pytest.mark.parametrize("model", [AWGN(0.2), Poisson(3.0)])
