@@ -32,7 +32,8 @@ TORCH_REQUIREMENT = re.compile(r"^torch\s*([<>=!~\[;@]|$)")
 
 def make_venv(path: Path, torch_version: str | None) -> dict:
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(path)], check=True)
-    site = subprocess.run([str(path / "bin" / "python"), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
+    probe = "import sysconfig; print(sysconfig.get_paths()['purelib'])"
+    site = subprocess.run([str(path / "bin" / "python"), "-c", probe],
                           check=True, capture_output=True, text=True).stdout.strip()
     if torch_version:
         d = Path(site) / f"torch-{torch_version}.dist-info"
