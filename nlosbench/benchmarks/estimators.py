@@ -12,7 +12,14 @@
     independent seeds for θ ± ξ and reloads the scene for every render; ours uses common random
     numbers and one scene load. Both run Adam with the same settings from the same starts on a
     noise-free observation (so the error is the optimiser's); `ratio` = the recipe's renders (and
-    seconds) / ours to reach the recipe's final RMS error.
+    seconds) / ours to reach the recipe's final RMS error;
+(d) `trials_vs_paper_recipe`: 30 trials at one θ* (fresh noise each) by our protocol — a profile-likelihood
+    start over a bank grid the study renders once (amortised over the 30 trials), then Gauss–Newton with
+    common-random-number FD Jacobians — against the paper's recipe on the same observations (Adam from
+    a uniform start over Θ, independent-seed FD at ξ = 0.01, 512 → 1024 spp), run on `recipe_trials` of
+    them until its MSE stays within 2 SE of ours or for 400 gradients; `ratio` = the recipe's pixel-samples
+    per trial to get there / ours (bank included), `seconds_ratio` the same in wall time. Full mode: the Π
+    hallway at 16 × 12 in line of sight (θ* = 0.8 m); reduced: blob2d with synthetic rendering noise.
 
 Run: `python -m nlosbench.benchmarks.estimators [--reduced]` (a table, then one JSON line per row).
 """
@@ -24,9 +31,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .. import estimators
-from ..estimators import Problem
+from ..bank import TRUTH, RenderBank
+from ..estimators import BankGrid, Problem
 from ..executors import LocalPoolExecutor, SerialExecutor
 from ..forward.gradients import GradientSettings
 from ..forward.model import ForwardModel
@@ -144,6 +153,60 @@ def _recipe(spec: dict, truth, starts, options: dict, n_eff: int) -> dict:
                 renders_ratio=paper_renders / ours_renders, ratio=paper_s / ours_s)
 
 
+def trials_vs_paper_recipe(spec: dict, label: str, theta: float, noise, grid_num: int, bank_spp: int,
+                           ours: dict, recipe_trials: int, recipe_iterations: int = 400, n: int = 30,
+                           n_eff: int = 1024) -> dict:
+    """Pixel-samples and seconds per trial of our protocol against the paper's recipe (see (d) above) at one
+    scalar θ*, on the same n observations (the recipe on the first `recipe_trials`)."""
+    model = build(spec)
+    pixels = int(np.prod(model.render([theta], 1, 0).shape[:2]))
+    p = model.params
+    bank = RenderBank(model, seed=SEED)
+    clean = bank.at([theta], n_eff, TRUTH)[0]
+    ys = [noise.sample(clean, torch.Generator().manual_seed(derive(SEED, "bench-y", k))) for k in range(n)]
+    t0 = time.perf_counter()
+    grid = p.grid(grid_num)
+    before = model.stats.snapshot()
+    bank_grid = BankGrid(grid, bank.at(grid, bank_spp, "bench-grid", common=True), bank_spp)
+    bank_samples, bank_s = model.stats.since(before).samples, time.perf_counter() - t0
+    problem = Problem(model, noise, GradientSettings(step=0.01), derive(SEED, "bench-problem"), bank_grid)
+    est = estimators.get("gauss-newton", start="profile", **ours)
+    errs, samples, secs = [], [], []
+    for k, y in enumerate(ys):
+        before, t0 = model.stats.snapshot(), time.perf_counter()
+        e = est.fit(problem, y, None, np.random.default_rng(derive(SEED, "bench-ours", k)))
+        samples.append(model.stats.since(before).samples)
+        secs.append(time.perf_counter() - t0)
+        errs.append(float(e.theta[0] - theta))
+    sq = np.square(errs)
+    mse, se = float(sq.mean()), float(sq.std(ddof=1) / math.sqrt(n))
+    ours_samples = float(np.mean(samples)) + bank_samples / n
+    ours_s = float(np.mean(secs)) + bank_s / n
+    adam = estimators.get("mle-adam", lr=0.05, iterations=recipe_iterations, spp=[[0.0, 512], [0.5, 1024]])
+    paper = Problem(model, noise, GradientSettings(step=0.01, crn=False), derive(SEED, "bench-paper"))
+    traces, t0 = [], time.perf_counter()
+    for k in range(recipe_trials):
+        rng = np.random.default_rng(derive(SEED, "bench-recipe", k))
+        traces.append(adam.fit(paper, ys[k], p.sample_uniform(rng), rng).trace)
+    recipe_s_total = time.perf_counter() - t0
+    m = min(len(tr) for tr in traces)
+    sqk = np.array([[(tr[i]["theta"][0] - theta) ** 2 for i in range(m)] for tr in traces])  # (trials, its)
+    mse_k = sqk.mean(axis=0)
+    ok = mse_k <= mse + 2 * se  # within 2 SE of ours, from this gradient on
+    bad = np.flatnonzero(~ok)
+    reached = bool(ok[-1])
+    k_star = (int(bad[-1]) + 1 if bad.size else 0) if reached else m - 1
+    per_iter = [3 * adam.spp_at(i, recipe_iterations) * pixels for i in range(k_star + 1)]  # primal + FD pair
+    recipe_samples = float(sum(per_iter))
+    recipe_s = recipe_s_total / recipe_trials * (k_star + 1) / m
+    return dict(bench="trials_vs_paper_recipe", scene=label, theta=theta, trials=n, recipe_trials=recipe_trials,
+                ours_mse=mse, ours_mse_se=se, recipe_mse=float(mse_k[k_star]), recipe_best_mse=float(mse_k.min()),
+                ours_not_worse=bool(mse <= mse_k.min() + 2 * se), recipe_gradients=k_star + 1,
+                recipe_reached_ours=reached, bank_samples=bank_samples, ours_samples_per_trial=ours_samples,
+                recipe_samples_per_trial=recipe_samples, ours_s_per_trial=ours_s, recipe_s_per_trial=recipe_s,
+                seconds_ratio=recipe_s / ours_s, ratio=recipe_samples / ours_samples)
+
+
 def _warm_up() -> None:
     """One tiny AD fit, so torch's first-use costs do not land on the first timed estimator."""
     model = build({"name": "edge1d"})
@@ -192,6 +255,15 @@ def run(reduced: bool = False) -> list[dict]:
     adam = {"lr": 0.05, "iterations": 40, "spp": 16}
     starts = [[0.3, 0.7], [0.7, 0.35]] + ([] if reduced else [[0.35, 0.3], [0.65, 0.7]])
     rows.append(_recipe(noisy_blob, [0.5, 0.5], starts, adam, 4096) | {"scene": "blob2d (render_noise 0.2)"})
+    if reduced:
+        toy = {"name": "blob2d", "options": {"width": 0.15, "render_noise": 0.2}, "params": ["x"]}
+        rows.append(trials_vs_paper_recipe(toy, "blob2d x (render_noise 0.2)", 0.45, AWGN(0.05), 61, 128,
+                                           {"spp": 32, "iterations": 3}, recipe_trials=4, recipe_iterations=120,
+                                           n=30, n_eff=4096))
+    else:
+        hall = {"name": "pi_hallway", "options": {"defines": {"width": 16, "height": 12}}}
+        rows.append(trials_vs_paper_recipe(hall, "pi_hallway 16×12 LOS", 0.8, AWGN(0.1 * 16 / 160), 50, 512,
+                                           {"spp": 128, "iterations": 3}, recipe_trials=4, recipe_iterations=200))
     if not reduced:
         cornell = {"name": "cornell_ball", "params": ["ball_x"]}
         rows += _per_trial(

@@ -6,10 +6,10 @@ From renders the limit cannot be reached by refining Δ: with independent seeds 
 common random numbers visibility jumps make λ̃ ∝ |Δ|; so the limit enters as its own term, with F from an
 unbiased Fisher information (`unbiased_fisher`).
 
-Inputs are U-statistics over R independent replicates (`ustat`): λ̂(Δ_k) from the Grams of the replicate
-differences L̃_r(θ*+Δ_k) − L̃_r(θ*) (each replicate may use common random numbers across θ), and F̂ from R
-FD Jacobians. With one-sided Student-t limits at level 1 − α, Bonferroni over the K tested Δ and the Δ → 0
-term (each at α/(K+1)):
+Inputs are U-statistics over R independent replicates (`ustat`): λ̂(Δ_k) from the replicate differences
+L̃_r(θ*+Δ_k) − L̃_r(θ*) (each replicate may use common random numbers across θ), and F̂ from R FD
+Jacobians, each with its SE and degrees of freedom. With one-sided Student-t limits at level 1 − α,
+Bonferroni over the K tested Δ and the Δ → 0 term (each at α/(K+1)):
 
   lower end (the bound to quote): max over Δ of f(λ_U(Δ)) and the Δ → 0 term at F_U, where λ_U, F_U are
       upper confidence limits — so P(lower end ≤ true HCR) ≥ 1 − α (a Δ whose λ_U ≤ 0 is left out, which
@@ -101,17 +101,19 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat, level: float = 0.95, lower=N
     valid = ((D >= lo) & (D <= hi)).all(axis=1) & (norm2 > 0)
     R = min(lam.replicates, fisher.replicates)
     estimate_only = R < 3
-    t = 0.0 if estimate_only else t_quantile(level, R, int(valid.sum()) + 1)
+    tests = int(valid.sum()) + 1
     names = [f"Δ = {', '.join(f'{v:+.4g}' for v in row)}" for row in D] + ["Δ → 0"]
+    t = np.zeros(K) if estimate_only else np.nan_to_num(t_quantile(level, lam.dof, tests), nan=np.inf)
 
-    f_est, f_se = _info(fisher)  # the Δ → 0 information: F (scalar) or λ_min(F)
-    f_lo, f_hi = (f_est - t * f_se, f_est + t * f_se) if not estimate_only else (f_est, f_est)
+    f_est, f_se, f_df = _info(fisher)  # the Δ → 0 information: F (scalar) or λ_min(F)
+    tf = 0.0 if estimate_only else float(np.nan_to_num(t_quantile(level, f_df, tests), nan=np.inf))
+    f_lo, f_hi = (f_est - tf * f_se, f_est + tf * f_se) if not estimate_only else (f_est, f_est)
 
     def crlb_term(info: float) -> float:
         return -math.log10(info) if info > 0 else math.inf
 
-    lam_hi = np.where(valid, lam.est + (0.0 if estimate_only else t * lam.se), -np.inf)
-    lam_lo = np.where(valid, lam.est - (0.0 if estimate_only else t * lam.se), -np.inf)
+    lam_hi = np.where(valid, lam.est + t * np.nan_to_num(lam.se), -np.inf)
+    lam_lo = np.where(valid, lam.est - t * np.nan_to_num(lam.se), -np.inf)
     lam_pt = np.where(valid, lam.est, -np.inf)
     unresolved = valid & ~(lam_lo > 0)
 
@@ -126,15 +128,15 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat, level: float = 0.95, lower=N
                        unresolved=[D[k].tolist() if P > 1 else float(D[k, 0]) for k in np.flatnonzero(unresolved)])
 
 
-def _info(fisher: UStat) -> tuple[float, float]:
-    """(information, jackknife SE) of the Δ → 0 term: F for a scalar θ; λ_min(F) for a vector θ (its SE from
-    the leave-one-out F̂s). NaN SE without leave-one-outs."""
+def _info(fisher: UStat) -> tuple[float, float, float]:
+    """(information, its SE, the SE's degrees of freedom) of the Δ → 0 term: F for a scalar θ; λ_min(F) for
+    a vector θ (SE from the leave-one-out F̂s, R − 1 degrees of freedom). NaN SE without leave-one-outs."""
     F = fisher.est
     if F.shape == (1, 1):
-        return float(F[0, 0]), float(fisher.se[0, 0])
+        return float(F[0, 0]), float(fisher.se[0, 0]), float(fisher.dof[0, 0])
     est = float(np.linalg.eigvalsh(F)[0])
     if fisher.loo.size == 0:
-        return est, math.nan
+        return est, math.nan, math.nan
     R = fisher.loo.shape[0]
     loo = np.array([np.linalg.eigvalsh(0.5 * (Fk + Fk.T))[0] for Fk in fisher.loo])
-    return est, float(np.sqrt((R - 1) / R * ((loo - loo.mean()) ** 2).sum()))
+    return est, float(np.sqrt((R - 1) / R * ((loo - loo.mean()) ** 2).sum())), R - 1.0

@@ -48,9 +48,9 @@ from nlosbench.bounds.barankin import barankin
 from nlosbench.bounds.grid import pairwise_lambda
 from nlosbench.bounds.hcr import HCRResult, hcr_from_lambda
 from nlosbench.bounds.hcr_interval import HCRInterval, hcr_interval
-from nlosbench.bounds.inexact import InexactHCR, inexact_hcr, replicate_grams
-from nlosbench.bounds.unbiased_fisher import UnbiasedFisher, unbiased_fisher
-from nlosbench.bounds.ustat import UStat, pairwise_ustat, t_quantile, u_statistic
+from nlosbench.bounds.inexact import InexactHCR, inexact_hcr
+from nlosbench.bounds.unbiased_fisher import unbiased_fisher
+from nlosbench.bounds.ustat import UStat, pairwise_ustat, pixel_ustat, t_quantile
 from nlosbench.bounds.zzb import uniform_spacing, zzb_interval
 from nlosbench.noise import AWGN, NoiseModel, Poisson, QuadraticNoise, to_float64
 from nlosbench.seeds import derive
@@ -170,24 +170,24 @@ def interval_bound(iv: HCRInterval, extra_flags: tuple = ()) -> Bound:
                  point=iv.point, level=iv.level, terms=terms)
 
 
-def crlb_bound(fisher: UnbiasedFisher, level: float, extra_flags: tuple = (), step_note: str = "") -> Bound:
-    """The `crlb` Bound (trace of F̂⁻¹) from an unbiased Fisher information, with one-sided ends at `level`."""
-    F, R = fisher.F, fisher.rounds
-    P = F.shape[0]
-    value = _trace_inv(F)
+def crlb_bound(F: UStat, level: float, extra_flags: tuple = (), step_note: str = "") -> Bound:
+    """The `crlb` Bound (trace of F̂⁻¹, units²) from an unbiased Fisher information F (a UStat of shape (P, P)),
+    with one-sided ends at `level` (Student t with the SE's degrees of freedom)."""
+    P, R = F.est.shape[0], F.replicates
+    value = _trace_inv(F.est)
     flags = list(extra_flags)
     if not math.isfinite(value):
         flags.append("singular" if P > 1 else "unresolved")
     lo = hi = value
     if R >= 3:
-        t = t_quantile(level, R)
         if P == 1:
-            f, s = F[0, 0], fisher.se[0, 0]
+            f, s, t = F.est[0, 0], F.se[0, 0], float(t_quantile(level, F.dof[0, 0]))
             lo = 1.0 / (f + t * s) if f + t * s > 0 else math.inf
             hi = 1.0 / (f - t * s) if f - t * s > 0 else math.inf
         else:
-            loo = np.array([_trace_inv(Fk) for Fk in fisher.leave_one_out])
+            loo = np.array([_trace_inv(Fk) for Fk in F.loo])
             se = math.sqrt((R - 1) / R * ((loo - loo.mean()) ** 2).sum()) if np.all(np.isfinite(loo)) else math.inf
+            t = float(t_quantile(level, R - 1))
             lo, hi = max(value - t * se, 0.0), value + t * se
     else:
         flags.append("estimate-only")
@@ -198,6 +198,18 @@ def crlb_bound(fisher: UnbiasedFisher, level: float, extra_flags: tuple = (), st
         reason += f"; {step_note}"
     return Bound("crlb", log(value), flags=tuple(flags), reason=reason, lower=log(lo), upper=log(hi),
                  point=log(value), level=level if R >= 3 else None)
+
+
+def fisher_ustat(J: torch.Tensor, w) -> UStat:
+    """The unbiased Fisher information (P, P) from R FD rounds J (R, P, *S) and a per-pixel weight w (*S):
+    for P = 1 the per-pixel U-statistic (`pixel_ustat`: SE from independent pixels), else the Gram U-statistic
+    over rounds (`unbiased_fisher`: SE from the rounds)."""
+    R, P = J.shape[:2]
+    if P == 1:
+        u = pixel_ustat(J.reshape(R, 1, -1).numpy(), to_float64(w).expand(J.shape[2:]).reshape(-1).numpy())
+        return UStat(u.est.reshape(1, 1), u.se.reshape(1, 1), u.loo.reshape(-1, 1, 1), R, u.df.reshape(1, 1))
+    fi = unbiased_fisher(J, to_float64(w).expand(J.shape[2:]))
+    return UStat(fi.F, fi.se, fi.leave_one_out, R)
 
 
 def _trace_inv(F: np.ndarray) -> float:
@@ -270,8 +282,13 @@ class BoundService:
         return st, sep
 
     def _fd_rounds(self, thetas: np.ndarray, spp: int, seeds: str, R: int, step: float) -> torch.Tensor:
-        """FD Jacobians (R, T, P, *S) at thetas (T, P) from the replicate sets: round r is the central
-        difference of replicate r (common random numbers inside each stencil when seeds are common)."""
+        """FD Jacobians (R, T, P, *S) at thetas (T, P), round r independent of the others and with common
+        random numbers inside each stencil: with common seeds the central differences of replicate r's
+        renders (stencils shared with the grid); with independent seeds the bank's FD Jacobians (a seed per
+        stencil, θ and round)."""
+        if seeds == "independent":
+            return torch.stack([self.bank.jacobians_at(thetas, spp, step, PURPOSE, False, r,
+                                                       desc=f"FD Jacobians (round {r})") for r in range(R)]).double()
         st, sep = self._stencils(thetas, step)
         T, P = sep.shape
         X = self.replicates(st.reshape(-1, P), spp, seeds, R, "FD stencil renders")  # (R, T·P·2, *S)
@@ -297,8 +314,9 @@ class BoundService:
         """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders: the HCR interval (test points:
         the other grid points inside Θ, and Δ → 0), the CRLB, the paper's HCR_Neff, optionally Barankin, and
         on a uniform grid the ZZB over the grid's range (`prior`: a density on the grid, default uniform).
-        The Δ → 0 term's Jacobian: FD from the grid neighbours (fd_step None: no extra render; checked against
-        the neighbours two steps away), FD at θ ± ξ (fd_step ξ: 2R renders per θ, checked against ξ/2 with 2R
+        The Δ → 0 term's Jacobian: FD from the grid neighbours (fd_step None with common seeds: no extra render;
+        checked against the neighbours two steps away), FD at θ ± ξ (with independent seeds ξ defaults to the
+        grid's smallest spacing) (fd_step ξ: 2R renders per θ, checked against ξ/2 with 2R
         more unless `check_step` is off), or with gradient "ad" Mitsuba AD with integrator options `ad`. A
         BoundPoint per (noise, θ), noise-major."""
         if self.params.dim != 1:
@@ -310,9 +328,10 @@ class BoundService:
         X = self.replicates(T, spp, seeds, R, "bound-curve renders")  # (R, G, *S)
         Xd = X.double()
         G = len(T)
-        if gradient == "fd" and fd_step is None:  # the Δ → 0 term always needs F; `crlb`: also report it
+        if gradient == "fd" and fd_step is None and seeds == "common":  # the Δ → 0 term always needs F
             J1, J2 = _grid_fd(Xd, T, 1), _grid_fd(Xd, T, 2)  # (R, G, *S) at steps ~h and ~2h
-        elif gradient == "fd":
+        elif gradient == "fd":  # explicit stencils (independent seeds: the grid's renders share no seed)
+            fd_step = fd_step or float(np.min(np.diff(T)))
             J1 = self._fd_rounds(T[:, None], spp, seeds, R, fd_step)[:, :, 0]
             J2 = self._fd_rounds(T[:, None], spp, seeds, R, fd_step / 2)[:, :, 0] if check_step else None
         else:
@@ -331,19 +350,20 @@ class BoundService:
             W, zero_flags = zip(*[self._weight(noise, pooled[g]) for g in range(G)], strict=True)
             Wflat = torch.stack([w.expand(pooled.shape[1:]).reshape(-1) for w in W]).numpy()
             lam = pairwise_ustat(Xd.reshape(R, G, -1).numpy(), Wflat)
+            F1 = pixel_ustat(J1.reshape(R, G, -1).numpy(), Wflat)
+            F2 = pixel_ustat(J2.reshape(R, G, -1).numpy(), Wflat) if J2 is not None else None
             plug = pairwise_lambda(pooled, noise) if not isinstance(noise, Poisson) else _plugin_poisson(pooled, Wflat)
             for g, t in enumerate(T):
                 others = np.flatnonzero(np.arange(G) != g)
                 deltas = T[others] - t
                 b: dict[str, Bound] = {}
-                fi = unbiased_fisher(J1[:, g][:, None], W[g].expand(pooled.shape[1:]))
+                fi = _slice(F1, g)
                 note, step_flag = "", ()
                 if J2 is not None:
-                    f2 = unbiased_fisher(J2[:, g][:, None], W[g].expand(pooled.shape[1:]))
-                    note, step_flag = _step_check(fi, f2, "doubling" if fd_step is None else "halving")
+                    note, step_flag = _step_check(fi, _slice(F2, g), "doubling" if fd_step is None else "halving")
                 loo = lam.loo[:, g, others] if lam.loo.size else lam.loo
                 sub = UStat(lam.est[g, others], lam.se[g, others], loo, R)
-                iv = hcr_interval(sub, deltas, _as_ustat(fi), self.level, lo - t, hi - t)
+                iv = hcr_interval(sub, deltas, fi, self.level, lo - t, hi - t)
                 b["hcr"] = interval_bound(iv, zero_flags[g] + step_flag)
                 if crlb:
                     b["crlb"] = crlb_bound(fi, self.level, zero_flags[g] + step_flag, note)
@@ -420,15 +440,15 @@ class BoundService:
                 w, zero_flags = self._weight(noise, L0)
                 b: dict[str, Bound] = {}
                 if need_fi:
-                    fi = unbiased_fisher(J1[:, i], w.expand(L0.shape))
-                    note, step_flag = _step_check(fi, unbiased_fisher(J2[:, i], w.expand(L0.shape)), "halving")
+                    fi = fisher_ustat(J1[:, i], w)
+                    note, step_flag = _step_check(fi, fisher_ustat(J2[:, i], w), "halving")
                     if "crlb" in want:
                         b["crlb"] = crlb_bound(fi, self.level, zero_flags + step_flag, note)
                 if need_alt and {"hcr", "hcr_neff"} & set(want):
                     if "hcr" in want:
-                        G = replicate_grams(center[:, i], alt, L0, _FixedWeight(w))  # (K, R, R)
-                        lam = u_statistic(np.moveaxis(G, 0, -1))
-                        iv = hcr_interval(lam, deltas, _as_ustat(fi), self.level, lower, upper)
+                        D = (alt - center[:, i][:, None]).reshape(R, alt.shape[1], -1).numpy()  # (R, K, N)
+                        lam = pixel_ustat(D, to_float64(w).expand(L0.shape).reshape(-1).numpy())
+                        iv = hcr_interval(lam, deltas, fi, self.level, lower, upper)
                         b["hcr"] = interval_bound(iv, zero_flags + step_flag)
                     plug = _FixedWeight(w).chi2_exponent(L0, alt.mean(dim=0))
                     b["hcr_neff"] = hcr_bound(hcr_from_lambda(plug, deltas, lower, upper))
@@ -460,10 +480,10 @@ class BoundService:
             maps, bounds = {}, {}
             for j, noise in self._select(noises).items():
                 w, flags = self._weight(noise, L)
-                fi = unbiased_fisher(Js[:, i], w.expand(L.shape))
-                m = fi.pixel_map  # (P, H, W, C)
+                m = unbiased_fisher(Js[:, i], w.expand(L.shape)).pixel_map  # (P, H, W, C)
                 maps[j] = m.sum(axis=-1) if reduce == "sum" else m.mean(axis=-1)
-                bounds[j] = [crlb_bound(_component(fi, k), self.level, flags) for k in range(self.params.dim)]
+                bounds[j] = [crlb_bound(fisher_ustat(Js[:, i, k:k + 1], w), self.level, flags)
+                             for k in range(self.params.dim)]
             out.append(FisherPoint(t, L, Js[:, i].mean(dim=0), maps, bounds))
         return out
 
@@ -540,26 +560,21 @@ def _grid_fd(X: torch.Tensor, T: np.ndarray, k: int) -> torch.Tensor:
     return (X[:, hi] - X[:, lo]) / sep
 
 
-def _step_check(fine: UnbiasedFisher, coarse: UnbiasedFisher, how: str) -> tuple[str, tuple]:
+def _step_check(fine: UStat, coarse: UStat, how: str) -> tuple[str, tuple]:
     """(note, flags) comparing F at two FD steps (scalar θ: F; vector: the trace)."""
-    a, b = float(np.trace(fine.F)), float(np.trace(coarse.F))
-    sa, sb = float(np.sqrt(np.nansum(np.diag(fine.se) ** 2))), float(np.sqrt(np.nansum(np.diag(coarse.se) ** 2)))
+    a, b = float(np.trace(fine.est)), float(np.trace(coarse.est))
+    sa = float(np.sqrt(np.nansum(np.diag(fine.se) ** 2)))
+    sb = float(np.sqrt(np.nansum(np.diag(coarse.se) ** 2)))
     ratio = a / b if b > 0 and a > 0 else math.nan
     note = f"FD step {how}: F changes by ×{ratio:.3g}" if math.isfinite(ratio) else f"FD step {how}: F unresolved"
     sensitive = math.isfinite(sa) and math.isfinite(sb) and abs(a - b) > 2 * math.hypot(sa, sb)
     return note, (("fd-step-sensitive",) if sensitive else ())
 
 
-def _as_ustat(fi: UnbiasedFisher) -> UStat:
-    return UStat(fi.F, fi.se, fi.leave_one_out, fi.rounds)
-
-
-def _component(fi: UnbiasedFisher, k: int) -> UnbiasedFisher:
-    """The scalar Fisher information of parameter k alone (the others known)."""
-    sl = (slice(k, k + 1), slice(k, k + 1))
-    return UnbiasedFisher(F=fi.F[sl], se=fi.se[sl], rounds=fi.rounds,
-                          leave_one_out=fi.leave_one_out[(slice(None),) + sl] if fi.leave_one_out.size else
-                          fi.leave_one_out, single=fi.single[(slice(None),) + sl], pixel_map=fi.pixel_map[k:k + 1])
+def _slice(F: UStat, g: int) -> UStat:
+    """The scalar UStat (1, 1) of quantity g of a vector UStat (est (G,), loo (R, G))."""
+    loo = F.loo[:, g].reshape(-1, 1, 1) if F.loo.size else F.loo.reshape(0, 1, 1)
+    return UStat(F.est[g].reshape(1, 1), F.se[g].reshape(1, 1), loo, F.replicates, F.dof[g].reshape(1, 1))
 
 
 def _barankin(L0, L_alt, deltas, noise, lower, upper) -> Bound:

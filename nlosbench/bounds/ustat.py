@@ -11,9 +11,15 @@ is unbiased for Σ_ω w d² (λ(Δ) = ‖L(θ*+Δ) − L(θ*)‖²_w, or the Fis
 plug-in from the replicate mean, 1ᵀG1/R², carries the rendering noise tr(G)/R²-type term (λ̃ = λ + C/N).
 `est` can be ≤ 0 where the signal is below the rendering noise: that is reported, never clipped.
 
-Standard error: the delete-one jackknife over replicates (R ≥ 3; NaN for R = 2). Measured on toys (see
-`unbiased_fisher`): right where the signal dominates, conservative (SE² up to ~2× the variance) where
-the noise × noise part dominates. With R − 1 degrees of freedom, confidence limits use Student's t.
+Standard error. `u_statistic` (any Grams): the delete-one jackknife over replicates (R ≥ 3; NaN for
+R = 2), with R − 1 degrees of freedom. Measured on toys (see `unbiased_fisher`): right where the signal
+dominates, conservative (SE² up to ~2× the variance) where the noise × noise part dominates.
+`pixel_ustat` (sums over pixels): a path tracer's Monte Carlo errors are independent across pixels (each
+pixel's samples are its own; common random numbers couple θ within a pixel, never two pixels), so the
+U-statistic is a sum of independent per-pixel terms and its variance is the sum of their variances. Each
+is estimated by the jackknife over replicates and the sum has Satterthwaite's degrees of freedom
+(Σ v)² / Σ v²/(R − 1) — many more than R − 1 — so the confidence limits are far tighter at equal renders.
+Confidence limits use Student's t with those degrees of freedom (`t_quantile`).
 """
 from __future__ import annotations
 
@@ -25,13 +31,21 @@ import numpy as np
 
 @dataclass
 class UStat:
-    """est (*T): the U-statistic; se (*T): its jackknife standard error (NaN for R = 2); loo (R, *T):
-    the estimate without replicate k (empty for R = 2); replicates: R."""
+    """est (*T): the U-statistic; se (*T): its standard error (NaN for R = 2); loo (R, *T): the estimate
+    without replicate k (empty for R = 2); replicates: R; df (*T): degrees of freedom of the SE (None:
+    R − 1, the replicate jackknife's)."""
 
     est: np.ndarray
     se: np.ndarray
     loo: np.ndarray
     replicates: int
+    df: np.ndarray | None = None
+
+    @property
+    def dof(self) -> np.ndarray:
+        """Degrees of freedom of `se`, broadcast to est's shape."""
+        return np.broadcast_to(np.asarray(self.replicates - 1.0 if self.df is None else self.df, dtype=np.float64),
+                               np.shape(self.est))
 
 
 def u_statistic(G: np.ndarray) -> UStat:
@@ -53,36 +67,67 @@ def u_statistic(G: np.ndarray) -> UStat:
     return UStat(est, se, loo, R)
 
 
-def t_quantile(level: float, replicates: int, tests: int = 1) -> float:
-    """One-sided Student-t quantile (R − 1 degrees of freedom) for confidence `level` shared by `tests`
-    limits (Bonferroni: each at 1 − (1 − level)/tests). NaN for fewer than 3 replicates (no SE)."""
+def t_quantile(level: float, dof, tests: int = 1):
+    """One-sided Student-t quantile with `dof` degrees of freedom (a number or an array) for confidence
+    `level` shared by `tests` limits (Bonferroni: each at 1 − (1 − level)/tests); NaN where dof < 2 (fewer
+    than 3 replicates: no SE)."""
     if not 0 < level < 1:
         raise ValueError(f"confidence level must lie in (0, 1), got {level}")
-    if replicates < 3:
-        return math.nan
     from scipy import stats
 
-    return float(stats.t.ppf(1.0 - (1.0 - level) / max(int(tests), 1), replicates - 1))
+    d = np.asarray(dof, dtype=np.float64)
+    q = np.where(d >= 2, stats.t.ppf(1.0 - (1.0 - level) / max(int(tests), 1), np.maximum(d, 2)), np.nan)
+    return float(q) if q.ndim == 0 else q
+
+
+def pixel_ustat(X, weights, chunk_bytes: int = 256 * 2**20) -> UStat:
+    """U-statistics of Σ_ω w_ω X_r,k,ω X_s,k,ω over R replicates for each of K quantities (X (R, K, N):
+    replicate differences or FD Jacobians, pixels flattened; weights scalar, (N,) or (K, N)): est (K,),
+    loo (R, K) (the estimate without replicate r, for downstream jackknifes), se (K,) from the per-pixel
+    jackknife variances summed over pixels (independent pixels), df (K,) Satterthwaite's. float64,
+    in chunks of K."""
+    X = np.asarray(X)
+    R, K, N = X.shape
+    if R < 2:
+        raise ValueError(f"need R >= 2 independent replicates, got {R}")
+    W = np.broadcast_to(np.asarray(weights, dtype=np.float64), (K, N)) if np.ndim(weights) else None
+    est, se, df = np.empty(K), np.full(K, math.nan), np.full(K, math.nan)
+    loo = np.empty((R, K)) if R >= 3 else np.empty((0, K))
+    step = max(1, chunk_bytes // (8 * R * N * 3))
+    for k0 in range(0, K, step):
+        k1 = min(K, k0 + step)
+        x = X[:, k0:k1].astype(np.float64)
+        w = float(weights) if W is None else W[k0:k1]
+        S, Q = x.sum(axis=0), (x * x).sum(axis=0)  # (k, N)
+        per = w * (S * S - Q) / (R * (R - 1))  # per-pixel U-statistics
+        est[k0:k1] = per.sum(axis=1)
+        if R < 3:
+            continue
+        lo = w * ((S[None] - x) ** 2 - (Q[None] - x * x)) / ((R - 1) * (R - 2))  # (R, k, N): without replicate r
+        loo[:, k0:k1] = lo.sum(axis=2)
+        v = (R - 1) / R * ((lo - lo.mean(axis=0)) ** 2).sum(axis=0)  # per-pixel jackknife variances (k, N)
+        tot = v.sum(axis=1)
+        se[k0:k1] = np.sqrt(tot)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            df[k0:k1] = np.where(tot > 0, tot**2 / ((v * v).sum(axis=1) / (R - 1)), R - 1.0)
+    return UStat(est, se, loo, R, df)
 
 
 def pairwise_ustat(X, weights, chunk_bytes: int = 256 * 2**20) -> UStat:
     """U-statistics of Σ_ω w_i (X_r[j] − X_r[i])² over R replicates for every pair of G points: est (G, G)
-    (symmetric in (i, j) when the weights are), se (G, G), loo (R, G, G); diagonal 0.
+    (diagonal 0), se and df (G, G) as in `pixel_ustat` (independent pixels), loo (R, G, G).
 
     X: (R, G, N) float (replicate r of point i, pixels flattened); weights: a scalar, an (N,) array, or
-    (G, N) (row i weights the pairs (i, j), e.g. scale / L_i for Poisson). Differences are direct (float64,
-    column chunks of at most `chunk_bytes`)."""
+    (G, N) (row i weights the pairs (i, j), e.g. scale / L_i for Poisson). Differences are direct (float64)."""
     X = np.asarray(X)
     R, G, N = X.shape
     W = np.broadcast_to(np.asarray(weights, dtype=np.float64), (G, N)) if np.ndim(weights) else None
-    w0 = float(weights) if W is None else None
-    grams = np.zeros((R, R, G, G))
-    step = max(1, chunk_bytes // (8 * R * N))
+    est, se, df = np.zeros((G, G)), np.zeros((G, G)), np.full((G, G), np.inf)
+    loo = np.zeros((R, G, G)) if R >= 3 else np.empty((0, G, G))
     for i in range(G):
-        xi = X[:, i].astype(np.float64)
-        wi = w0 if W is None else W[i]
-        for j0 in range(0, G, step):
-            j1 = min(G, j0 + step)
-            D = X[:, j0:j1].astype(np.float64) - xi[:, None]  # (R, J, N)
-            grams[:, :, i, j0:j1] = np.einsum("rjn,sjn->rsj", D * wi, D)
-    return u_statistic(grams)
+        D = X.astype(np.float64) - X[:, i : i + 1].astype(np.float64)  # (R, G, N)
+        u = pixel_ustat(D, float(weights) if W is None else W[i][None], chunk_bytes)
+        est[i], se[i], df[i] = u.est, u.se, u.df
+        if R >= 3:
+            loo[:, i] = u.loo
+    return UStat(est, se, loo, R, df)

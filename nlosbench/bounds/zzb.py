@@ -226,7 +226,7 @@ def zzb_interval(stat: UStat, thetas, kind: str, prior=None, level: float = 0.95
     if R >= 3 and stat.loo.size:
         A_loo = a_of_h(pe(stat.loo), t, prior)  # (R, n)
         se = np.sqrt((R - 1) / R * ((A_loo - A_loo.mean(axis=0)) ** 2).sum(axis=0))
-        q = t_quantile(level, R, len(t) - 1)
+        q = t_quantile(level, R - 1, len(t) - 1)
         top = A.max()
         lo = integrate(np.clip(A - q * se, 0.0, top), delta)
         hi = integrate(np.clip(A + q * se, 0.0, max(top, float((A + q * se).max()))), delta)
