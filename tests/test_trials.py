@@ -303,8 +303,9 @@ def test_paper_table_writes_bounds_below_float64_from_their_log10():
 
 def test_smoke_runs_the_paper_config_in_seconds(tmp_path):
     """`--smoke` on configs/paper_pi_trials.yaml (Π hallway, 5 θ* × 30 trials × 400 iterations at
-    512/1024 spp): the smoke block keeps the estimator and the code path but 2 θ*, 2 trials and 3
-    iterations at 4 spp on the scene's tiny image; the study then finishes with a complete summary."""
+    512/1024 spp, and a bayesian block): the smoke blocks keep the estimators and the code path but 2 θ*,
+    2 trials and 3 iterations at 4 spp on the scene's tiny image; both studies finish with a complete
+    summary, the table with the bounds beside each estimator and the bayes run against its ZZB."""
     root = Path(__file__).resolve().parents[1]
     cfg = load_config(root / "configs" / "paper_pi_trials.yaml", ["executor.type=serial", "cache=null"], smoke=True)
     block = cfg["studies"][0]
@@ -313,8 +314,12 @@ def test_smoke_runs_the_paper_config_in_seconds(tmp_path):
     assert block["estimators"][0]["options"] == {"lr": 0.05, "iterations": 3, "spp": [[0.0, 4], [0.5, 4]]}
     ctx = RunContext.create(cfg, tmp_path, quiet=True)
     res = study.run(ctx, block)
-    assert res["trials"] == 4 and [r["n"] for r in res["summary"]] == [2, 2]
-    assert all(r["n_failed"] == 0 and r["mean_iterations"] <= 3 and r["mean_renders"] <= 9 for r in res["summary"])
+    assert res["trials"] == 8 and [r["n"] for r in res["summary"]] == [2, 2, 2, 2]
+    assert all(r["n_failed"] == 0 and r["mean_iterations"] <= 3 for r in res["summary"])
+    assert all(f"vs_{b}" in r for r in res["summary"] for b in ("hcr", "crlb"))
+    bayes = study.run(ctx, cfg["studies"][1])
+    (row,) = bayes["summary"]
+    assert row["n"] == 2 and row["n_failed"] == 0 and "vs_zzb" in row
 
 
 def test_smoke_caps_every_estimator_and_gradient_option():
