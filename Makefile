@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 CONFIG ?= configs/quick.yaml
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup demo test lint bench bench-gpu clean
 
 setup:
 	@bash scripts/setup.sh
@@ -23,6 +23,13 @@ lint: setup
 
 bench: setup
 	$(PY) -m nlosbench.cli bench
+
+# the forward and estimator benchmarks on cuda_ad_rgb. No set-up step: the GPU machine is offline, so
+# this runs with whatever Python has nlosbench's requirements (`.device/prelude.sh`, see
+# ../shared/device/README.md, or `make setup` first on a networked GPU machine)
+GPU_PY ?= $(if $(wildcard $(PY)),$(PY),python3)
+bench-gpu:
+	NLOSBENCH_VARIANT=cuda_ad_rgb $(GPU_PY) -m nlosbench.cli bench forward estimators
 
 clean:
 	rm -rf runs .pytest_cache

@@ -243,7 +243,8 @@ def test_backend_specs_round_trip_and_errors(cornell):
 def test_measure_sees_memory_outside_python_objects():
     """A 160 MiB buffer written by numpy (as Dr.Jit's would be, outside Python's object heap) and freed
     within the block. On Linux (the kernel's peak RSS, reset per block): a 40 MiB spike inside a
-    nested block counts for the inner block and, with the 10 MiB held around it, for the outer one."""
+    nested block counts for the inner block and, with the 10 MiB held around it, for the outer one, each
+    within a tolerance that holds on any machine (page rounding, a baseline that shrinks a little)."""
     import sys
 
     with D.measure() as c:
@@ -260,8 +261,12 @@ def test_measure_sees_memory_outside_python_objects():
                 b = np.full(40 * (1 << 17), 1.0)  # 40 MiB, freed at once
                 del b
             del a
-        assert 39 * (1 << 20) < inner.peak_bytes < 45 * (1 << 20), inner
-        assert 49 * (1 << 20) < outer.peak_bytes < 55 * (1 << 20), outer
+        # ±10 % / +15 %: the baseline RSS can shrink by a few pages while the block runs (the GPU
+        # machine measured 40.77 MB = 38.9 MiB for this 40 MiB spike), and the allocator rounds up
+        mib = 1 << 20
+        assert 0.9 * 40 * mib < inner.peak_bytes < 1.15 * 40 * mib, inner
+        assert 0.9 * 50 * mib < outer.peak_bytes < 1.15 * 50 * mib, outer
+        assert outer.peak_bytes - inner.peak_bytes > 5 * mib, (outer, inner)  # the 10 MiB held around it
 
 
 # -- real renders on the paper's Cornell box -------------------------------------------------------

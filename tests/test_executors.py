@@ -1,6 +1,7 @@
 """Executors: a spawned process pool loads the real Mitsuba scene once per worker and renders bit for
 bit what this process renders; trials through the pool and through Dask (LocalCluster) give exactly
 the records of a serial run, each worker having built its model once."""
+import importlib.util
 import os
 
 import numpy as np
@@ -56,8 +57,13 @@ def _comparable(records):
                   key=lambda r: (r["theta_index"], r["trial"], r["estimator"]))
 
 
+HAS_DASK = importlib.util.find_spec("distributed") is not None
+needs_dask = pytest.mark.skipif(not HAS_DASK, reason="dask.distributed is not installed (the optional 'dask' extra)")
+
+
 @pytest.mark.parametrize("make", [lambda: LocalPoolExecutor(BLOB, workers=2),
-                                  lambda: DaskExecutor(BLOB, workers=2)], ids=["pool", "dask"])
+                                  pytest.param(lambda: DaskExecutor(BLOB, workers=2), marks=needs_dask)],
+                         ids=["pool", "dask"])
 def test_trials_through_workers_match_a_serial_run(tmp_path, make):
     model, trials = _trials()
     serial = run_trials(SerialExecutor(model), trials, tmp_path / "serial" / LOG_NAME)
@@ -73,10 +79,14 @@ def test_create_from_the_run_config(cornell):
     assert isinstance(executors.create({"type": "serial"}, CORNELL, model=cornell), SerialExecutor)
     pool = executors.create({"type": "local", "workers": 3}, CORNELL)
     assert isinstance(pool, LocalPoolExecutor) and pool.workers == 3 and pool.threads >= 1
-    assert isinstance(executors.create({"type": "dask", "workers": 2, "address": None}, CORNELL), DaskExecutor)
+    if HAS_DASK:
+        assert isinstance(executors.create({"type": "dask", "workers": 2, "address": None}, CORNELL), DaskExecutor)
+    else:
+        with pytest.raises(ImportError, match=r"pip install 'nlosbench\[dask\]'"):
+            executors.create({"type": "dask", "workers": 2, "address": None}, CORNELL)
     with pytest.raises(ValueError, match="unknown executor type 'mpi'"):
         executors.create({"type": "mpi"}, CORNELL)
-    for make in (LocalPoolExecutor, DaskExecutor):
+    for make in (LocalPoolExecutor, DaskExecutor) if HAS_DASK else (LocalPoolExecutor,):
         with pytest.raises(ValueError, match="workers must be a positive integer"):
             make(CORNELL, workers=0)
 
