@@ -196,8 +196,11 @@ def check_scene(spec: str, spp: int = 64, seed: int = 0, defines: dict | None = 
         model = get(spec, **({"defines": defines} if defines else {}))
     model.cache = None  # every render below is made, not read back (the reproducibility check needs that)
     scene_warnings = _film_warnings(model)
-    # the load's own warnings, less the pixel-filter one that _film_warnings has just restated
-    scene_warnings += [str(w.message) for w in caught if not (scene_warnings and "box filter" in str(w.message))]
+    for w in caught:  # the scene's own warnings join the report (less the pixel-filter one restated above)
+        if not issubclass(w.category, UserWarning):  # e.g. a library's DeprecationWarning: not about the scene
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+        elif not (scene_warnings and "box filter" in str(w.message)):
+            scene_warnings.append(str(w.message))
     p = model.params
     default = p.default.copy()
     base = model.render(default, spp, seed).double().numpy()
