@@ -19,7 +19,7 @@ test: setup lint
 # the layers contract (import-linter) and the rule set (ruff), both configured in pyproject.toml
 lint: setup
 	$(VENV)/bin/lint-imports
-	$(VENV)/bin/ruff check nlosbench tests scripts
+	$(VENV)/bin/ruff check nlosbench tests scripts examples
 
 bench: setup
 	$(PY) -m nlosbench.cli bench

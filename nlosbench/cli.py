@@ -13,6 +13,7 @@ EPILOG = """examples:
   nlosbench run configs/quick.yaml --out runs/try --resume   # continue a killed run
   nlosbench run configs/paper_pi_trials.yaml --smoke --out runs/check   # seconds-long dry run
   nlosbench render cornell_ball --theta 0.1 0.3 0.8 --spp 256 --out runs/render
+  nlosbench check-scene my_scene.yaml --out runs/check   # does each θ binding move what it claims?
   nlosbench list                                         # every kind: scenes, estimators, noise, studies
   nlosbench list estimators                              # one kind
   nlosbench report runs/try                              # re-make plots and report.md from saved data
@@ -41,6 +42,14 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
                    help="scene XML default, e.g. --define res=64 (repeatable)")
     d.add_argument("--out", default="runs/render", help="output folder")
+    c = sub.add_parser("check-scene", help="render each parameter at Θ's ends and mid-point: does each binding "
+                       "move what it claims? (image change per step, a PNG grid, warnings)")
+    c.add_argument("scene", help="scene spec .yaml (or a registered scene name)")
+    c.add_argument("--spp", type=int, default=64, help="samples per pixel of every render (one seed for all)")
+    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
+                   help="scene XML default, e.g. --define resx=64 (repeatable)")
+    c.add_argument("--out", default="runs/check-scene", help="output folder (check.png, check.json)")
     ls = sub.add_parser("list", help="list scenes, estimators, noise models and studies (or one kind of them)")
     ls.add_argument("what", nargs="?", choices=LIST_KINDS, help="one kind only (default: every kind, one "
                     "section each)")
@@ -117,6 +126,11 @@ def main(argv: list[str] | None = None) -> int:
             print(f"done: {run_dir}/report.md")
         elif args.command == "render":
             _render(args)
+        elif args.command == "check-scene":
+            from .scenes.check import check_scene, format_report
+
+            print(format_report(check_scene(args.scene, args.spp, args.seed,
+                                            dict(kv.split("=", 1) for kv in args.define), args.out)))
         elif args.command == "list":
             _list(args.what)
         elif args.command == "report":
