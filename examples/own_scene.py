@@ -134,9 +134,9 @@ studies:
 def list_keys(xml: Path) -> list[str]:
     """Step 1: the scene's `mi.traverse` keys, loaded as nlosbench loads it (optimize=False: otherwise
     Mitsuba merges shapes that share a BSDF into one mesh with a made-up id)."""
-    from nlosbench import variant
+    import nlosbench as nb
 
-    variant.select()  # import nlosbench does not pick a Mitsuba variant; mi.load_file needs one
+    nb.variant.select()  # the variant nlosbench renders with (CUDA when a GPU works): mi.load_file needs one
     import mitsuba as mi
 
     return list(mi.traverse(mi.load_file(str(xml), optimize=False)).keys())
