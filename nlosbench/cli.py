@@ -1,11 +1,23 @@
-"""`nlosbench` command line: run experiments, render scenes, list plug-ins, re-make reports, benchmark."""
+"""`nlosbench` command line: run experiments, render scenes, list plug-ins, re-make reports, benchmark.
+
+Exit codes: 0 done; 2 bad input (config, scene, a run folder held by another run or holding a different
+run, a run estimated above an hour without --yes: nothing was written); 1 environment (disk full,
+read-only or missing path, permissions, an unreachable Dask scheduler, a worker process that died);
+130 interrupted (Ctrl-C; a second Ctrl-C stops at once). Every error is one line on stderr; after an
+environment error or an interrupt during a run it says how to resume."""
 from __future__ import annotations
 
 import argparse
+import errno
+import shlex
+import signal
 import sys
+import threading
+import warnings
+from contextlib import contextmanager
 from pathlib import Path
 
-BAD_INPUT = 2
+OK, ENVIRONMENT, BAD_INPUT, INTERRUPTED = 0, 1, 2, 130
 
 EPILOG = """examples:
   nlosbench run configs/quick.yaml                      # the demo: bounds, Fisher maps, MLE trials
@@ -34,6 +46,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress bars")
     r.add_argument("--smoke", action="store_true", help="a seconds-long run of the same config: tiny image, grids, "
                    "spp and trials (checks a paper-scale config before it runs for days)")
+    r.add_argument("--yes", action="store_true", help="run even when the estimated time is above an hour")
     d = sub.add_parser("render", help="render a scene at θ and write EXR + PNG")
     d.add_argument("scene", help="scene name (see `nlosbench list scenes`) or a scene spec .yaml")
     d.add_argument("--theta", type=float, nargs="+", help="θ values in parameter order (default: defaults)")
@@ -116,39 +129,130 @@ def _items(what: str) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    from concurrent.futures.process import BrokenProcessPool
+
     from .schema import ConfigError
+    from .variant import VariantError
 
+    resume = ""  # how to resume, once a run has started writing its folder
     try:
-        if args.command == "run":
-            from .experiment.runner import run
+        with _one_line_warnings(), _interrupts():
+            if args.command == "run":
+                from .experiment.runner import prepare
 
-            run_dir = run(args.config, args.overrides, args.out, args.resume, args.quiet, args.smoke)
-            print(f"done: {run_dir}/report.md")
-        elif args.command == "render":
-            _render(args)
-        elif args.command == "check-scene":
-            from .scenes.check import check_scene, format_report
+                prepared = prepare(args.config, args.overrides, args.out, args.resume, args.quiet, args.smoke, args.yes)
+                resume = _resume_command(args, prepared.dir)
+                run_dir = prepared.execute()
+                print(f"done: {run_dir}/report.md")
+            elif args.command == "render":
+                _render(args)
+            elif args.command == "check-scene":
+                from .scenes.check import check_scene, format_report
 
-            print(format_report(check_scene(args.scene, args.spp, args.seed,
-                                            dict(kv.split("=", 1) for kv in args.define), args.out)))
-        elif args.command == "list":
-            _list(args.what)
-        elif args.command == "report":
-            from .experiment.report import make_report
+                print(format_report(check_scene(args.scene, args.spp, args.seed,
+                                                dict(kv.split("=", 1) for kv in args.define), args.out)))
+            elif args.command == "list":
+                _list(args.what)
+            elif args.command == "report":
+                from .experiment.report import make_report
 
-            print(make_report(args.run_dir))
-        elif args.command == "bench":
-            from .benchmarks import run_all
+                if not (Path(args.run_dir) / "results.json").is_file():
+                    raise ConfigError("run_dir", f"{args.run_dir} holds no run (no results.json)")
+                print(make_report(args.run_dir))
+            elif args.command == "bench":
+                from .benchmarks import run_all
 
-            run_all(args.names, reduced=args.reduced)
-    except (ConfigError, KeyError, ValueError, FileNotFoundError, FileExistsError) as e:
-        msg = e.args[0] if isinstance(e, KeyError) and e.args else str(e)
-        print(
-            f"nlosbench: error: {msg}".splitlines()[0] if not isinstance(e, ConfigError) else f"nlosbench: error: {e}",
-            file=sys.stderr,
-        )
-        return BAD_INPUT
-    return 0
+                run_all(args.names, reduced=args.reduced)
+    except KeyboardInterrupt:
+        return _fail(INTERRUPTED, "interrupted", resume)
+    except ConfigError as e:
+        return _fail(BAD_INPUT, str(e))
+    except FileNotFoundError as e:
+        if e.errno is None:  # raised by nlosbench for a path given to it (a scene or spec that does not exist)
+            return _fail(BAD_INPUT, str(e))
+        return _fail(ENVIRONMENT, _describe(e), resume)
+    except (KeyError, ValueError) as e:
+        return _fail(BAD_INPUT, e.args[0] if isinstance(e, KeyError) and e.args else str(e))
+    except OSError as e:  # disk full, read-only or missing path, permissions, an unreachable scheduler
+        return _fail(ENVIRONMENT, _describe(e), resume)
+    except BrokenProcessPool as e:
+        return _fail(ENVIRONMENT, f"a worker process died ({e}; out of memory?)", resume)
+    except VariantError as e:
+        return _fail(ENVIRONMENT, str(e))
+    return OK
+
+
+def _fail(code: int, message: str, resume: str = "") -> int:
+    """Print one line `nlosbench: error: ...` (with how to resume, where a run was under way); return `code`."""
+    line = " ".join(str(message).split())  # one line, whatever the message held
+    if resume:
+        line += f"; resume with: {resume}"
+    print(f"nlosbench: error: {line}", file=sys.stderr)
+    return code
+
+
+_HINTS = {errno.ENOSPC: "free space on that disk or use another --out",
+          errno.EDQUOT: "free space (disk quota) or use another --out",
+          errno.EROFS: "that file system is read-only: use another --out",
+          errno.EACCES: "no permission: check the folder's owner and mode, or use another --out",
+          errno.EPERM: "no permission: check the folder's owner and mode, or use another --out",
+          errno.ENOENT: "a folder on that path is missing (removed while running?)",
+          errno.ENOTDIR: "a part of that path is a file, not a folder"}
+
+
+def _describe(e: OSError) -> str:
+    """An OSError as one line naming the path (or address) and what to do."""
+    if e.errno is None:  # e.g. ConnectionError raised by nlosbench with a message naming the address
+        return str(e)
+    name = errno.errorcode.get(e.errno, str(e.errno))
+    where = f": {e.filename}" + (f" → {e.filename2}" if e.filename2 else "") if e.filename else ""
+    hint = _HINTS.get(e.errno)
+    return f"{e.strerror or e} ({name}){where}" + (f" — {hint}" if hint else "")
+
+
+def _resume_command(args, run_dir: Path) -> str:
+    """The command that resumes this run: same config, overrides and --smoke, its folder, --resume."""
+    cmd = ["nlosbench", "run", args.config, "--out", str(run_dir), "--resume"]
+    for item in args.overrides:
+        cmd += ["--set", item]
+    return shlex.join(cmd + (["--smoke"] if args.smoke else []) + (["--yes"] if args.yes else []))
+
+
+@contextmanager
+def _interrupts():
+    """The first Ctrl-C raises KeyboardInterrupt (the run stops its workers and says how to resume); it also
+    restores the default action, so a second Ctrl-C ends the process at once."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def first(signum, frame):
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        print("nlosbench: stopping (Ctrl-C again to stop at once)", file=sys.stderr, flush=True)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGINT, first)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextmanager
+def _one_line_warnings():
+    """nlosbench's own warnings (torn records cut, cache failures, ...) as `nlosbench: warning: ...` lines."""
+    fmt = warnings.formatwarning
+
+    def one_line(message, category, filename, lineno, line=None):
+        if "/nlosbench/" in str(filename).replace("\\", "/"):
+            return f"nlosbench: warning: {message}\n"
+        return fmt(message, category, filename, lineno, line)
+
+    warnings.formatwarning = one_line
+    try:
+        yield
+    finally:
+        warnings.formatwarning = fmt
 
 
 if __name__ == "__main__":

@@ -9,17 +9,24 @@ model — built once per worker process from a picklable model spec (`scenes.bui
   LocalCluster of worker processes; each worker loads the scene once.
 
 `fn` must be a module-level function (it is pickled by reference) and `item` picklable.
+
+Stopping: pool workers ignore Ctrl-C (the parent decides: `abort` terminates them at once, `close`
+lets running tasks finish), and each runs a watchdog thread that exits the worker as soon as its parent
+is gone — killed with SIGKILL included — so no worker outlives the run (`_init_worker`).
 """
 from __future__ import annotations
 
 import json
 import multiprocessing
 import os
+import signal
 import sys
 import threading
+import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from contextlib import contextmanager
 
 from . import scenes
 from .forward.model import ForwardModel
@@ -49,6 +56,38 @@ def worker_model(spec: dict, threads: int | None = None) -> ForwardModel:
     return _MODELS[key]
 
 
+#: seconds between a pool worker's checks that its parent is alive
+PARENT_POLL = 0.5
+
+
+def _init_worker(parent: int) -> None:
+    """Pool worker initialiser: ignore Ctrl-C (the parent stops the pool) and exit when the parent
+    process `parent` is gone (its children are then re-parented, so `os.getppid()` changes)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(PARENT_POLL)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="nlosbench-parent-watch", daemon=True).start()
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """Ctrl-C ignored for the block (main thread only). A process spawned inside inherits the ignored
+    disposition across exec, so Python never installs its KeyboardInterrupt handler there: a Ctrl-C that
+    reaches a worker still importing (before `_init_worker` runs) cannot print a traceback either."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _call(spec: dict, threads: int | None, fn: Callable, item):
     with _LOCK:
         return fn(worker_model(spec, threads), item)
@@ -64,8 +103,15 @@ class Executor(ABC):
     def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
         """Results of fn(model, item), yielded as they finish (any order)."""
 
+    def start(self) -> None:  # noqa: B027 - a concrete no-op default: most executors start on first use
+        """Acquire what the executor needs before work is given to it (Dask: connect to the scheduler)."""
+
     def close(self) -> None:  # noqa: B027 - a concrete no-op default: a serial executor holds no workers
-        """Release workers (a no-op for the serial executor)."""
+        """Release workers (a no-op for the serial executor), letting running tasks finish."""
+
+    def abort(self) -> None:
+        """Stop at once (after Ctrl-C or an error): running tasks are dropped, workers terminated."""
+        self.close()
 
     def __enter__(self) -> Executor:
         return self
@@ -111,12 +157,14 @@ class LocalPoolExecutor(Executor):
 
     def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"))
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                             initializer=_init_worker, initargs=(os.getpid(),))
         pending, queue = set(), iter(items)
         try:
             while True:
                 for item in queue:
-                    pending.add(self._pool.submit(_call, self.spec, self.threads, fn, item))
+                    with _sigint_ignored():  # a worker spawned by this submit starts with Ctrl-C ignored
+                        pending.add(self._pool.submit(_call, self.spec, self.threads, fn, item))
                     if len(pending) >= 2 * self.workers:
                         break
                 if not pending:
@@ -133,20 +181,33 @@ class LocalPoolExecutor(Executor):
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
+    def abort(self) -> None:
+        if self._pool is not None:
+            for proc in list((getattr(self._pool, "_processes", None) or {}).values()):
+                proc.terminate()
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
 
 class DaskExecutor(Executor):
-    """dask.distributed: a scheduler at `address`, or a LocalCluster of `workers` processes with one
-    thread each. Every worker process loads the scene once (on its first task)."""
+    """dask.distributed: a scheduler at `address` (given up after `connect_timeout` seconds with a
+    ConnectionError naming it), or a LocalCluster of `workers` processes with one thread each. Every
+    worker process loads the scene once (on its first task)."""
 
-    def __init__(self, spec: dict, address: str | None = None, workers: int = 2, threads: int | None = None):
+    def __init__(self, spec: dict, address: str | None = None, workers: int = 2, threads: int | None = None,
+                 connect_timeout: float = 10.0):
         try:
             import distributed  # noqa: F401
         except ImportError:
             raise ImportError("the dask executor needs dask.distributed: pip install 'nlosbench[dask]'") from None
         self.spec, self.address, self.workers = spec, address, _check_workers(workers)
         self.threads = threads or _default_threads(self.workers)
+        self.connect_timeout = float(connect_timeout)
         self._client = None
         self._cluster = None
+
+    def start(self) -> None:
+        self.client()
 
     def client(self):
         """The dask Client (started on first use)."""
@@ -154,7 +215,11 @@ class DaskExecutor(Executor):
             from distributed import Client, LocalCluster
 
             if self.address:
-                self._client = Client(self.address)
+                try:
+                    self._client = Client(self.address, timeout=self.connect_timeout)
+                except OSError as e:
+                    raise ConnectionError(f"cannot reach the Dask scheduler at {self.address} within "
+                                          f"{self.connect_timeout:g} s (executor.connect_timeout): {e}") from None
             else:
                 self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                              dashboard_address=None)
@@ -186,8 +251,8 @@ class DaskExecutor(Executor):
 
 def create(config: dict, spec: dict, model: ForwardModel | None = None) -> Executor:
     """The executor a run config asks for: `config` is its `executor` block {type: local | serial |
-    dask, workers, address}; `spec` the model spec workers build from; `model` the already-loaded model
-    (used by the serial executor, so it loads nothing)."""
+    dask, workers, address, connect_timeout}; `spec` the model spec workers build from; `model` the
+    already-loaded model (used by the serial executor, so it loads nothing)."""
     kind = config.get("type", "local")
     workers = config.get("workers", 2)
     if kind == "serial":
@@ -195,5 +260,6 @@ def create(config: dict, spec: dict, model: ForwardModel | None = None) -> Execu
     if kind == "local":
         return LocalPoolExecutor(spec, workers=workers)
     if kind == "dask":
-        return DaskExecutor(spec, address=config.get("address"), workers=workers)
+        return DaskExecutor(spec, address=config.get("address"), workers=workers,
+                            connect_timeout=config.get("connect_timeout", 10.0))
     raise ValueError(f"unknown executor type {kind!r}; expected serial, local or dask")

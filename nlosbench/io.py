@@ -1,5 +1,7 @@
 """Files a run writes, each atomically: EXR images for data (float32, lossless), PNG for people
-(matplotlib, optional log scale), CSV tables and JSON."""
+(matplotlib, optional log scale; every figure goes through `save_figure`), CSV tables, JSON and text
+(`write_text`: config.yaml, report.md). No file is ever left half-written under its final name; the
+append-only record logs are the one exception, and `records` handles their torn last line."""
 from __future__ import annotations
 
 import csv
@@ -17,17 +19,46 @@ import numpy as np
 def atomic(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside `path` (unique per writer); once the body has written it, it is
     fsynced and renamed onto `path`, so a run killed while writing never leaves a torn file that a
-    resumed run would read back, and concurrent writers never mix. On error it is removed."""
+    resumed run would read back, and concurrent writers never mix. On error it is removed.
+    An OSError (disk full, read-only folder, permissions) names `path`, not the temporary file.
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         yield tmp
         with open(tmp, "rb") as f:
             os.fsync(f.fileno())
         os.replace(tmp, path)
+    except OSError as e:
+        if e.errno is None or e.filename == str(path):
+            raise
+        raise OSError(e.errno, e.strerror, str(path)) from e  # the subclass follows errno (PermissionError, ...)
     finally:
-        tmp.unlink(missing_ok=True)
+        try:
+            tmp.unlink(missing_ok=True)
+        except OSError:  # the folder itself is gone or read-only: nothing was left there
+            pass
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write a text file (UTF-8) atomically."""
+    with atomic(path) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return Path(path)
+
+
+def save_figure(fig, path: str | Path, **savefig) -> Path:
+    """Save a matplotlib figure atomically (format from the suffix of `path`, default png) and close it."""
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    try:
+        with atomic(path) as tmp:
+            fig.savefig(tmp, format=path.suffix.lstrip(".") or "png", **savefig)
+    finally:
+        plt.close(fig)
+    return path
 
 
 def _as_hwc(array) -> np.ndarray:
@@ -49,8 +80,21 @@ def write_exr(path: str | Path, array) -> Path:
     channels = {n: np.ascontiguousarray(a[..., i]) for i, n in enumerate(names)}
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
     with atomic(path) as tmp, OpenEXR.File(header, channels) as f:
-        f.write(str(tmp))
+        try:
+            f.write(str(tmp))
+        except RuntimeError as e:  # OpenEXR reports a failed write (disk full, ...) as RuntimeError with the text
+            raise _os_error(str(e), path) from e
     return Path(path)
+
+
+def _os_error(message: str, path) -> Exception:
+    """The OSError (named for `path`) whose strerror appears in a library's error message, else a RuntimeError."""
+    import errno
+
+    for code in (errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOENT, errno.EIO):
+        if os.strerror(code) in message:
+            return OSError(code, os.strerror(code), str(path))
+    return RuntimeError(message)
 
 
 def read_exr(path: str | Path) -> np.ndarray:
@@ -74,8 +118,6 @@ def write_png(path: str | Path, array, log: bool = False, title: str | None = No
     import matplotlib.pyplot as plt
 
     a = _as_hwc(array).astype(np.float64)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     fig, ax = plt.subplots(figsize=(5, 5 * a.shape[0] / max(a.shape[1], 1) + 0.6))
     if a.shape[2] == 3 and not log:
         srgb = np.where(a <= 0.0031308, 12.92 * a, 1.055 * np.clip(a, 0, None) ** (1 / 2.4) - 0.055)
@@ -98,9 +140,7 @@ def write_png(path: str | Path, array, log: bool = False, title: str | None = No
     if title:
         ax.set_title(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def write_csv(path: Path, rows: list[dict]) -> Path:
@@ -121,9 +161,7 @@ def read_csv(path: Path) -> list[dict]:
 
 
 def write_json(path: Path, data) -> Path:
-    with atomic(path) as tmp:
-        tmp.write_text(json.dumps(data, indent=2, default=_json_default))
-    return path
+    return write_text(path, json.dumps(data, indent=2, default=_json_default))
 
 
 def _json_default(o):

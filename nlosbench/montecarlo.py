@@ -8,16 +8,14 @@ the clean image's own Monte Carlo error enters the bias test's standard error (`
 Bayesian protocol every trial has its own θ* drawn from the prior (`summarize_bayes`). Seeds derive
 from the experiment seed, the purpose and the indices: the noise of y from (j, i, k); the start and the
 fit's generator (its render seeds) from (i, k), so the noise models are compared from the same starts
-too. Each finished
-trial is appended to `trials.jsonl` with flush + fsync, so a killed run resumes without losing or
-repeating a trial; the summary sorts records first, so it does not depend on the order in which
-trials finished.
+too. Each finished trial is appended to `trials.jsonl` (a `records.RecordLog`: flush + fsync per record,
+a torn last line cut on resume), so a killed run resumes without losing or repeating a trial; the summary
+sorts records first, so it does not depend on the order in which trials finished.
 """
 from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -33,6 +31,7 @@ from .forward.gradients import GradientSettings
 from .forward.model import ForwardModel
 from .noise import NoiseModel
 from .params import ParamSpace
+from .records import RecordLog
 from .seeds import derive
 
 LOG_NAME = "trials.jsonl"
@@ -184,25 +183,9 @@ def run_trial(model: ForwardModel, trial: Trial) -> dict:
 
 
 def read_log(path: Path) -> list[dict]:
-    """Records from a trials log. A torn last line (the run was killed while writing it) is cut
-    off the file; any other unreadable line is an error naming it."""
-    path = Path(path)
-    if not path.exists():
-        return []
-    raw = path.read_bytes()
-    end = raw.rfind(b"\n") + 1
-    if end < len(raw):
-        with open(path, "r+b") as f:
-            f.truncate(end)
-            f.flush()
-            os.fsync(f.fileno())
-    out = []
-    for n, line in enumerate(raw[:end].splitlines(), 1):
-        try:
-            out.append(json.loads(line))
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{path}:{n}: not a trial record ({e})") from None
-    return out
+    """Records from a trials log (`records.RecordLog.read`: a torn last line, left by a run killed while
+    writing it, is cut off with a warning; any other unreadable line is an error naming file and line)."""
+    return RecordLog(path).read()
 
 
 def run_trials(
@@ -211,20 +194,17 @@ def run_trials(
     """Run the trials not yet in the log at `path` (all of them unless `resume`), appending each
     record as it finishes (flush + fsync). Returns every record of the planned trials.
     progress(iterable, total, desc) wraps the results (e.g. RunContext.progress)."""
-    path = Path(path)
+    log = RecordLog(path)
     if not resume:
-        path.unlink(missing_ok=True)
+        log.reset()
     planned = {t.key for t in trials}
-    records = [r for r in read_log(path) if record_key(r) in planned]
+    records = [r for r in log.read() if record_key(r) in planned]
     done = {record_key(r) for r in records}
     todo = [t for t in trials if t.key not in done]
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a") as f:
+    with log:
         results = executor.imap_unordered(run_trial, todo)
         for rec in progress(results, total=len(todo), desc="trials") if progress else results:
-            f.write(json.dumps(rec) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+            log.append(rec)
             records.append(rec)
     return records
 

@@ -21,8 +21,9 @@ class ConfigError(ValueError):
 
 @dataclass(frozen=True)
 class Field:
-    """type: int | float | str | bool | list | dict | "any" | a nested schema (dict of Fields);
-    `items` validates list entries (a type or a nested schema); `choices` restricts values."""
+    """type: int | float | str | bool | list | dict | "any" | a nested schema (dict of Fields) | a check
+    function `check(value, path) -> value` raising ConfigError (e.g. `grid_spec`, `noise_spec`);
+    `items` validates list entries (a type, a check function or a nested schema); `choices` restricts values."""
 
     type: Any
     default: Any = REQUIRED
@@ -38,6 +39,8 @@ _NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true/fal
 def _check_type(value, typ, path: str):
     if typ == "any":
         return value
+    if callable(typ) and not isinstance(typ, type):
+        return typ(value, path)
     if typ is float and isinstance(value, (int, float)) and not isinstance(value, bool):
         return float(value)
     if typ is int and isinstance(value, float) and value.is_integer():
@@ -118,4 +121,86 @@ def smoke_grid(spec, num: int = 3):
     return spec if len(spec) <= num else spec[:num - 1] + spec[-1:]
 
 
-GRID = Field("any", help="θ values: a list, {start, stop, num}, or a list of {start, stop, num} segments")
+# -- value shapes the plain types cannot say (a string is never read as a list of characters) -----------
+def _is_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _given(value) -> str:
+    return f"{type(value).__name__} {value!r}"
+
+
+SEGMENT = {"start": Field(float, help="first θ"), "stop": Field(float, help="last θ (included)"),
+           "num": Field(int, help="number of points")}
+
+
+def _segment(value: dict, path: str) -> dict:
+    seg = validate_block(value, SEGMENT, path)
+    if seg["num"] < 1:
+        raise ConfigError(f"{path}.num", f"expected a positive integer, got {seg['num']}")
+    return seg
+
+
+def grid_spec(value, path: str):
+    """Check a θ-grid spec: a non-empty list of numbers, {start, stop, num}, or a list mixing numbers and
+    such segments (the shapes `grid_values` reads). Numbers become floats."""
+    if isinstance(value, dict):
+        return _segment(value, path)
+    if not isinstance(value, list) or not value:
+        raise ConfigError(path, "expected a non-empty list of numbers, {start, stop, num} or a list of such "
+                                f"segments, got {_given(value)}")
+    out = []
+    for i, v in enumerate(value):
+        if isinstance(v, dict):
+            out.append(_segment(v, f"{path}[{i}]"))
+        elif _is_number(v):
+            out.append(float(v))
+        else:
+            raise ConfigError(f"{path}[{i}]", f"expected a number or {{start, stop, num}}, got {_given(v)}")
+    return out
+
+
+def point_spec(value, path: str):
+    """Check one θ point: a number (1-D θ) or a non-empty list of numbers."""
+    if _is_number(value):
+        return float(value)
+    if isinstance(value, list) and value and all(_is_number(v) for v in value):
+        return [float(v) for v in value]
+    raise ConfigError(path, f"expected a number or a list of numbers (one θ), got {_given(value)}")
+
+
+def points_spec(value, path: str):
+    """Check θ points: a grid spec (1-D θ) or a non-empty list of lists of numbers (one list per θ)."""
+    if isinstance(value, list) and value and all(isinstance(v, list) for v in value):
+        return [point_spec(v, f"{path}[{i}]") for i, v in enumerate(value)]
+    try:
+        return grid_spec(value, path)
+    except ConfigError:
+        raise ConfigError(path, "expected a non-empty list of θ points: numbers or {start, stop, num} (1-D θ), or "
+                                f"lists of numbers, got {_given(value)}") from None
+
+
+def noise_spec(value, path: str):
+    """Check a choice of noise models: 'all', an index, or a non-empty list of indices (ints >= 0)."""
+    if value == "all" or (isinstance(value, int) and not isinstance(value, bool) and value >= 0):
+        return value
+    if isinstance(value, list) and value and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0
+                                                 for v in value):
+        return value
+    raise ConfigError(path, f"expected 'all', an index (0, 1, ...) or a list of indices, got {_given(value)}")
+
+
+def number_or(*words: str):
+    """A check: a number, or one of the given words (e.g. number_or('measured'))."""
+
+    def check(value, path: str):
+        if _is_number(value):
+            return float(value)
+        if isinstance(value, str) and value in words:
+            return value
+        raise ConfigError(path, f"expected a number or one of {list(words)}, got {_given(value)}")
+
+    return check
+
+
+GRID = Field(grid_spec, help="θ values: a list, {start, stop, num}, or a list of {start, stop, num} segments")

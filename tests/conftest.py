@@ -14,3 +14,13 @@ def cornell():
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _rates_cache(tmp_path_factory):
+    """Render rates measured for cost estimates go to a folder of this session, not ~/.cache (subprocesses
+    inherit the variable)."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
+    yield
+    mp.undo()

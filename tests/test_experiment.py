@@ -123,3 +123,42 @@ def test_render_and_list_commands(tmp_path, capsys):
     listed = capsys.readouterr().out.split()
     assert {"blob2d", "edge1d", "cornell_ball"} <= set(listed)
     assert main(["render", "cornell_ball", "--theta", "9", "0.3", "0.8", "--out", str(tmp_path)]) == 2
+
+
+SCENES = {"edge": ({"name": "edge1d"}, [0.5]), "blob": ({"name": "blob2d"}, [[0.5, 0.5]]),
+          "pi": ({"name": "pi_hallway", "options": {"defines": {"width": 16, "height": 12, "max_depth": 3}}}, [0.9])}
+
+
+@pytest.mark.parametrize("scene, study, message", [
+    ("edge", {"type": "bounds", "grid": {"start": 0.5, "stop": 0.95, "num": 5}},
+     "01-bounds.grid: θ out of range: edge=0.95 outside [0.1, 0.9]"),
+    ("edge", {"type": "fisher-maps", "at": [0.5], "fd_rounds": 1},
+     "01-fisher-maps.fd_rounds: the unbiased Fisher information needs >= 2 rounds, got 1"),
+    ("edge", {"type": "trials", "theta": [0.5], "n": 0, "estimators": [{"name": "grid-search"}]},
+     "01-trials.n: expected a positive integer, got 0"),
+    ("edge", {"type": "inexact", "theta": [0.95], "deltas": [0.1]}, "01-inexact.theta: θ out of range"),
+    ("blob", {"type": "gradients", "seeds": 1}, "01-gradients.seeds: expected an integer >= 2"),
+    ("blob", {"type": "gradients", "at": {"z": 0.5}}, "01-gradients.at.z: unknown parameter"),
+    ("pi", {"type": "viewpoints", "num": 4}, "01-viewpoints.num: num must be a positive odd number"),
+    ("pi", {"type": "viewpoints", "at": [2.5]}, "01-viewpoints.at: θ out of range"),
+    ("edge", {"type": "fidelity", "grid": [0.3, 0.5, 0.7], "spp": [9], "bins": [1, 3]},
+     "01-fidelity.bins: b = 3 does not divide the 1×64 image"),
+])
+def test_every_study_checks_its_block_before_anything_is_written(tmp_path, capsys, scene, study, message):
+    """Each study's plan() runs on the resolved config, with the scene loaded, for every study of the file
+    before the run folder is made: a bad value in the second study is one line (exit 2) and nothing of the
+    first study ran or was written."""
+    spec, at = SCENES[scene]
+    raw = {"name": "b", "scene": spec, "noise": [{"model": "awgn", "sigma": 0.1}], "executor": {"type": "serial"},
+           "studies": [{"type": "fisher-maps", "at": at, "spp": 4}, study]}
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump(raw))
+    out = tmp_path / "run"
+    rc = main(["run", str(cfg), "--out", str(out), "--quiet"])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and err.startswith(f"nlosbench: error: {message}") and len(err.splitlines()) == 1, err
+    assert not out.exists()
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    assert main(["run", str(cfg), "--out", str(out), "--quiet"]) == 2
+    assert [p.name for p in out.iterdir()] == ["notes.txt"] and (out / "notes.txt").read_text() == "mine"

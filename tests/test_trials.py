@@ -111,7 +111,7 @@ def test_cornell_study_produces_a_complete_summary(tmp_path):
     # at 64 spp rendering noise dominates λ (the paper's point): HCR_Neff may underflow, its log10 never
     assert all(math.isfinite(b["log10_hcr"]) and math.isfinite(b["log10_crlb"]) for b in res["bound_rows"])
     assert len(read_log(folder / LOG_NAME)) == 8
-    for f in ("bounds.csv", "plan.json", "images/clean_000.exr", "images/clean_001.exr"):
+    for f in ("bounds.csv", "images/clean_000.exr", "images/clean_001.exr"):
         assert (folder / f).is_file(), f
     # grad auto on a position: the prior picks FD with the block's step; the choice is reported
     chosen = res["gradients"]["adam-auto"]
@@ -372,7 +372,13 @@ def test_barankin_needs_a_scalar_theta(tmp_path):
         study.run(ctx, block)
 
 
-def test_resume_with_a_changed_config_is_refused(tmp_path):
+def test_resume_with_a_changed_config_is_refused(tmp_path, capsys):
+    """The run folder's fingerprint (which folds in what the trials plan resolves, e.g. `auto` gradients)
+    refuses a resume with another trial count, before anything is written."""
+    import yaml
+
+    from nlosbench.cli import main
+
     block = {
         "theta": [0.5],
         "n": 2,
@@ -380,11 +386,14 @@ def test_resume_with_a_changed_config_is_refused(tmp_path):
         "hcr_grid": 9,
         "estimators": [{"name": "grid-search", "options": {"num": 9, "spp": 1}}],
     }
-    ctx, b = make_ctx(tmp_path, {"name": "edge1d"}, block)
-    study.run(ctx, b)
-    ctx, b = make_ctx(tmp_path, {"name": "edge1d"}, {**block, "n": 3}, resume=True)
-    with pytest.raises(ConfigError, match="differs from the one"):
-        study.run(ctx, b)
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump({"scene": {"name": "edge1d"}, "executor": {"type": "serial"},
+                                   "studies": [{"type": "trials", **block}]}))
+    assert main(["run", str(cfg), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    before = (tmp_path / "run" / "config.yaml").read_bytes()
+    assert main(["run", str(cfg), "--out", str(tmp_path / "run"), "--quiet", "--resume", "--set", "studies.0.n=3"]) == 2
+    assert "studies[0].n = 2, this config has 3" in capsys.readouterr().err
+    assert (tmp_path / "run" / "config.yaml").read_bytes() == before
 
 
 def test_summary_statistics_against_hand_computed_values():

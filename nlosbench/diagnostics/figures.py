@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
+from ..io import save_figure
+
 
 def gradient_grid(images: dict, masks: dict, rows: list[str], columns: list[tuple[str, int]], path: str | Path,
                   units: dict[str, str] | None = None, reference: str = "reference") -> Path:
@@ -61,7 +63,5 @@ def gradient_grid(images: dict, masks: dict, rows: list[str], columns: list[tupl
         fig.colorbar(im, ax=axes[:, cols].ravel().tolist(), location="bottom", fraction=0.03, pad=0.02,
                      shrink=0.9, label=f"Σ_RGB ∂L/∂{param}" + (f" [1/{u}]" if u and u != "1" else ""))
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    save_figure(fig, path, dpi=110, bbox_inches="tight")
     return path

@@ -24,6 +24,7 @@ import numpy as np
 from ..forward.bindings import GEOMETRY_KINDS
 from ..forward.gradients import GradientSettings
 from ..forward.model import ForwardModel
+from ..io import write_text
 from .images import backend, label, param_kind
 from .metrics import spp_trend
 
@@ -117,9 +118,7 @@ def judge(rows: list[dict], param: str) -> Verdict:
 
 
 def save_verdicts(path: str | Path, verdicts: dict[str, Verdict]) -> Path:
-    path = Path(path)
-    path.write_text(json.dumps({k: asdict(v) for k, v in verdicts.items()}, indent=2))
-    return path
+    return write_text(path, json.dumps({k: asdict(v) for k, v in verdicts.items()}, indent=2))
 
 
 def load_verdicts(path: str | Path) -> dict[str, Verdict]:

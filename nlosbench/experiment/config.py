@@ -26,7 +26,9 @@ TOP = {
     "noise": Field(list, [{"model": "awgn", "sigma": 0.1}], "noise models", items=NOISE),
     "executor": Field({"type": Field(str, "local", choices=("local", "serial", "dask")),
                        "workers": Field(int, 2, "local worker processes"),
-                       "address": Field(str, None, "dask scheduler address (default: a LocalCluster)", nullable=True)}),
+                       "address": Field(str, None, "dask scheduler address (default: a LocalCluster)", nullable=True),
+                       "connect_timeout": Field(float, 10.0, "seconds to wait for the dask scheduler at `address` "
+                                                             "before giving up")}),
     "cache": Field(str, None, "render cache folder shared across runs (default: none)", nullable=True),
     "keep_renders": Field(bool, True, "keep every render of the run in RUN/renders/ (checksummed), so a resumed "
                                       "run renders nothing twice"),
@@ -69,24 +71,37 @@ def smoke_config(cfg: dict) -> dict:
 
 
 def apply_override(raw: dict, item: str) -> None:
-    """`a.b.c=value` (value parsed as YAML; list indices as numbers: studies.0.spp=64)."""
+    """`a.b.c=value` (value parsed as YAML; list indices as numbers: studies.0.spp=64). The value keeps its
+    YAML type: `grid="11"` is the string '11', which the schema then refuses where numbers are expected."""
     if "=" not in item:
         raise ConfigError(item, "an override must look like key.path=value")
     key, value = item.split("=", 1)
     parts = key.split(".")
+    if not all(parts):
+        raise ConfigError(key, "an override must look like key.path=value (no empty key)")
+    try:
+        val = yaml.safe_load(value)
+    except yaml.YAMLError as e:
+        raise ConfigError(key, f"the value {value!r} is not valid YAML: {str(e).splitlines()[0]}") from None
     node = raw
-    for i, p in enumerate(parts[:-1]):
-        nxt = parts[i + 1]
+    for i, p in enumerate(parts):
+        where = ".".join(parts[:i + 1])
+        last = i == len(parts) - 1
         if isinstance(node, list):
-            node = node[int(p)]
+            if not p.isdigit() or int(p) >= len(node):
+                raise ConfigError(where, f"expected an index below {len(node)} into the list "
+                                         f"{'.'.join(parts[:i]) or '<config>'}, got {p!r}")
+            if last:
+                node[int(p)] = val
+            else:
+                node = node[int(p)]
+        elif isinstance(node, dict):
+            if last:
+                node[p] = val
+            else:
+                node = node.setdefault(p, [] if parts[i + 1].isdigit() else {})
         else:
-            node = node.setdefault(p, [] if nxt.isdigit() else {})
-    last = parts[-1]
-    val = yaml.safe_load(value)
-    if isinstance(node, list):
-        node[int(last)] = val
-    else:
-        node[last] = val
+            raise ConfigError(where, f"{'.'.join(parts[:i])} is a {type(node).__name__}, not a mapping or a list")
 
 
 def resolve(raw: dict) -> dict:

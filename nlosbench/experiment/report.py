@@ -8,6 +8,7 @@ from pathlib import Path
 import yaml
 
 from .. import studies
+from ..io import write_text
 
 
 def make_report(run_dir: str | Path) -> Path:
@@ -46,6 +47,4 @@ def make_report(run_dir: str | Path) -> Path:
             mod.report(run_dir / sid, s["results"]),
             "",
         ]
-    path = run_dir / "report.md"
-    path.write_text("\n".join(lines))
-    return path
+    return write_text(run_dir / "report.md", "\n".join(lines))

@@ -1,55 +1,138 @@
-"""Run an experiment: validate the config, make the run directory, run each study, write
-config.yaml (resolved), results.json (after every study) and report.md. A resumed run skips
-finished studies (and studies resume their own partial work, e.g. trials.jsonl)."""
+"""Run an experiment in two steps.
+
+`prepare` checks everything before anything is written: the config against the schema, the scene (loaded
+once), every study's plan (`plan(ctx, cfg)`: θ inside Θ, grids, spp, counts, estimator options, noise
+indices), the cost (each study's `cost(ctx, cfg, plan)` at a rate measured on this machine: above
+`CONFIRM_ABOVE` seconds the run needs `yes`), the run folder (not held by another run; a new run into a
+folder that holds one, or a resume whose fingerprint differs, is refused). Any problem is a ConfigError
+(one line, key path, what was expected and what was given) and nothing has been written.
+
+`Run.execute` then holds the folder's lock (`rundir.RunLock`), writes fingerprint.json and config.yaml
+(resolved), runs each study (a resumed run skips finished studies; studies resume their own partial work
+from their record logs and the render store), writes results.json after every study and report.md.
+On Ctrl-C or an error the executor's workers are stopped at once (`abort`)."""
 from __future__ import annotations
 
 import json
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
 
 from .. import studies
-from ..io import write_json
+from ..io import write_json, write_text
+from ..schema import ConfigError
+from ..studies import estimate
 from ..studies.context import RunContext
 from . import config as config_mod
+from . import rundir
 from .report import make_report
+
+#: an estimated time above this (seconds) needs `yes` (the CLI's --yes)
+CONFIRM_ABOVE = 3600.0
+
+
+@dataclass
+class Run:
+    """A checked run, ready to execute: config, folder, context (scene loaded), plans and estimates."""
+
+    cfg: dict
+    dir: Path
+    ctx: RunContext
+    plans: dict
+    estimates: dict
+    seconds: float
+    fingerprint: dict
+    resume: bool = False
+    notes: list = field(default_factory=list)
+
+    def execute(self) -> Path:
+        """Run every study into the folder (see the module docstring); returns the folder."""
+        cfg, ctx, run_dir = self.cfg, self.ctx, self.dir
+        results_path = run_dir / "results.json"
+        with rundir.RunLock(run_dir):
+            rundir.check(run_dir, self.fingerprint, self.resume)  # again, now that no one else can write
+            try:
+                ctx.start()  # the executor (an unreachable Dask scheduler fails here, before any file is written)
+                rundir.write_fingerprint(run_dir, self.fingerprint)
+                write_text(run_dir / "config.yaml", yaml.safe_dump(cfg, sort_keys=False))
+                results = json.loads(results_path.read_text()) if self.resume and results_path.exists() \
+                    else {"studies": {}}
+                for study in cfg["studies"]:
+                    sid = study["id"]
+                    if results["studies"].get(sid, {}).get("status") == "done":
+                        ctx.log(f"[{sid}] done already, skipped")
+                        continue
+                    ctx.log(f"[{sid}] running")
+                    before, t0 = ctx.model.stats.snapshot(), time.perf_counter()
+                    try:
+                        summary = studies.get(study["type"]).run(ctx, study)
+                    except ConfigError:
+                        raise
+                    except (ValueError, KeyError) as e:  # bad input found by the study: name it, keep the kind
+                        msg = f"study {sid}: {e.args[0] if isinstance(e, KeyError) and e.args else e}"
+                        raise (KeyError if isinstance(e, KeyError) else ValueError)(msg) from e
+                    spent = ctx.model.stats.since(before)
+                    results["studies"][sid] = {"type": study["type"], "status": "done", "results": summary,
+                                               "seconds": time.perf_counter() - t0,
+                                               "renders_in_process": spent.renders,
+                                               "render_seconds_in_process": spent.seconds}
+                    write_json(results_path, results)
+            except BaseException:
+                ctx.abort()
+                raise
+            ctx.close()
+            results["seconds_total"] = sum(s.get("seconds", 0) for s in results["studies"].values())
+            write_json(results_path, results)
+            make_report(run_dir)
+        return run_dir
+
+
+def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path | None = None, resume: bool = False,
+            quiet: bool = False, smoke: bool = False, yes: bool = False) -> Run:
+    """Check a run completely without writing anything (see the module docstring); ConfigError otherwise."""
+    cfg = config_mod.load(config_path, overrides, smoke=smoke)
+    ids = []
+    for i, study in enumerate(cfg["studies"]):
+        study["id"] = study.get("id") or f"{i:02d}-{study['type']}"
+        if study["id"] in ids:
+            raise ConfigError(f"studies[{i}].id", f"{study['id']!r} is used by an earlier study; give each its own id")
+        ids.append(study["id"])
+    run_dir = Path(out) if out else Path(cfg["output"]) / cfg["name"]
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ConfigError("--out", f"{run_dir} is a file, not a folder")
+    holder = rundir.lock_holder(run_dir) if run_dir.is_dir() else None
+    if holder is not None:  # at once: before the scene is loaded
+        raise rundir.RunFolderError(str(run_dir), f"is in use by another nlosbench run (PID {holder}); wait for it "
+                                                  "to finish or stop it, or use another --out")
+    if not resume:
+        rundir.check(run_dir, {}, resume=False)
+    ctx = RunContext.create(cfg, run_dir, resume=resume, quiet=quiet)  # the scene: ConfigError if it cannot load
+    plans, estimates = {}, {}
+    for study in cfg["studies"]:
+        mod = studies.get(study["type"])
+        plans[study["id"]] = mod.plan(ctx, study)
+        estimates[study["id"]] = mod.cost(ctx, study, plans[study["id"]])
+    fp = rundir.fingerprint(cfg, ctx.model.content_key(), plans)
+    rundir.check(run_dir, fp, resume)
+    rate = estimate.rate(ctx.model)
+    total = sum(rate.seconds(e) for e in estimates.values())
+    lines = [f"[{sid}] plan: {e.renders} renders, {e.samples:.3g} pixel-samples, ≈ {estimate.describe(rate.seconds(e))}"
+             + (f" ({e.note})" if e.note else "") for sid, e in estimates.items()]
+    lines.append(f"estimate: ≈ {estimate.describe(total)} in all at {rate.seconds_per_sample * 1e9:.3g} ns per "
+                 f"pixel-sample ({rate.source}); a resumed run skips what is done")
+    for line in lines:
+        ctx.log(line)
+    if total > CONFIRM_ABOVE and not yes:
+        samples = sum(e.samples for e in estimates.values())
+        raise ConfigError("--yes", f"this run is estimated at {estimate.describe(total)} ({samples:.3g} pixel-samples "
+                                   f"at {rate.seconds_per_sample * 1e9:.3g} ns each), above "
+                                   f"{estimate.describe(CONFIRM_ABOVE)}: pass --yes to run it, or try --smoke first")
+    return Run(cfg, run_dir, ctx, plans, estimates, total, fp, resume, lines)
 
 
 def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | None = None,
-        resume: bool = False, quiet: bool = False, smoke: bool = False) -> Path:
+        resume: bool = False, quiet: bool = False, smoke: bool = False, yes: bool = False) -> Path:
     """Run every study of a config (shrunk to seconds with `smoke`); returns the run directory."""
-    cfg = config_mod.load(config_path, overrides, smoke=smoke)
-    run_dir = Path(out) if out else Path(cfg["output"]) / cfg["name"]
-    results_path = run_dir / "results.json"
-    if results_path.exists() and not resume:
-        raise FileExistsError(f"{run_dir} already holds a run; pass --resume to continue it or --out for a new one")
-    ctx = RunContext.create(cfg, run_dir, resume=resume, quiet=quiet)  # loads the scene before anything is written
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
-    results = json.loads(results_path.read_text()) if resume and results_path.exists() else {"studies": {}}
-    ctx.start()
-    try:
-        for i, study in enumerate(cfg["studies"]):
-            study["id"] = study.get("id") or f"{i:02d}-{study['type']}"
-            if results["studies"].get(study["id"], {}).get("status") == "done":
-                ctx.log(f"[{study['id']}] done already, skipped")
-                continue
-            ctx.log(f"[{study['id']}] running")
-            before, t0 = ctx.model.stats.snapshot(), time.perf_counter()
-            try:
-                summary = studies.get(study["type"]).run(ctx, study)
-            except (ValueError, KeyError) as e:  # bad input found by the study: name the study, keep the kind
-                msg = f"study {study['id']}: {e.args[0] if isinstance(e, KeyError) and e.args else e}"
-                raise (KeyError if isinstance(e, KeyError) else ValueError)(msg) from e
-            spent = ctx.model.stats.since(before)
-            results["studies"][study["id"]] = {"type": study["type"], "status": "done", "results": summary,
-                                               "seconds": time.perf_counter() - t0, "renders_in_process": spent.renders,
-                                               "render_seconds_in_process": spent.seconds}
-            write_json(results_path, results)
-    finally:
-        ctx.close()
-    results["seconds_total"] = sum(s.get("seconds", 0) for s in results["studies"].values())
-    write_json(results_path, results)
-    make_report(run_dir)
-    return run_dir
+    return prepare(config_path, overrides, out, resume, quiet, smoke, yes).execute()

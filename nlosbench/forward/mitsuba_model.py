@@ -30,10 +30,20 @@ from .bindings import GEOMETRY_KINDS, Binding, SceneBinder
 from .model import ForwardModel, check_spp_seed
 from .passes import WAVEFRONT_LIMIT, FrozenRender, backend_of, freeze_default, pass_samples, split_spp
 
-__all__ = ["MitsubaModel", "WAVEFRONT_LIMIT", "split_spp", "pruned_xml", "AD_INTEGRATORS"]
+__all__ = ["MitsubaModel", "SceneError", "WAVEFRONT_LIMIT", "split_spp", "pruned_xml", "AD_INTEGRATORS"]
 
 #: AD integrators by the kind of parameter: geometry needs the visibility-aware projective ones
 AD_INTEGRATORS = ("prb", "direct_projective", "prb_projective")
+
+
+class SceneError(ValueError):
+    """A scene file that Mitsuba cannot load (invalid XML, unknown plugin, missing asset); one line."""
+
+
+def _first_line(e: Exception) -> str:
+    """The message of a Mitsuba error without its source location prefix ('[parser.cpp:1087] ')."""
+    text = (str(e).strip().splitlines() or [type(e).__name__])[0]
+    return re.sub(r"^\[[\w.]+:\d+\]\s*", "", text)
 
 
 def _scene_hash(path: Path) -> str:
@@ -54,7 +64,10 @@ def pruned_xml(scene_file: Path, remove: list[str]) -> str:
     import xml.etree.ElementTree as ET
 
     # comments go first: Mitsuba's parser accepts "--" inside them (our ASCII maps), expat does not
-    root = ET.fromstring(re.sub(r"<!--.*?-->", "", scene_file.read_text(), flags=re.S))
+    try:
+        root = ET.fromstring(re.sub(r"<!--.*?-->", "", scene_file.read_text(), flags=re.S))
+    except ET.ParseError as e:
+        raise SceneError(f"scene file {scene_file} is not valid XML: {e}") from None
     ids = {e.get("id"): e for e in root.iter() if e.get("id")}
     missing = [r for r in remove if r not in ids]
     if missing:
@@ -98,10 +111,13 @@ class MitsubaModel(ForwardModel):
         self.remove = list(remove or [])  # element ids dropped from the scene file before loading
         # optimize=False: merging meshes orders shapes and emitters differently in each process,
         # which breaks "same (θ, spp, seed) → same image" across worker processes
-        if self.remove:
-            self.scene = mi.load_string(pruned_xml(self.scene_file, self.remove), optimize=False, **self.defines)
-        else:
-            self.scene = mi.load_file(str(self.scene_file), optimize=False, **self.defines)
+        try:
+            if self.remove:
+                self.scene = mi.load_string(pruned_xml(self.scene_file, self.remove), optimize=False, **self.defines)
+            else:
+                self.scene = mi.load_file(str(self.scene_file), optimize=False, **self.defines)
+        except RuntimeError as e:  # Mitsuba's parser: invalid XML, unknown plugin, missing asset, bad define
+            raise SceneError(f"scene {name!r}: {self.scene_file} does not load: {_first_line(e)}") from None
         MitsubaModel.loads += 1
         self._params = mi.traverse(self.scene)
         bindings = [Binding.from_spec(p) for p in params]

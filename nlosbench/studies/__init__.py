@@ -8,9 +8,16 @@ smallest complete one):
   NAME: str                      the `type` in configs
   SCHEMA: dict[str, Field]       the keys of its config block besides `type`
   plan(ctx, cfg) -> Plan         what to render and estimate, from the validated block; raises ConfigError
-                                 (key path, expected, given) for what the schema cannot see
+                                 (key path, expected, given) for what the schema cannot see. The runner calls
+                                 every study's plan, with the scene loaded, before the run folder is made, so
+                                 plan must not render or write (a Plan may carry `fingerprint`: what fixes its
+                                 numbers beyond the config, kept in the run's fingerprint)
+  cost(ctx, cfg, plan) -> estimate.Estimate
+                                 its planned renders and pixel-samples (printed with an estimated time before
+                                 the run starts; `estimate` says what is counted and what is estimated)
   run(ctx, cfg) -> dict          asks the services for the plan's work, writes its tables under
-                                 ctx.study_dir(cfg), returns a JSON-serialisable summary (results.json)
+                                 ctx.study_dir(cfg) (files through `io`, resumable work through a
+                                 `records.RecordLog`), returns a JSON-serialisable summary (results.json)
   smoke(block) -> dict           a reduced copy of its validated block (tiny grids, few spp/trials) for
                                  `nlosbench run --smoke`: the same code path in seconds
   check(block, path) (optional)  raises ConfigError for what can be checked without a scene (e.g. an

@@ -17,6 +17,7 @@ from ..bounds import BoundService
 from ..io import read_csv, write_csv, write_exr
 from ..schema import GRID, ConfigError, Field, grid_values, smoke_grid
 from .context import RunContext
+from .estimate import Estimate, pixels
 from .plots import bound_curves_plot
 from .tables import fmt_log10
 
@@ -74,10 +75,18 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.spp", f"expected a positive number of samples per pixel, got {cfg['spp']}")
     if cfg["replicates"] < 2:
         raise ConfigError(f"{sid}.replicates", f"expected >= 2 (>= 3 for confidence limits), got {cfg['replicates']}")
+    if cfg["fd_step"] is not None and not cfg["fd_step"] > 0:
+        raise ConfigError(f"{sid}.fd_step", f"expected a step > 0 or null, got {cfg['fd_step']}")
     if not 0 < cfg["level"] < 1:
         raise ConfigError(f"{sid}.level", f"expected a confidence level in (0, 1), got {cfg['level']}")
     return Plan(np.unique(thetas), cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
                 cfg["barankin"], cfg["zzb"], cfg["fd_step"])
+
+
+def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
+    """R·G grid renders; with an `fd_step`, 4R·G FD stencil renders more (at ξ and at ξ/2, the step check)."""
+    renders = p.replicates * len(p.thetas) * (1 + (4 if p.fd_step is not None else 0))
+    return Estimate(renders, renders * p.spp * pixels(ctx.model))
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:

@@ -7,6 +7,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import yaml
+
 from .. import executors, scenes
 from .. import noise as noise_models
 from ..bank import RenderBank
@@ -15,6 +17,19 @@ from ..forward.cache import RenderCache
 from ..forward.model import ForwardModel
 from ..schema import ConfigError
 from ..seeds import derive
+
+
+def load_model(spec: dict) -> ForwardModel:
+    """The run's model from its spec; a scene that cannot be found or loaded (unknown name, missing file,
+    invalid XML, bad options) is a ConfigError naming `scene`."""
+    try:
+        return scenes.build(spec)
+    except KeyError as e:
+        raise ConfigError("scene.name", e.args[0] if e.args else str(e)) from None
+    except FileNotFoundError as e:
+        raise ConfigError("scene.name", str(e) if e.errno is None else f"{e.strerror}: {e.filename}") from None
+    except (TypeError, ValueError, yaml.YAMLError) as e:
+        raise ConfigError("scene", str(e).replace("\n", " ")) from None
 
 
 @dataclass
@@ -42,15 +57,21 @@ class RunContext:
         sc = cfg["scene"]
         spec = {"name": sc["name"], "options": sc["options"], "params": sc["params"], "fixed": sc["fixed"],
                 "variant": sc["variant"], "cache": cfg["cache"]}
-        noises = [noise_models.get(n["model"], **{k: v for k, v in n.items() if k != "model" and v is not None})
-                  for n in cfg["noise"]]
-        return cls(dir=run_dir, config=cfg, model_spec=spec, model=scenes.build(spec), noises=noises,
+        noises = []
+        for i, n in enumerate(cfg["noise"]):
+            try:
+                options = {k: v for k, v in n.items() if k != "model" and v is not None}
+                noises.append(noise_models.get(n["model"], **options))
+            except (KeyError, TypeError, ValueError) as e:
+                raise ConfigError(f"noise[{i}]", e.args[0] if isinstance(e, KeyError) and e.args else str(e)) from None
+        return cls(dir=run_dir, config=cfg, model_spec=spec, model=load_model(spec), noises=noises,
                    seed=cfg["seed"], resume=resume, quiet=quiet)
 
     def start(self) -> None:
         """Start the run's executor (the config's `executor` block), its render bank (renders kept in
         the run directory's renders/ when the config's `keep_renders` is on) and its bound service."""
         self.executor = executors.create(self.config["executor"], self.model_spec, self.model)
+        self.executor.start()  # Dask: connect now (ConnectionError naming the address), not at the first task
         store = RenderCache(self.dir / "renders") if self.config.get("keep_renders", True) else None
         self.bank = RenderBank(self.model, self.executor, self.progress, seed=self.seed, store=store)
         self.bounds = BoundService(self.bank, self.noises)
@@ -59,6 +80,11 @@ class RunContext:
         """Release the executor's workers."""
         if self.executor is not None:
             self.executor.close()
+
+    def abort(self) -> None:
+        """Stop the executor's workers at once (after Ctrl-C or an error)."""
+        if self.executor is not None:
+            self.executor.abort()
 
     def study_dir(self, cfg: dict) -> Path:
         d = self.dir / (cfg.get("id") or cfg["type"])

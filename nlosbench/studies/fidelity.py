@@ -45,9 +45,10 @@ from ..forward.mitsuba_model import MitsubaModel, pruned_xml
 from ..forward.model import Binned, RenderStats
 from ..io import write_csv
 from ..scenes import build
-from ..schema import GRID, Field, grid_values, smoke_grid
+from ..schema import GRID, ConfigError, Field, grid_values, smoke_grid
 from ..tradeoff import AGGREGATES, Point, aggregate, check_tolerance, recommend, relative_error, settled
 from .context import RunContext
+from .estimate import AD_PASS_RENDERS, Estimate, image_hw
 from .plots import fidelity_plots
 
 NAME = "fidelity"
@@ -187,42 +188,88 @@ class _Sweep:
                     self.models.pop((s.max_depth, s.prune), None)  # used up: free its scene
 
 
-def _validate(ctx: RunContext, cfg: dict) -> tuple[list[float], Setting, int]:
-    """θ grid, reference setting and pixels per image (H·W); ValueError for bad input before any work."""
+@dataclass(frozen=True)
+class Plan:
+    """The θ grid, the reference setting, pixels per full-resolution image (H·W) and the knob settings."""
+
+    thetas: list
+    reference: Setting
+    pixels: int
+    knobs: dict
+
+
+def plan(ctx: RunContext, cfg: dict) -> Plan:
+    """The study's plan from its validated block; ConfigError naming the key for what the schema cannot see.
+    Renders nothing: the image size comes from the scene's film (`estimate.image_hw`)."""
+    sid = cfg.get("id") or NAME
     p = ctx.model.params
     if p.dim != 1:
-        raise ValueError(f"the fidelity study needs one parameter; set scene.params to one of {list(p.names)}")
+        raise ConfigError(sid, f"the fidelity study needs one parameter; set scene.params to one of {list(p.names)}")
     thetas = grid_values(cfg["grid"])
-    if len(thetas) < 2:
-        raise ValueError(f"grid: the HCR curve needs at least 2 points, got {len(thetas)}")
+    if len(thetas) < 3 or len(set(thetas)) != len(thetas):
+        raise ConfigError(f"{sid}.grid", f"the HCR curve needs at least 3 distinct points, got {thetas}")
     for t in (min(thetas), max(thetas)):
-        p.validate([t])
-    check_tolerance(cfg["tolerance"])
+        try:
+            p.validate([t])
+        except ValueError as e:
+            raise ConfigError(f"{sid}.grid", str(e)) from None
+    try:
+        check_tolerance(cfg["tolerance"])
+    except ValueError as e:
+        raise ConfigError(f"{sid}.tolerance", str(e)) from None
     if not cfg["spp"] or min(cfg["spp"]) < 1:
-        raise ValueError(f"spp: need at least one value, all >= 1, got {cfg['spp']}")
+        raise ConfigError(f"{sid}.spp", f"expected at least one value, all >= 1, got {cfg['spp']}")
+    if cfg["replicates"] < 2:
+        raise ConfigError(f"{sid}.replicates", f"expected >= 2 (unbiased U-statistics), got {cfg['replicates']}")
+    if cfg["fd_step"] is not None and not cfg["fd_step"] > 0:
+        raise ConfigError(f"{sid}.fd_step", f"expected a step > 0 or null, got {cfg['fd_step']}")
     spp_ref = max(cfg["spp"])
-    shape = ctx.model.render([thetas[0]], 1, ctx.seed_for("fidelity-warmup")).shape
+    h, w = image_hw(ctx.model)
     for b in cfg["bins"]:
-        check_bin(b)
+        try:
+            check_bin(b)
+        except ValueError as e:
+            raise ConfigError(f"{sid}.bins", str(e)) from None
         if spp_ref % (b * b):
-            raise ValueError(f"bins: b = {b} renders spp/b² samples per pixel; the reference spp {spp_ref} "
-                             f"is not a multiple of b² = {b * b}")
-        if shape[0] % b or shape[1] % b:
-            raise ValueError(f"bins: b = {b} does not divide the {shape[0]}×{shape[1]} image")
+            raise ConfigError(f"{sid}.bins", f"b = {b} renders spp/b² samples per pixel; the reference spp {spp_ref} "
+                                             f"is not a multiple of b² = {b * b}")
+        if h % b or w % b:
+            raise ConfigError(f"{sid}.bins", f"b = {b} does not divide the {h}×{w} image")
     base = getattr(ctx.model, "base", ctx.model)
     if (cfg["max_depth"] or cfg["prune"]) and not isinstance(base, MitsubaModel):
-        raise ValueError(f"max_depth and prune need a Mitsuba scene; {ctx.model.name!r} is not one")
+        raise ConfigError(f"{sid}.max_depth" if cfg["max_depth"] else f"{sid}.prune",
+                          f"max_depth and prune need a Mitsuba scene; {ctx.model.name!r} is not one")
     if any(d < 1 for d in cfg["max_depth"]):
-        raise ValueError(f"max_depth: path depths must be >= 1, got {cfg['max_depth']}")
+        raise ConfigError(f"{sid}.max_depth", f"path depths must be >= 1, got {cfg['max_depth']}")
     if cfg["prune"]:
         if len(set(cfg["prune"])) != len(cfg["prune"]):
-            raise ValueError(f"prune: repeated element ids in {cfg['prune']}")
-        pruned_xml(base.scene_file, cfg["prune"])  # ValueError naming unknown ids
+            raise ConfigError(f"{sid}.prune", f"repeated element ids in {cfg['prune']}")
+        try:
+            pruned_xml(base.scene_file, cfg["prune"])  # ValueError naming unknown ids
+        except ValueError as e:
+            raise ConfigError(f"{sid}.prune", str(e)) from None
         bound = {b.object or b.key.split(".")[0]: b.param.name for b in base.binder.bindings}
         for e in cfg["prune"]:
             if e in bound:
-                raise ValueError(f"prune: element {e!r} carries θ ({bound[e]}); removing it leaves nothing to estimate")
-    return thetas, Setting(spp_ref, 1, max(cfg["max_depth"]) if cfg["max_depth"] else None, "fd"), shape[0] * shape[1]
+                raise ConfigError(f"{sid}.prune", f"element {e!r} carries θ ({bound[e]}); removing it leaves nothing "
+                                                  "to estimate")
+    ref = Setting(spp_ref, 1, max(cfg["max_depth"]) if cfg["max_depth"] else None, "fd")
+    return Plan(thetas, ref, h * w, _knob_settings(cfg, ref))
+
+
+def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
+    """Per setting (the reference, every knob value, the pruned scenes and the verified combination, counted
+    as one more reference): R·G grid renders, plus 2R·G FD stencil renders with an `fd_step`, or R·G AD
+    passes (counted as AD_PASS_RENDERS renders each) for the AD gradient; at the setting's spp per fine pixel."""
+    settings = list(dict.fromkeys([p.reference] + [s for pts in p.knobs.values() for _, s in pts]))
+    settings += [p.reference] if cfg["verify"] else []
+    R, G = cfg["replicates"], len(p.thetas)
+    renders = samples = 0
+    for s in settings:
+        n = R * G * (1 + (2 if cfg["fd_step"] is not None else 0) + (AD_PASS_RENDERS if s.gradient == "ad" else 0))
+        renders += n
+        samples += n * s.render_spp * p.pixels
+    return Estimate(renders, samples, "the verified combination counted at the reference's cost")
 
 
 def _knob_settings(cfg: dict, ref: Setting) -> dict[str, list[tuple[object, Setting]]]:
@@ -261,11 +308,11 @@ def _point(value, setting: Setting, res: dict, cost: RenderStats, ref: dict, cfg
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:
+    p = plan(ctx, cfg)
     out = ctx.study_dir(cfg)
-    thetas, ref, pixels = _validate(ctx, cfg)
+    thetas, ref, knobs = p.thetas, p.reference, p.knobs
     tol, how = cfg["tolerance"], cfg["aggregate"]
-    knobs = _knob_settings(cfg, ref)
-    sweep = _Sweep(ctx, cfg, thetas, pixels)
+    sweep = _Sweep(ctx, cfg, thetas, p.pixels)
     sweep.evaluate([ref] + [s for pts in knobs.values() for _, s in pts])
     ref_res = sweep.done[ref][0]
 

@@ -9,13 +9,14 @@ import numpy as np
 
 from ..bounds import save_fisher_maps
 from ..io import read_csv, write_csv, write_exr
-from ..schema import ConfigError, Field
+from ..schema import ConfigError, Field, point_spec
 from .context import RunContext
+from .estimate import Estimate, pixels
 from .plots import fisher_figure
 
 NAME = "fisher-maps"
 SCHEMA = {
-    "at": Field(list, help="θ values (a number per point for 1-D θ, else a list)"),
+    "at": Field(list, help="θ values (a number per point for 1-D θ, else a list)", items=point_spec),
     "labels": Field(list, None, "a label per θ (e.g. LOS, NLOS)", items=str, nullable=True),
     "spp": Field(int, 1024, "samples per pixel of the renders"),
     "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
@@ -50,10 +51,18 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
             raise ConfigError(f"{sid}.at[{i}]", str(e)) from None
     if cfg["spp"] < 1:
         raise ConfigError(f"{sid}.spp", f"expected a positive integer, got {cfg['spp']}")
+    if not cfg["fd_step"] > 0:
+        raise ConfigError(f"{sid}.fd_step", f"expected a step > 0, got {cfg['fd_step']}")
     if cfg["fd_rounds"] < 2:
         raise ConfigError(f"{sid}.fd_rounds", f"the unbiased Fisher information needs >= 2 rounds, got "
                                               f"{cfg['fd_rounds']}")
     return Plan(np.array(thetas), labels, cfg["spp"], cfg["fd_step"], cfg["fd_rounds"], cfg["reduce"])
+
+
+def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
+    """Per θ: a render and `fd_rounds` central-FD Jacobians (2 renders per parameter and round)."""
+    renders = len(p.thetas) * (1 + 2 * ctx.model.params.dim * p.fd_rounds)
+    return Estimate(renders, renders * p.spp * pixels(ctx.model))
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:

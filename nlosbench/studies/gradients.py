@@ -14,7 +14,10 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 from ..diagnostics import (
     REMEDIES,
@@ -40,8 +43,9 @@ from ..diagnostics.metrics import THRESHOLD, spp_trend
 from ..forward.gradients import GradientSettings
 from ..forward.mitsuba_model import AD_INTEGRATORS
 from ..io import read_csv, write_csv, write_exr
-from ..schema import Field
+from ..schema import ConfigError, Field
 from .context import RunContext
+from .estimate import AD_PASS_RENDERS, Estimate, pixels
 
 NAME = "gradients"
 SCHEMA = {
@@ -89,19 +93,100 @@ def _backends(ctx: RunContext, cfg: dict, index: int) -> list[tuple[GradientSett
     return out
 
 
-def run(ctx: RunContext, cfg: dict) -> dict:
-    model, out = ctx.model, ctx.study_dir(cfg)
+@dataclass(frozen=True)
+class Plan:
+    """Parameters to differentiate, θ (P,), the sorted spp levels, and per parameter the backends
+    (settings, why not applicable or '')."""
+
+    names: list
+    theta: np.ndarray
+    spps: list
+    backends: dict
+
+
+def plan(ctx: RunContext, cfg: dict) -> Plan:
+    """The study's plan from its validated block; ConfigError naming the key for what the schema cannot see
+    (parameter names, θ inside Θ, positive spp / seeds >= 2 / reference, backends that parse, known remedies).
+    Renders nothing."""
+    sid = cfg.get("id") or NAME
+    model = ctx.model
     names = cfg["params"] or list(model.params.names)
+    for i, n in enumerate(names):
+        if n not in model.params.names:
+            raise ConfigError(f"{sid}.params[{i}]",
+                              f"unknown parameter {n!r}; this model has {list(model.params.names)}")
     theta = model.params.default.copy()
     for k, v in cfg["at"].items():
+        if k not in model.params.names:
+            raise ConfigError(f"{sid}.at.{k}", f"unknown parameter; this model has {list(model.params.names)}")
+        if not isinstance(v, (int, float)) or isinstance(v, bool):
+            raise ConfigError(f"{sid}.at.{k}", f"expected a number, got {type(v).__name__} {v!r}")
         theta[model.params.index(k)] = v
-    theta = model.params.validate(theta)
-    if cfg["seeds"] < 2:
-        raise ValueError(f"gradients study: seeds must be >= 2, got {cfg['seeds']}")
+    try:
+        theta = model.params.validate(theta)
+    except ValueError as e:
+        raise ConfigError(f"{sid}.at", str(e)) from None
+    if not cfg["spp"] or min(cfg["spp"]) < 1:
+        raise ConfigError(f"{sid}.spp", f"expected a non-empty list of positive integers, got {cfg['spp']}")
+    checks = {"seeds": (cfg["seeds"] >= 2, "an integer >= 2 (confidence intervals need them)"),
+              "fd_step": (cfg["fd_step"] > 0, "a step > 0"),
+              "threshold": (cfg["threshold"] > 0, "a number > 0"),
+              "min_area": (cfg["min_area"] >= 1, "an integer >= 1"),
+              "target_rel_error": (cfg["target_rel_error"] > 0, "a number > 0"),
+              "remedies.k": (cfg["remedies"]["k"] >= 1, "an integer >= 1"),
+              "remedies.boost": (cfg["remedies"]["boost"] >= 1, "an integer >= 1")}
+    if cfg["reference"] is not None:
+        checks["reference.spp"] = (cfg["reference"]["spp"] >= 1, "a positive integer")
+        checks["reference.rounds"] = (cfg["reference"]["rounds"] >= 2, "an integer >= 2")
+    for key, (ok, expected) in checks.items():
+        if not ok:
+            value = cfg
+            for part in key.split("."):
+                value = value[part]
+            raise ConfigError(f"{sid}.{key}", f"expected {expected}, got {value!r}")
     unknown = sorted(set(cfg["remedies"]["names"]) - set(REMEDIES))
     if unknown:
-        raise ValueError(f"gradients study: unknown remedies {unknown}; known: {list(REMEDIES)}")
-    spps, S, top = sorted(cfg["spp"]), cfg["seeds"], max(cfg["spp"])
+        raise ConfigError(f"{sid}.remedies.names", f"unknown remedies {unknown}; known: {list(REMEDIES)}")
+    try:
+        backends = {n: _backends(ctx, cfg, model.params.index(n)) for n in names}
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"{sid}.backends", str(e)) from None
+    if cfg["reference"] is None and not any(s.method == "fd" and s.crn for s, _ in next(iter(backends.values()))):
+        raise ConfigError(f"{sid}.reference", "null (the median of the FD seeds) needs an FD backend with crn: true")
+    return Plan(names, theta, sorted(cfg["spp"]), backends)
+
+
+def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
+    """Per parameter: 3 forward renders per spp level (the time baseline), the FD reference (rounds × 2
+    renders at its spp), each backend at each spp × seeds (FD: 2 renders per round; AD: one pass, counted
+    as AD_PASS_RENDERS renders), and each remedy of each AD backend at the top spp (K passes of spp/K; the
+    visibility boost `boost`× the samples)."""
+    px, S, top, ref = pixels(ctx.model), cfg["seeds"], max(p.spps), cfg["reference"]
+    renders = samples = 0
+    for n in p.names:
+        renders += 3 * len(p.spps)
+        samples += 3 * sum(p.spps)
+        if ref:
+            renders += 2 * ref["rounds"]
+            samples += 2 * ref["rounds"] * ref["spp"]
+        for s, why in p.backends[n]:
+            per = 2 * s.rounds if s.method == "fd" else AD_PASS_RENDERS
+            renders += per * S * len(p.spps)
+            samples += per * S * sum(p.spps)
+            if s.method == "ad" and not why and s.ad.get("type"):
+                for rem in cfg["remedies"]["names"]:
+                    if rem != "visibility-boost" or s.ad["type"] != "prb":
+                        k = cfg["remedies"]["boost"] if rem == "visibility-boost" else 1
+                        renders += AD_PASS_RENDERS * S * (cfg["remedies"]["k"] if rem != "visibility-boost" else 1)
+                        samples += AD_PASS_RENDERS * S * top * k
+    return Estimate(renders, samples * px, "AD passes counted as 4 renders each")
+
+
+def run(ctx: RunContext, cfg: dict) -> dict:
+    p = plan(ctx, cfg)
+    model, out = ctx.model, ctx.study_dir(cfg)
+    names, theta = p.names, p.theta
+    spps, S, top = p.spps, cfg["seeds"], max(cfg["spp"])
     forward = {
         spp: forward_cost(model, theta, spp, [ctx.seed_for("gradients-forward", spp, s) for s in range(3)])
         for spp in spps
@@ -119,7 +204,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         )
         if ref is not None:
             images[("reference", j_name, spps[0])] = ref.image
-        configs = _backends(ctx, cfg, j)
+        configs = p.backends[j_name]
         todo = [(b, s, why, spp, "") for b, (s, why) in enumerate(configs) for spp in spps]
         todo += [
             (b, s, why, top, rem)

@@ -30,8 +30,9 @@ from ..bounds.decay import decay_check, pixel_variances
 from ..bounds.inexact import check_levels, quadratic
 from ..bounds.service import interval_points
 from ..io import read_csv, write_csv
-from ..schema import GRID, ConfigError, Field, grid_values
+from ..schema import GRID, ConfigError, Field, grid_spec, grid_values, noise_spec, number_or
 from .context import RunContext
+from .estimate import Estimate, pixels
 from .plots import inexact_plots, slug
 from .tables import cell
 
@@ -39,7 +40,7 @@ NAME = "inexact"
 BUDGET_TOLERANCE = 0.1  # warn when N_eff and Σ N_i differ by more than this fraction
 SCHEMA = {
     "theta": GRID,
-    "deltas": Field("any", help="offsets Δ (parameter units): a list or {start, stop, num}; list ± for both "
+    "deltas": Field(grid_spec, help="offsets Δ (parameter units): a list or {start, stop, num}; list ± for both "
                                 "sides; Δ = 0 and θ*+Δ outside Θ are skipped"),
     "levels": Field(list, [1024 * i for i in range(2, 12)], "spp levels N_1..N_k of the λ fit (the paper: "
                                                              "2048, 3072, …, 11264)", items=int),
@@ -47,9 +48,10 @@ SCHEMA = {
     "replicates": Field(int, 8, "independent renders per level and for N_eff, N/R spp each (bootstrap units)"),
     "bootstrap": Field(int, 200, "half-sample resamples for the confidence intervals (0: none)"),
     "confidence": Field(float, 0.9, "confidence level of the bootstrap intervals"),
-    "noise": Field("any", None, "index or list of indices into the experiment's noise models (null: all)",
+    "noise": Field(noise_spec, None, "index or list of indices into the experiment's noise models (null: all)",
                    nullable=True),
-    "power": Field("any", 1.0, "decay rate p in λ̃ = λ + C/N^p: a number, or 'measured' (the decay check)"),
+    "power": Field(number_or("measured"), 1.0, "decay rate p in λ̃ = λ + C/N^p: a number, or 'measured' (the "
+                                                "decay check)"),
     "decay_weights": Field(int, 10000, "random weightings W ~ U[0, 1] in the decay check (0: skip it)"),
     "p_range": Field(list, [0.5, 1.5, 0.001], "p grid of the decay check: [start, stop, step]", items=float),
     "p_tolerance": Field(float, 0.1, "warn when the measured p is farther than this from 1"),
@@ -131,6 +133,13 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     except ValueError as e:
         raise ConfigError(f"{sid}.deltas", str(e)) from None
     return Plan(thetas, deltas, levels, n_eff, R, noises, power, points)
+
+
+def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
+    """Every render point × (k levels + N_eff) × R replicates of N/R spp: (Σ N_i + N_eff) spp per point."""
+    Q, R = len(p.points), p.replicates
+    renders = Q * (len(p.levels) + 1) * R
+    return Estimate(renders, Q * (int(sum(p.levels)) + p.n_eff) * pixels(ctx.model))
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io import read_csv, read_exr
+from ..io import read_csv, read_exr, save_figure
 from .tables import cell, mse_units
 
 
@@ -74,8 +74,7 @@ def finish(fig, ax, path: Path, dpi: int = 120) -> Path:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=dpi)
-    _plt().close(fig)
+    save_figure(fig, path, dpi=dpi)
     return path
 
 
@@ -102,8 +101,7 @@ def fisher_figure(out: Path, labels: list[str], names: list[str]) -> Path:
     for a in axes.ravel():
         a.set_axis_off()
     fig.tight_layout()
-    fig.savefig(out / "fisher_maps.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "fisher_maps.png", dpi=110)
     return out / "fisher_maps.png"
 
 
@@ -137,9 +135,7 @@ def plot_mse(
         ax.set_title(f"noise {j}: {noise_names[j]}")
         ax.legend(fontsize=8)
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path
 
 
@@ -180,9 +176,7 @@ def plot_speed(rows: list[dict], units: str, path: Path, bayes: bool = False) ->
         ax.grid(True, which="both", alpha=0.3)
     fig.suptitle("speed against error (one point per estimator setting)")
     fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path
 
 
@@ -230,8 +224,7 @@ def inexact_plots(study_dir: Path, results: dict) -> list[Path]:
         ax.legend(fontsize=7)
         fig.tight_layout()
         paths.append(study_dir / f"hcr_vs_theta_{slug(noise)}.png")
-        fig.savefig(paths[-1], dpi=120)
-        plt.close(fig)
+        save_figure(fig, paths[-1], dpi=120)
 
         width = np.array([cell(r["width_decades"]) for r in rs])
         picks = (
@@ -299,8 +292,7 @@ def _lambda_plot(plt, rows: list[dict], results: dict, path: Path, title: str) -
     a2.grid(alpha=0.3)
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, dpi=120)
     return path
 
 
@@ -333,8 +325,7 @@ def _decay_plot(plt, study_dir: Path, results: dict) -> Path:
     fig.suptitle("rendering-noise decay check: Σ W Var L̃^(N) = C N^−p?", fontsize=9)
     fig.tight_layout()
     path = study_dir / "decay.png"
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path, dpi=120)
     return path
 
 
@@ -373,8 +364,7 @@ def _knob_plot(knobs: dict, results: dict, path: Path) -> Path:
         ax.grid(alpha=0.3)
     axes[0][0].set_ylabel(f"relative bound error (- - tolerance {tol:g}; ▼ 0, ▲ ≥ 100)", fontsize=8)
     fig.subplots_adjust(left=0.07, right=0.98, bottom=0.16, top=0.9, wspace=0.3)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    save_figure(fig, path, dpi=110)
     return path
 
 
@@ -436,7 +426,6 @@ def heat_maps(rows: list[dict], out: Path, summary: dict) -> list[Path]:
             )
         fig.tight_layout()
         path = out / f"heatmap_noise{k}.png"
-        fig.savefig(path, dpi=120)
-        plt.close(fig)
+        save_figure(fig, path, dpi=120)
         paths.append(path)
     return paths

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import inspect
 import json
 import time
 from dataclasses import dataclass
@@ -39,9 +40,10 @@ from ..diagnostics import resolve_gradient
 from ..diagnostics.images import label as gradient_label
 from ..estimators import BankGrid, Budget
 from ..forward.gradients import GradientSettings
-from ..io import write_csv, write_json
+from ..io import write_csv
 from ..montecarlo import LOG_NAME, Setting, make_bayes_trials, make_trials, run_trials, summarize, summarize_bayes
-from ..schema import ConfigError, Field, grid_values, smoke_grid
+from ..schema import ConfigError, Field, grid_values, noise_spec, points_spec, smoke_grid
+from .estimate import AD_PASS_RENDERS, Estimate, pixels
 from .plots import plot_mse, plot_speed
 from .tables import fmt, fmt_log10, mse_units, paper_table
 
@@ -73,8 +75,8 @@ SCHEMA = {
     "mode": Field(str, "local", "local: fixed θ*, the HCR interval and CRLB with a bias test; bayesian: θ* drawn "
                                 "from the prior per trial, the Bayesian MSE against the Ziv–Zakai bound",
                   choices=("local", "bayesian")),
-    "theta": Field("any", None, "θ* values (local mode): numbers (or {start, stop, num}) for a 1-D θ, else a list "
-                                "of lists", nullable=True),
+    "theta": Field(points_spec, None, "θ* values (local mode): numbers (or {start, stop, num}) for a 1-D θ, "
+                                      "else a list of lists", nullable=True),
     "prior": Field(str, "uniform", "prior of θ* in bayesian mode (and of the ZZB)", choices=("uniform",)),
     "n": Field(int, 30, "trials per θ* (local) or in all (bayesian), each with fresh noise and a fresh start"),
     "n_eff": Field(int, 4096, "spp of each clean image (the observation's mean); local: split over "
@@ -82,7 +84,7 @@ SCHEMA = {
     "truth_replicates": Field(int, 4, "local mode: independent renders making the clean image, whose spread "
                                       "enters the bias test's SE (n_eff divisible by it)"),
     "estimators": Field(list, help="estimator settings {name, options, label, gradient}", items=ESTIMATOR),
-    "noise": Field("any", "all", "index (or list of indices) into the run's noise models, or 'all'"),
+    "noise": Field(noise_spec, "all", "index (or list of indices) into the run's noise models, or 'all'"),
     "bounds": Field(list, ["hcr", "crlb", "hcr_neff"], "bounds at each θ* (local mode)",
                     items=Field(str, choices=BOUNDS)),
     "bound_spp": Field(int, None, "spp of each bound render (default: n_eff)", nullable=True),
@@ -165,7 +167,8 @@ def parse_settings(specs: list, where: str, model) -> list[Setting]:
 class Plan:
     """What the study computes: mode, θ* (T, P) (local) or the drawn θ* (n, P) (bayesian), trials, N_eff and its
     replicates, bound renders (spp, replicates, seeds), the noise models, the estimator settings (gradients
-    resolved), the budget per fit, and what fixes the results (`fingerprint`)."""
+    resolved), the budget per fit, and what fixes the results besides the config (`fingerprint`: the resolved
+    gradients; the run folder's fingerprint holds it, so a resume after the verdicts changed is refused)."""
 
     mode: str
     thetas: np.ndarray
@@ -220,13 +223,69 @@ def plan(ctx, cfg: dict) -> Plan:
         budget = Budget(**cfg["budget"])
     except ValueError as e:
         raise ConfigError(f"{sid}.budget", str(e)) from None
-    study = {k: v for k, v in cfg.items() if k not in ("far_above", "bootstrap")}
-    fingerprint = json.loads(json.dumps({
-        "study": study, "seed": ctx.seed, "noise": {j: repr(n) for j, n in noises.items()},
-        "scene": {k: v for k, v in ctx.model_spec.items() if k != "cache"},
-        "gradients": {s.label: dataclasses.asdict(s.gradient) for s in settings}}, sort_keys=True, default=repr))
+    # what fixes the numbers besides the config (which the run's fingerprint holds): `auto` gradients as resolved
+    fingerprint = json.loads(json.dumps({"gradients": {s.label: dataclasses.asdict(s.gradient) for s in settings}},
+                                        sort_keys=True, default=repr))
     return Plan(cfg["mode"], thetas, cfg["n"], cfg["n_eff"], clusters, cfg["bound_spp"] or cfg["n_eff"],
                 cfg["replicates"], noises, settings, budget, fingerprint)
+
+
+def cost(ctx, cfg: dict, p: Plan) -> Estimate:
+    """Renders and pixel-samples: counted for the clean images and the bound renders (the bank grid, θ*, FD
+    stencils at ξ and ξ/2, the axis offsets, the spp levels of hcr_hat), estimated for the fits (`_fit_cost`:
+    each setting's iterations × spp, an upper bound for fits that stop early)."""
+    P, R, bspp, px = ctx.model.params.dim, p.replicates, p.bound_spp, pixels(ctx.model)
+    G, T = cfg["hcr_grid"] ** P, len(p.thetas)
+    renders, samples = R * G, R * G * bspp  # the bank grid (the bayesian ZZB curve uses the same renders)
+    if p.mode == "bayesian":
+        renders, samples = renders + p.n, samples + p.n * p.n_eff
+        fits = len(p.noises) * p.n
+    else:
+        renders, samples = renders + T * p.clusters, samples + T * p.n_eff
+        want = set(cfg["bounds"])
+        if want:
+            extra = T * R * (1 + (4 * P if want & {"hcr", "crlb"} else 0)
+                             + (2 * P * cfg["hcr_offsets"] if want - {"crlb"} else 0))
+            renders, samples = renders + extra, samples + extra * bspp
+        if "hcr_hat" in want:
+            pts = T * (G + 2 * P * cfg["hcr_offsets"])
+            renders, samples = renders + pts * len(cfg["levels"]), samples + pts * sum(cfg["levels"])
+        fits = len(p.noises) * T * p.n
+    for s in p.settings:
+        r, spp = _fit_cost(s.name, s.options, s.gradient, P, p.budget)
+        renders, samples = renders + round(fits * r), samples + round(fits * spp)
+    return Estimate(renders, samples * px, "fits estimated from each estimator's iterations × spp (an upper bound "
+                                           "where fits stop early)")
+
+
+def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budget: Budget) -> tuple[float, float]:
+    """(renders, spp summed over them) of one fit, estimated from the estimator's options (its constructor's
+    defaults filled in): grid-search num^P grid renders + refine_evals; multi-start `starts` × its base
+    estimator; otherwise iterations (capped by the budget) × (a render + the gradient's renders: 2 per FD
+    parameter and round, AD_PASS_RENDERS per AD pass)."""
+    try:
+        sig = inspect.signature(estimators.factory(name))
+        o = {k: v.default for k, v in sig.parameters.items() if v.default is not inspect.Parameter.empty}
+    except (TypeError, ValueError, KeyError, ImportError):
+        o = {}
+    o.update(options)
+    spp = o.get("spp", 256)
+    if isinstance(spp, (list, tuple)):  # an spp schedule [[fraction, spp], ...]
+        spp = max(int(n) for _, n in spp)
+    if name == "multi-start":
+        r, n = _fit_cost(o.get("base", "mle-adam"), o.get("options") or {}, gradient, P, budget)
+        return o.get("starts", 4) * r + 1, o.get("starts", 4) * n + spp
+    if name == "grid-search":
+        grid = o.get("num", 65) ** P
+        refine = o.get("refine_evals", 150) if o.get("refine", True) else 0
+        return grid + refine, grid * spp + refine * (o.get("refine_spp") or spp)
+    n_ad = P if gradient.method == "ad" else len(gradient.ad_params) if gradient.method == "mixed" else 0
+    grad = 2 * gradient.rounds * (P - n_ad) + (AD_PASS_RENDERS if n_ad else 0)
+    iterations = budget.cap(int(o.get("iterations", 100)))
+    per = 1 + grad
+    if budget.renders:
+        iterations = min(iterations, max(1, budget.renders // per))
+    return iterations * per, iterations * (spp + grad * (gradient.spp or spp))
 
 
 def bounds_map(rows: list[dict], want) -> dict:
@@ -253,11 +312,6 @@ def run(ctx, cfg: dict) -> dict:
         if s.gradient.chosen:
             ctx.log(f"[{sid}] {s.label}: gradient auto → {s.gradient.chosen}")
     folder = ctx.study_dir(cfg)
-    plan_file = folder / "plan.json"
-    if ctx.resume and plan_file.exists() and json.loads(plan_file.read_text()) != p.fingerprint:
-        raise ConfigError(sid, f"the config differs from the one {folder} was started with; resume with the same "
-                               "config or start a new run directory")
-    write_json(plan_file, p.fingerprint)
     before = ctx.bank.renders
     params = ctx.model.params
     svc = BoundService(ctx.bank, ctx.noises, cfg["level"])

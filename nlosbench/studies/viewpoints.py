@@ -7,7 +7,7 @@ numbers) give per-pixel Fisher maps for every parameter and noise model, whose s
 the heat map. Output: viewpoints.csv, one heat map PNG per noise model (log10 of the mean FI), and the
 render and FD-FI maps at the centre and two opposite corners. Viewpoints are independent tasks for the
 run's executor (each worker poses its own copy of the scene); finished ones are appended to
-viewpoints.jsonl, so a resumed run skips them.
+viewpoints.jsonl (a `records.RecordLog`), so a resumed run skips them.
 
 The camera pose is not part of θ: it is written into the loaded scene's sensor (`mi.traverse` of the
 sensor, no reload), and the model's render cache is bypassed while a viewpoint is posed (its key does not
@@ -15,9 +15,9 @@ know the pose).
 """
 from __future__ import annotations
 
-import json
 import math
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,8 +26,10 @@ from ..bank import RenderBank
 from ..bounds import BoundService, FisherPoint, save_fisher_maps
 from ..forward.model import ForwardModel
 from ..io import read_csv, write_csv, write_exr, write_png
-from ..schema import Field
+from ..records import RecordLog
+from ..schema import ConfigError, Field
 from .context import RunContext
+from .estimate import Estimate, pixels
 from .plots import heat_maps
 
 NAME = "viewpoints"
@@ -36,7 +38,8 @@ SCHEMA = {
                 "(default: the parameters' defaults)", items=float, nullable=True),
     "num": Field(int, 3, "viewpoints per axis; odd, so the standard view is the centre (paper: 31)"),
     "step": Field(float, 0.0254, "offset between neighbouring viewpoints [m] (paper: 2.54 cm)"),
-    "axes": Field(list, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], "two world directions of the offsets (x, then z)"),
+    "axes": Field(list, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], "two world directions of the offsets (x, then z)",
+                  items=Field(list, items=float)),
     "target": Field(list, None, "world point the camera keeps looking at (default: the surface point on the "
                     "standard view's optical axis)", items=float, nullable=True),
     "spp": Field(int, 256, "samples per pixel of every render"),
@@ -144,20 +147,64 @@ def _viewpoint_task(model: ForwardModel, item: dict) -> tuple:
     return (item["i"], item["j"]), rec, model.stats.since(before).renders
 
 
+@dataclass(frozen=True)
+class Plan:
+    """θ (P,), the offsets along each axis (num,), the world offsets (num, num, 3) and the camera's target."""
+
+    theta: np.ndarray
+    u: np.ndarray
+    offsets: np.ndarray
+    target: np.ndarray
+
+
+def plan(ctx: RunContext, cfg: dict) -> Plan:
+    """The study's plan from its validated block; ConfigError naming the key for what the schema cannot see
+    (θ inside Θ, an odd grid, positive step/spp/FD step, ≥ 2 FD rounds, axes and target, a Mitsuba camera).
+    Casts one ray (the default target), renders nothing."""
+    sid = cfg.get("id") or NAME
+    m = ctx.model
+    try:
+        theta = m.params.validate(m.params.default if cfg["at"] is None else cfg["at"])
+    except ValueError as e:
+        raise ConfigError(f"{sid}.at", str(e)) from None
+    if cfg["spp"] < 1:
+        raise ConfigError(f"{sid}.spp", f"expected a positive integer, got {cfg['spp']}")
+    if cfg["fd_rounds"] < 2:
+        raise ConfigError(f"{sid}.fd_rounds", f"the unbiased Fisher information needs >= 2 rounds, got "
+                                              f"{cfg['fd_rounds']}")
+    if not cfg["fd_step"] > 0:
+        raise ConfigError(f"{sid}.fd_step", f"expected a step > 0, got {cfg['fd_step']}")
+    for key, call in (("num", lambda: offset_grid(cfg["num"], 1.0, [[1, 0, 0], [0, 0, 1]])),
+                      ("step", lambda: offset_grid(1, cfg["step"], [[1, 0, 0], [0, 0, 1]])),
+                      ("axes", lambda: offset_grid(1, 1.0, cfg["axes"]))):
+        try:
+            call()
+        except ValueError as e:
+            raise ConfigError(f"{sid}.{key}", str(e)) from None
+    u, offsets = offset_grid(cfg["num"], cfg["step"], cfg["axes"])
+    try:
+        target = CameraRig(m, cfg["target"]).target
+    except ValueError as e:
+        raise ConfigError(f"{sid}.target" if cfg["target"] is not None or "hits nothing" in str(e) else sid,
+                          str(e)) from None
+    return Plan(theta, u, offsets, target)
+
+
+def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
+    """num² viewpoints × (a render + `fd_rounds` central-FD Jacobians) at `spp`."""
+    renders = cfg["num"] ** 2 * (1 + 2 * ctx.model.params.dim * cfg["fd_rounds"])
+    return Estimate(renders, renders * cfg["spp"] * pixels(ctx.model))
+
+
 def run(ctx: RunContext, cfg: dict) -> dict:
+    p = plan(ctx, cfg)
     out = ctx.study_dir(cfg)
     m = ctx.model
-    theta = m.params.validate(m.params.default if cfg["at"] is None else cfg["at"])
-    u, offsets = offset_grid(cfg["num"], cfg["step"], cfg["axes"])
-    target = CameraRig(m, cfg["target"]).target
-    log = out / "viewpoints.jsonl"
-    done = {}
-    if ctx.resume and log.exists():
-        for line in log.read_text().splitlines():
-            rec = json.loads(line)
-            done[(rec["i"], rec["j"])] = rec
-    elif log.exists():
-        log.unlink()
+    theta, u, offsets, target = p.theta, p.u, p.offsets, p.target
+    log = RecordLog(out / "viewpoints.jsonl")
+    if not ctx.resume:
+        log.reset()
+    done = {(rec["i"], rec["j"]): rec for rec in log.read()}
     saved = _saved_views(cfg["num"])
     before = ctx.bank.renders
     items = [
@@ -179,13 +226,12 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         for j in range(cfg["num"])
         if (i, j) not in done
     ]
-    with open(log, "a") as f:
+    with log:
         for _, rec in ctx.bank.map(_viewpoint_task, items, "viewpoints"):
             images = rec.pop("images", None)
             if images is not None:
                 _save_view(out, saved[(rec["i"], rec["j"])], *images, list(m.params.names))
-            f.write(json.dumps(rec) + "\n")
-            f.flush()
+            log.append(rec)
             done[(rec["i"], rec["j"])] = rec
     rows = []
     for (i, j), rec in sorted(done.items()):

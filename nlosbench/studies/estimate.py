@@ -1,0 +1,137 @@
+"""What a study will cost, said before any render: planned renders and pixel-samples, and a time from a
+rate measured on this machine.
+
+Each study module has `cost(ctx, cfg, plan) -> Estimate`: the renders its plan asks for and their
+pixel-samples (renders × spp × pixels; an FD Jacobian counts its 2 renders per parameter and round, an AD
+pass counts as `AD_PASS_RENDERS` renders). It is an upper bound where work may be skipped (a resumed run,
+a render shared between sets, an estimator that converges early) and an estimate where the work depends on
+the data (a trial's fit: the estimator's iterations × spp). The time is samples × a rate in seconds per
+pixel-sample for this scene, variant and versions (the model's content key), measured once on this
+machine with a tiny timed render (after an untimed one that compiles the kernels) and kept in
+`rates_path()` (~/.cache/nlosbench/rates.json, or $XDG_CACHE_HOME/nlosbench/rates.json).
+"""
+from __future__ import annotations
+
+import datetime
+import hashlib
+import json
+import math
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from ..forward.model import ForwardModel
+from ..io import write_json
+
+#: render-equivalents of one AD gradient pass in an estimate (measured 3–12× a forward render: README)
+AD_PASS_RENDERS = 4
+#: pixel-samples of the timed render that measures a rate
+RATE_SAMPLES = 1 << 18
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Planned renders and pixel-samples of a study; `note` says what is estimated rather than counted."""
+
+    renders: int
+    samples: int
+    note: str = ""
+
+    def __add__(self, o: Estimate) -> Estimate:
+        return Estimate(self.renders + o.renders, self.samples + o.samples,
+                        "; ".join(n for n in (self.note, o.note) if n))
+
+
+@dataclass(frozen=True)
+class Rate:
+    """Seconds per pixel-sample of a model on this machine, and where the number comes from."""
+
+    seconds_per_sample: float
+    source: str
+
+    def seconds(self, est: Estimate) -> float:
+        return est.samples * self.seconds_per_sample
+
+
+def _base(model: ForwardModel) -> ForwardModel:
+    while hasattr(model, "base"):
+        model = model.base
+    return model
+
+
+def image_hw(model: ForwardModel) -> tuple[int, int]:
+    """(H, W) of the model's images without rendering where the model knows its film (a Mitsuba scene);
+    otherwise (the analytic toys, cheap) from one 1-spp render."""
+    size = getattr(_base(model), "size", None)
+    if isinstance(size, tuple) and len(size) == 2:
+        return int(size[1]), int(size[0])
+    shape = model.render(model.params.default, 1, 0).shape
+    return int(shape[0]), int(shape[1])
+
+
+def pixels(model: ForwardModel) -> int:
+    """Pixels per image (H·W)."""
+    h, w = image_hw(model)
+    return h * w
+
+
+def rates_path() -> Path:
+    """Where measured rates are kept: $XDG_CACHE_HOME/nlosbench/rates.json (default ~/.cache/...)."""
+    root = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(root) / "nlosbench" / "rates.json"
+
+
+def _key(model: ForwardModel) -> str:
+    blob = json.dumps(model.content_key(), sort_keys=True, default=repr).encode()
+    return hashlib.sha256(blob).hexdigest()[:24]
+
+
+def rate(model: ForwardModel) -> Rate:
+    """This machine's seconds per pixel-sample for `model` (cached in `rates_path()`; measured on a miss)."""
+    path, key = rates_path(), _key(model)
+    try:
+        known = json.loads(path.read_text())
+    except (OSError, ValueError):
+        known = {}
+    hit = known.get(key) if isinstance(known, dict) else None
+    if isinstance(hit, dict) and isinstance(hit.get("seconds_per_sample"), (int, float)):
+        return Rate(float(hit["seconds_per_sample"]), f"measured {hit.get('when', '')} ({path})")
+    r = measure(model)
+    try:
+        write_json(path, {**(known if isinstance(known, dict) else {}),
+                          key: {"seconds_per_sample": r, "scene": model.name,
+                                "variant": getattr(_base(model), "variant", type(_base(model)).__name__),
+                                "when": datetime.date.today().isoformat()}})
+    except OSError:  # a read-only home: the estimate still stands, it is just measured again next time
+        pass
+    return Rate(r, "measured now")
+
+
+def measure(model: ForwardModel) -> float:
+    """Seconds per pixel-sample from a timed render of about RATE_SAMPLES pixel-samples at the default θ
+    (after an untimed one of the same size: kernel compilation is not the rate); the model's render cache
+    is bypassed."""
+    base = _base(model)
+    spp = 1 << max(0, int(math.log2(max(1, RATE_SAMPLES // pixels(model)))))
+    cache, base.cache = base.cache, None
+    try:
+        theta = model.params.default
+        model.render(theta, spp, 1)
+        t0 = time.perf_counter()
+        model.render(theta, spp, 2)
+        seconds = time.perf_counter() - t0
+    finally:
+        base.cache = cache
+    return max(seconds, 1e-9) / (spp * pixels(model))
+
+
+def describe(seconds: float) -> str:
+    """A duration for people: '42 s', '3.5 min', '2.1 h', '4.0 days'."""
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 5400:
+        return f"{seconds / 60:.1f} min"
+    if seconds < 172800:
+        return f"{seconds / 3600:.1f} h"
+    return f"{seconds / 86400:.1f} days"

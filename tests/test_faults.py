@@ -1,0 +1,532 @@
+"""Fault injection: runs that cannot mix, tear or hang. One test (or a few) per row of the issue's table;
+each docstring says what it simulates. Analytic toys (`edge1d`) where a Mitsuba scene is not essential,
+the Π hallway at 16 × 12, max_depth 3 where it is (viewpoints, long renders). Subprocesses for Ctrl-C,
+kill -9 and the lock."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import pytest
+import yaml
+
+from nlosbench.cli import main
+from nlosbench.records import RecordLog
+
+ROOT = Path(__file__).parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
+PI = {"name": "pi_hallway", "options": {"defines": {"width": 16, "height": 12, "max_depth": 3}}}
+EDGE = {"name": "edge1d", "options": {"render_noise": 0.05}}
+BOUNDS = {"type": "bounds", "grid": {"start": 0.3, "stop": 0.7, "num": 9}, "spp": 16}
+TRIALS = {"type": "trials", "theta": [0.5], "n": 6, "n_eff": 4, "hcr_grid": 9, "bootstrap": 20,
+          "estimators": [{"name": "grid-search", "options": {"num": 9, "spp": 1}}]}
+VIEWS = {"type": "viewpoints", "num": 3, "step": 0.3, "spp": 4, "at": [0.9]}
+
+
+def config(tmp_path: Path, scene: dict, studies: list, name: str = "c.yaml", **top) -> Path:
+    raw = {"name": "faults", "seed": 3, "scene": scene, "noise": [{"model": "awgn", "sigma": 0.025}],
+           "executor": {"type": "serial"}, "studies": studies, **top}
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return path
+
+
+def cli(capsys, *args) -> tuple[int, str]:
+    """Run `nlosbench ARGS` in this process; (exit code, stderr)."""
+    rc = main([str(a) for a in args])
+    return rc, capsys.readouterr().err
+
+
+def errors(err: str) -> list[str]:
+    return [line for line in err.splitlines() if line.startswith("nlosbench: error:")]
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    """Every file of a run folder (the lock file aside: it only holds the last holder's PID)."""
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*"))
+            if p.is_file() and p.name != ".lock"}
+
+
+def spawn(*args, **kw) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "nlosbench.cli", *map(str, args)], env=ENV, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, **kw)
+
+
+def children(pid: int) -> list[int]:
+    """PIDs of the live (not zombie) pool workers of process `pid` (Linux /proc)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        try:
+            stat = (d / "stat").read_text()
+            cmd = (d / "cmdline").read_bytes()
+        except (OSError, ValueError):
+            continue
+        fields = stat.rsplit(")", 1)[1].split()
+        if int(fields[1]) == pid and fields[0] != "Z" and b"spawn_main" in cmd:
+            out.append(int(d.name))
+    return out
+
+
+def alive(pid: int) -> bool:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def wait_for(predicate, timeout: float = 120.0, every: float = 0.05) -> bool:
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if predicate():
+            return True
+        time.sleep(every)
+    return False
+
+
+linux = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+
+
+# -- row 1 and 6: viewpoints (Π hallway) -------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def views(tmp_path_factory):
+    """A finished viewpoints run on the Π hallway (9 viewpoints) and its viewpoints.csv."""
+    tmp = tmp_path_factory.mktemp("views")
+    cfg = config(tmp, PI, [VIEWS])
+    out = tmp / "full"
+    assert main(["run", str(cfg), "--out", str(out), "--quiet"]) == 0
+    return cfg, out, (out / "00-viewpoints" / "viewpoints.csv").read_text()
+
+
+def _killed_copy(src: Path, dst: Path, keep: int, tail: bytes = b"") -> Path:
+    """The state of a run killed in its first study: `keep` records in the log (+ `tail`), no results."""
+    import shutil
+
+    shutil.copytree(src, dst)
+    for f in ("results.json", "report.md", "00-viewpoints/viewpoints.csv"):
+        (dst / f).unlink()
+    log = dst / "00-viewpoints" / "viewpoints.jsonl"
+    lines = log.read_bytes().splitlines(keepends=True)
+    log.write_bytes(b"".join(lines[:keep]) + tail)
+    return log
+
+
+def test_viewpoints_resume_with_another_sigma_is_refused_and_writes_nothing(views, tmp_path, capsys):
+    """Row 1. Simulates a viewpoints run killed after 4 of 9 viewpoints (log cut, no results.json), then
+    `--resume --set noise.0.sigma=0.5`: exit 2, one line naming the key, not one byte changed; the same
+    config then resumes to the uninterrupted run's numbers."""
+    cfg, full, csv = views
+    run = tmp_path / "killed"
+    _killed_copy(full, run, keep=4)
+    before = snapshot(run)
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--set", "noise.0.sigma=0.5", "--quiet")
+    assert rc == 2 and len(errors(err)) == 1, err
+    assert "noise[0].sigma = 0.025, this config has 0.5" in err
+    assert snapshot(run) == before
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")
+    assert rc == 0, err
+    assert (run / "00-viewpoints" / "viewpoints.csv").read_text() == csv
+    assert len(RecordLog(run / "00-viewpoints" / "viewpoints.jsonl").read()) == 9
+
+
+def test_torn_viewpoints_record_is_cut_with_a_warning_and_resumes(views, tmp_path):
+    """Row 6. Simulates a kill while the 6th record was being written (a torn last line): the resume cuts it
+    with a warning naming the file and gives the uninterrupted run's numbers."""
+    cfg, full, csv = views
+    run = tmp_path / "torn"
+    log = _killed_copy(full, run, keep=5, tail=b'{"i": 2, "j": 1, "offset": [0.3')
+    with pytest.warns(UserWarning, match=r"viewpoints\.jsonl: cut off a torn last record"):
+        assert main(["run", str(cfg), "--out", str(run), "--resume", "--quiet"]) == 0
+    assert (run / "00-viewpoints" / "viewpoints.csv").read_text() == csv
+    lines = log.read_bytes().splitlines(keepends=True)
+    assert len(lines) == 9 and all(json.loads(x) for x in lines)
+
+
+def test_damaged_log_line_names_file_and_line(views, tmp_path, capsys):
+    """Row 6 (cont.): a damaged line in the middle of the log (simulated: one record cut short) is an error
+    naming the file and the line (exit 2), not a JSON message without a file."""
+    cfg, full, _ = views
+    bad = tmp_path / "damaged"
+    log = _killed_copy(full, bad, keep=5)
+    text = log.read_bytes().splitlines(keepends=True)
+    log.write_bytes(b"".join(text[:2] + [b'{"i": 0, "j"\n'] + text[3:]))
+    rc, err = cli(capsys, "run", cfg, "--out", bad, "--resume", "--quiet")
+    assert rc == 2 and f"{log}:3: not a record" in err and len(errors(err)) == 1, err
+
+
+def test_every_record_is_fsynced_before_the_next(tmp_path, monkeypatch):
+    """Row 6 (cont.): the one record log (trials and viewpoints use it) fsyncs every record as it is appended.
+    Simulates nothing: counts fsync calls on the log's descriptor."""
+    synced = []
+    real = os.fsync
+
+    def counting(fd):
+        synced.append(os.readlink(f"/proc/self/fd/{fd}") if sys.platform.startswith("linux") else "?")
+        real(fd)
+
+    monkeypatch.setattr(os, "fsync", counting)
+    with RecordLog(tmp_path / "log.jsonl") as log:
+        for k in range(3):
+            log.append({"k": k})
+            assert len(synced) == k + 1
+    assert [r["k"] for r in RecordLog(tmp_path / "log.jsonl").read()] == [0, 1, 2]
+
+
+# -- rows 2 and 3: a resume with another config ---------------------------------------------------------------
+def test_bounds_resume_with_other_sigma_and_spp_is_refused_and_rewrites_nothing(tmp_path, capsys):
+    """Row 2. A finished bounds run resumed with σ and spp changed: exit 2 naming the first differing key;
+    config.yaml, report.md and the tables unchanged. Keys that change no number (executor, cache) may differ."""
+    cfg = config(tmp_path, EDGE, [BOUNDS])
+    run = tmp_path / "run"
+    assert cli(capsys, "run", cfg, "--out", run, "--quiet")[0] == 0
+    before = snapshot(run)
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--set", "noise.0.sigma=0.5",
+                  "--set", "studies.0.spp=32", "--quiet")
+    assert rc == 2 and len(errors(err)) == 1 and "noise[0].sigma" in err, err
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--set", "studies.0.spp=32", "--quiet")
+    assert rc == 2 and "studies[0].spp = 16, this config has 32" in err, err
+    assert snapshot(run) == before
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--set", "executor.workers=1", "--quiet")
+    assert rc == 0, err
+    assert (run / "00-bounds" / "bounds.csv").read_bytes() == before["00-bounds/bounds.csv"]
+
+
+def test_trials_resume_with_another_n_is_refused_before_config_yaml_is_written(tmp_path, capsys):
+    """Row 3. The trials study's own plan.json check is now the run's fingerprint: refused with exit 2 and a
+    single, unrepeated study name, config.yaml untouched."""
+    cfg = config(tmp_path, EDGE, [TRIALS])
+    run = tmp_path / "run"
+    assert cli(capsys, "run", cfg, "--out", run, "--quiet")[0] == 0
+    before = snapshot(run)
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--set", "studies.0.n=3", "--quiet")
+    assert rc == 2 and errors(err) == [e for e in err.splitlines() if e], err
+    assert "studies[0].n = 6, this config has 3" in err and "00-trials: 00-trials" not in err
+    assert snapshot(run) == before and not (run / "00-trials" / "plan.json").exists()
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "new", "--set", "studies.0.n=0", "--quiet")
+    assert rc == 2 and errors(err) == ["nlosbench: error: 00-trials.n: expected a positive integer, got 0"], err
+
+
+# -- row 4: two writers --------------------------------------------------------------------------------------
+@linux
+def test_a_second_resume_into_a_running_folder_is_refused_at_once(tmp_path, capsys):
+    """Row 4. Two resumes of one trials folder at once (a real second process holds the folder): the second
+    exits 2 at once naming the holder's PID; the holder finishes with exactly one record per trial."""
+    slow = {**TRIALS, "n": 40, "estimators": [{"name": "mle-adam", "options": {"iterations": 60, "spp": 1, "tol": 0}}]}
+    cfg = config(tmp_path, EDGE, [slow])
+    run = tmp_path / "run"
+    holder = spawn("run", cfg, "--out", run, "--resume", "--quiet")
+    log = run / "00-trials" / "trials.jsonl"
+    try:
+        assert wait_for(lambda: log.exists() or holder.poll() is not None), holder.communicate()
+        assert holder.poll() is None, "the first run finished before the second could start"
+        t0 = time.perf_counter()
+        rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")
+        assert rc == 2 and f"in use by another nlosbench run (PID {holder.pid})" in err, err
+        assert time.perf_counter() - t0 < 5
+    finally:
+        _, err = holder.communicate(timeout=300)
+    assert holder.returncode == 0, err
+    records = RecordLog(log).read()
+    assert len(records) == 40 and len({(r["trial"], r["estimator"]) for r in records}) == 40
+    results = json.loads((run / "results.json").read_text())
+    assert results["studies"]["00-trials"]["results"]["summary"][0]["n"] == 40
+
+
+# -- row 5 and 12: input types ---------------------------------------------------------------------------------
+@pytest.mark.parametrize("override, message", [
+    ('studies.0.grid="11"', "studies[0].grid: expected a non-empty list of numbers, {start, stop, num} or a list "
+                            "of such segments, got str '11'"),
+    ('studies.0.grid="0.8"', "got str '0.8'"),
+    ("studies.0.grid=0.8", "got float 0.8"),
+    ('studies.0.grid=[0.3, "0.5", 0.7]', "studies[0].grid[1]: expected a number or {start, stop, num}, got str"),
+    ("studies.3.spp=8", "studies.3: expected an index below 1 into the list studies, got '3'"),
+])
+def test_a_string_where_numbers_are_expected_is_an_error(tmp_path, capsys, override, message):
+    """Row 5. `--set` values parse as YAML; a string where the schema expects numbers is one clear line
+    (exit 2), never a list of characters; nothing is written."""
+    cfg = config(tmp_path, EDGE, [BOUNDS])
+    out = tmp_path / "new" / "run"
+    rc, err = cli(capsys, "run", cfg, "--out", out, "--set", override, "--quiet")
+    assert rc == 2 and message in err and len(errors(err)) == 1, err
+    assert not out.parent.exists()
+
+
+@pytest.mark.parametrize("study, message", [
+    ({**TRIALS, "theta": ["0.5"]}, "studies[0].theta: expected a non-empty list of θ points"),
+    ({"type": "fisher-maps", "at": ["0.5"], "spp": 4}, "studies[0].at[0]: expected a number or a list of numbers"),
+    ({"type": "inexact", "theta": [0.5], "deltas": "0.1"}, "studies[0].deltas: expected a non-empty list"),
+])
+def test_a_theta_given_as_a_string_writes_nothing(tmp_path, capsys, study, message):
+    """Row 12. A θ given as a string: exit 2 before the run folder or config.yaml is written."""
+    rc, err = cli(capsys, "run", config(tmp_path, EDGE, [study]), "--out", tmp_path / "run", "--quiet")
+    assert rc == 2 and message in err, err
+    assert not (tmp_path / "run").exists()
+
+
+# -- row 7: the environment ----------------------------------------------------------------------------------
+def _mount_tmpfs(where: Path, options: str) -> bool:
+    """Mount a tmpfs at `where` (needs root and mount rights); False where that is not possible."""
+    where.mkdir(parents=True, exist_ok=True)
+    try:
+        return subprocess.run(["mount", "-t", "tmpfs", "-o", options, "tmpfs", str(where)],
+                              capture_output=True).returncode == 0
+    except OSError:
+        return False
+
+
+def _umount(where: Path) -> None:
+    subprocess.run(["umount", str(where)], capture_output=True)
+
+
+def _complete(folder: Path) -> None:
+    """No temporary file left, and every data file under its final name reads back whole."""
+    assert not [p for p in folder.rglob("*.tmp")], list(folder.rglob("*.tmp"))
+    for p in folder.rglob("*"):
+        if p.suffix == ".json":
+            json.loads(p.read_text())
+        elif p.suffix == ".yaml":
+            assert yaml.safe_load(p.read_text())
+        elif p.suffix == ".csv":
+            assert p.read_text().endswith("\n")
+
+
+@linux
+def test_a_full_disk_gives_one_line_leaves_no_torn_file_and_resumes(tmp_path, capsys):
+    """Row 7, full disk, for real: the run folder is a 64 KiB tmpfs (skipped where it cannot be mounted). The
+    render store fills it (warned, the run goes on), then a table cannot be written: exit 1, one line naming
+    the file, 'No space left on device (ENOSPC)' and how to resume; every file under its final name is
+    complete. With the disk grown, the resume gives the numbers of a run that never failed."""
+    disk = tmp_path / "disk"
+    if not _mount_tmpfs(disk, "size=64k"):
+        pytest.skip("cannot mount a tmpfs here (needs root); the in-process ENOSPC test below still runs")
+    try:
+        cfg = config(tmp_path, {"name": "blob2d", "params": ["x"], "options": {"render_noise": 0.05}}, [BOUNDS])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the render store's "cannot write" warning
+            rc, err = cli(capsys, "run", cfg, "--out", disk / "run", "--quiet")
+        assert rc == 1 and len(errors(err)) == 1, err
+        assert "No space left on device (ENOSPC): " + str(disk / "run") in err
+        assert f"resume with: nlosbench run {cfg} --out {disk / 'run'} --resume" in err
+        _complete(disk / "run")
+        subprocess.run(["mount", "-o", "remount,size=8m", str(disk)], check=True)
+        assert cli(capsys, "run", cfg, "--out", disk / "run", "--resume", "--quiet")[0] == 0
+        assert cli(capsys, "run", cfg, "--out", tmp_path / "clean", "--quiet")[0] == 0
+        assert (disk / "run" / "00-bounds" / "bounds.csv").read_bytes() == \
+            (tmp_path / "clean" / "00-bounds" / "bounds.csv").read_bytes()
+    finally:
+        _umount(disk)
+
+
+def test_disk_full_while_writing_results_is_one_line_and_resumable(tmp_path, capsys, monkeypatch):
+    """Row 7, full disk, in-process (runs everywhere): os.fsync raises ENOSPC for results.json, as a full
+    disk does when the data is flushed. Exit 1 naming results.json; no half-written results.json; the resume
+    (disk 'freed') finishes with the same numbers."""
+    import errno
+
+    cfg = config(tmp_path, EDGE, [BOUNDS])
+    run = tmp_path / "run"
+    real = os.fsync
+
+    def full(fd):
+        if os.readlink(f"/proc/self/fd/{fd}").split("/")[-1].startswith(".results.json"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(fd)
+
+    if not sys.platform.startswith("linux"):
+        pytest.skip("names the descriptor's file through /proc")
+    monkeypatch.setattr(os, "fsync", full)
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    assert rc == 1 and errors(err) == [
+        f"nlosbench: error: No space left on device (ENOSPC): {run / 'results.json'} — free space on that disk or use "
+        f"another --out; resume with: nlosbench run {cfg} --out {run} --resume"], err
+    assert not (run / "results.json").exists() and (run / "00-bounds" / "bounds.csv").exists()
+    _complete(run)
+    monkeypatch.setattr(os, "fsync", real)
+    assert cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")[0] == 0
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "clean", "--quiet")[0] == 0
+    clean = tmp_path / "clean" / "00-bounds" / "bounds.csv"
+    assert (run / "00-bounds" / "bounds.csv").read_bytes() == clean.read_bytes()
+
+
+def test_unwritable_run_folders_give_one_line_naming_the_path(tmp_path, capsys):
+    """Row 7, read-only or missing paths. --out under a regular file (ENOTDIR: a path no one can write, root
+    included) always; a read-only tmpfs (EROFS) where one can be mounted. Exit 1, one line naming the path."""
+    cfg = config(tmp_path, EDGE, [BOUNDS])
+    (tmp_path / "afile").write_text("")
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "afile" / "run", "--quiet")
+    assert rc == 1 and len(errors(err)) == 1 and f"(ENOTDIR): {tmp_path / 'afile' / 'run'}" in err, err
+    ro = tmp_path / "ro"
+    if _mount_tmpfs(ro, "ro,size=64k"):
+        try:
+            rc, err = cli(capsys, "run", cfg, "--out", ro / "run", "--quiet")
+            assert rc == 1 and len(errors(err)) == 1 and f"Read-only file system (EROFS): {ro / 'run'}" in err, err
+        finally:
+            _umount(ro)
+
+
+def test_an_invalid_scene_file_is_one_line_naming_it(tmp_path, capsys):
+    """Row 7, invalid scene XML: exit 2 (bad input), one line naming the XML file, nothing written."""
+    (tmp_path / "bad.xml").write_text('<scene version="3.0.0">\n  <shape type="sphere"\n</scene>\n')
+    (tmp_path / "bad.yaml").write_text(yaml.safe_dump({"file": "bad.xml", "params": [
+        {"name": "r", "kind": "radius", "object": "ball", "lower": 0.1, "upper": 0.2, "default": 0.15}]}))
+    cfg = config(tmp_path, {"name": str(tmp_path / "bad.yaml")}, [BOUNDS])
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "run", "--quiet")
+    assert rc == 2 and len(errors(err)) == 1 and f"{tmp_path / 'bad.xml'} does not load" in err, err
+    assert "Parsing of XML file" in err and not (tmp_path / "run").exists()
+
+
+def test_an_unreachable_dask_scheduler_gives_up_after_the_timeout(tmp_path, capsys):
+    """Row 7, Dask: a scheduler address where nothing listens, `executor.connect_timeout: 1`: exit 1 within
+    seconds, one line naming the address and how to resume; no config.yaml or fingerprint written."""
+    pytest.importorskip("distributed")
+    cfg = config(tmp_path, EDGE, [BOUNDS],
+                 executor={"type": "dask", "address": "tcp://127.0.0.1:9", "connect_timeout": 1})
+    t0 = time.perf_counter()
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "run", "--quiet")
+    assert rc == 1 and len(errors(err)) == 1, err
+    assert "cannot reach the Dask scheduler at tcp://127.0.0.1:9 within 1 s" in err and "--resume" in err
+    assert time.perf_counter() - t0 < 30
+    assert not (tmp_path / "run" / "config.yaml").exists() and not (tmp_path / "run" / "fingerprint.json").exists()
+
+
+# -- row 8: the cache is best-effort -----------------------------------------------------------------------------
+def test_a_cache_that_cannot_be_written_only_warns(tmp_path, capsys):
+    """Row 8, a read-only cache that misses: simulated by a cache folder whose shard folders are files (no
+    entry can be written, root included; chmod would not stop root). One warning, exit 0, same numbers."""
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    for i in range(256):
+        (cache / f"{i:02x}").write_text("")
+    cfg = config(tmp_path, EDGE, [BOUNDS])
+    with pytest.warns(UserWarning, match=f"render cache {cache}: cannot write") as caught:
+        rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "cached", "--set", f"cache={cache}", "--quiet")
+    assert rc == 0, err
+    assert sum("cannot write" in str(w.message) for w in caught) == 1
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "plain", "--quiet")[0] == 0
+    assert (tmp_path / "cached" / "00-bounds" / "bounds.csv").read_bytes() == \
+        (tmp_path / "plain" / "00-bounds" / "bounds.csv").read_bytes()
+
+
+def test_a_corrupt_entry_that_cannot_be_deleted_is_reported_and_skipped(tmp_path, capsys, monkeypatch):
+    """Row 8, corrupt + undeletable: every cache entry overwritten with garbage, and deleting an entry fails
+    (Path.unlink raises EACCES for the cache's files: as root, chmod would not stop it). The run re-renders
+    (exit 0, same numbers) and reports each corrupt key once."""
+    cache = tmp_path / "cache"
+    cfg = config(tmp_path, EDGE, [BOUNDS])
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "first", "--set", f"cache={cache}", "--quiet")[0] == 0
+    entries = sorted(cache.rglob("*.npc"))
+    assert entries
+    for e in entries:
+        e.write_bytes(b"NLOSRC01" + b"\0" * 64)
+    real = Path.unlink
+
+    def stuck(self, missing_ok=False):
+        if cache in self.parents:
+            raise PermissionError(13, "Permission denied", str(self))
+        return real(self, missing_ok=missing_ok)
+
+    monkeypatch.setattr(Path, "unlink", stuck)
+    with pytest.warns(UserWarning) as caught:
+        rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "second", "--set", f"cache={cache}", "--quiet")
+    assert rc == 0, err
+    corrupt = [str(w.message) for w in caught if "is corrupt" in str(w.message)]
+    assert sorted(m.split("entry ")[1].split(" ")[0] for m in corrupt) == sorted(e.stem for e in entries)
+    assert any("cannot delete the corrupt entry" in str(w.message) for w in caught)
+    assert (tmp_path / "second" / "00-bounds" / "bounds.csv").read_bytes() == \
+        (tmp_path / "first" / "00-bounds" / "bounds.csv").read_bytes()
+
+
+# -- rows 9 and 10: Ctrl-C and kill -9 ---------------------------------------------------------------------------
+LONG = {**BOUNDS, "grid": {"start": 0.8, "stop": 1.2, "num": 5}, "spp": 4096 * 200, "zzb": False}
+
+
+@linux
+@pytest.mark.parametrize("executor", [{"type": "serial"}, {"type": "local", "workers": 1}])
+def test_ctrl_c_during_a_long_render_stops_with_a_resume_hint(tmp_path, executor):
+    """Row 9. Ctrl-C (SIGINT to the whole process group, as a terminal sends it) while a long Π-hallway render
+    runs in the main process or in a pool worker: exit 130 within seconds, one line saying how to resume, no
+    traceback (workers ignore SIGINT; the parent stops them), no worker left."""
+    cfg = config(tmp_path, PI, [LONG], executor=executor)
+    run = tmp_path / "run"
+    proc = spawn("run", cfg, "--out", run, "--yes", start_new_session=True)
+    err = ""
+    try:
+        assert wait_for(lambda: (run / "config.yaml").exists() or proc.poll() is not None), proc.communicate()
+        time.sleep(3)  # inside the first grid render (about 200 passes of 2^20 samples)
+        workers = children(proc.pid)
+        assert proc.poll() is None and len(workers) == (executor["type"] == "local")
+        t0 = time.perf_counter()
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        assert time.perf_counter() - t0 < 15
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert errors(err)[-1] == ("nlosbench: error: interrupted; resume with: "
+                               f"nlosbench run {cfg} --out {run} --resume --yes")
+    assert wait_for(lambda: not any(alive(w) for w in workers), timeout=5)
+
+
+def test_a_second_ctrl_c_stops_at_once(tmp_path):
+    """Row 9, the second Ctrl-C: a process inside `nlosbench run`'s interrupt handling whose cleanup hangs
+    (simulated: it sleeps) is ended by a second SIGINT at once (the default action, exit by signal)."""
+    script = tmp_path / "hang.py"
+    script.write_text("import time\nfrom nlosbench.cli import _interrupts\ntry:\n    with _interrupts():\n"
+                      "        print('ready', flush=True)\n        time.sleep(120)\nexcept KeyboardInterrupt:\n"
+                      "    print('cleanup', flush=True)\n    time.sleep(120)\n")
+    proc = subprocess.Popen([sys.executable, str(script)], env=ENV, stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        proc.send_signal(signal.SIGINT)
+        assert proc.stdout.readline().strip() == "cleanup"
+        t0 = time.perf_counter()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=10)
+        assert time.perf_counter() - t0 < 2 and proc.returncode == -signal.SIGINT
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+@linux
+def test_kill_9_of_the_main_process_leaves_no_worker(tmp_path):
+    """Row 10. kill -9 of `nlosbench run` while its 2 pool workers render (the first renders are back, so
+    both have started): every worker exits within seconds (each watches its parent), and the folder's lock
+    is free again (the OS released it). A worker still importing when its parent dies exits as soon as its
+    import ends (its watchdog starts in the pool initialiser)."""
+    from nlosbench.experiment.rundir import lock_holder
+
+    cfg = config(tmp_path, PI, [{**LONG, "spp": 4096 * 4}], executor={"type": "local", "workers": 2})
+    run = tmp_path / "run"
+    proc = spawn("run", cfg, "--out", run, "--yes", "--quiet")
+    try:
+        assert wait_for(lambda: any((run / "renders").rglob("*.npc")) or proc.poll() is not None, timeout=240), \
+            proc.communicate()
+        workers = children(proc.pid)
+        assert proc.poll() is None and len(workers) == 2 and lock_holder(run) == proc.pid
+        proc.kill()
+        proc.wait()
+        assert wait_for(lambda: not any(alive(w) for w in workers), timeout=10), [w for w in workers if alive(w)]
+        assert lock_holder(run) is None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+# -- row 11: the cost ---------------------------------------------------------------------------------------------
+def test_a_billion_spp_needs_yes_and_says_what_it_would_cost(tmp_path, capsys):
+    """Row 11. `spp: 1000000000` on the Π hallway: before any render of the study, the plan and an estimated
+    time (from a rate measured on this machine) are printed; above an hour the run needs --yes (exit 2 with
+    the estimate), and nothing is written. A normal run prints its plan too."""
+    cfg = config(tmp_path, PI, [{**BOUNDS, "grid": {"start": 0.8, "stop": 1.2, "num": 5}, "spp": 1000000000}])
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "run")
+    assert rc == 2 and "[00-bounds] plan: 15 renders, 2.88e+12 pixel-samples" in err, err
+    assert "this run is estimated at" in errors(err)[0] and "pass --yes to run it" in errors(err)[0]
+    assert not (tmp_path / "run").exists()
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "small", "--set", "studies.0.spp=4")
+    assert rc == 0 and "[00-bounds] plan: 15 renders" in err and "estimate: ≈" in err, err
