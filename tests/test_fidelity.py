@@ -12,6 +12,7 @@ import nlosbench as nb
 from nlosbench import bounds
 from nlosbench.binning import bin_image
 from nlosbench.bounds import crlb_log10
+from nlosbench.bounds.service import Bound
 from nlosbench.cli import main
 from nlosbench.experiment import config
 from nlosbench.forward.gradients import GradientSettings, fd_jacobian
@@ -192,7 +193,7 @@ def test_toy_study_picks_the_settings_of_its_known_cost_curve(tmp_path):
     assert o["setting"] == {"spp": 36, "bin": 2, "max_depth": None, "gradient": "ad", "prune": None}
     assert o["verified"] and o["speedup"] == pytest.approx(4 * 4 * 1.5, rel=1e-12) == o["predicted_speedup"]
     report = (out / "report.md").read_text()
-    assert f"| bin | 2 | 1 | {study._pct(expected[2])} | 4× |" in report and "**Caution:**" not in report
+    assert f"| bin | 2 | 1 | {study._pct(expected[2])} | ±0 % | 4× |" in report and "**Caution:**" not in report
 
 
 CORNELL = {
@@ -216,6 +217,19 @@ CORNELL = {
 }
 
 
+def test_bound_noise_is_the_relative_half_width_of_the_interval():
+    """noise = max(10^(upper − point) − 1, 1 − 10^(lower − point)); 0 for an exact bound, ∞ for an open upper
+    end, NaN without limits (fewer than 3 replicates)."""
+    lg = math.log10
+    assert study.bound_noise(Bound("crlb", lg(0.8), lower=lg(0.8), upper=lg(1.5), point=lg(1.0))) == pytest.approx(0.5)
+    assert study.bound_noise(Bound("crlb", lg(0.4), lower=lg(0.4), upper=lg(1.1), point=lg(1.0))) == pytest.approx(0.6)
+    assert study.bound_noise(Bound("hcr", -2.0, lower=-2.0, upper=-2.0, point=-2.0)) == 0.0
+    assert study.bound_noise(Bound("hcr", -2.0, lower=-2.0, upper=math.inf, point=-1.9)) == math.inf
+    assert study.bound_noise(Bound("hcr", -2.0, lower=-math.inf, upper=-1.8, point=-1.9)) == 1.0
+    assert math.isnan(study.bound_noise(Bound("crlb", -2.0, flags=("estimate-only",), lower=-2.0, upper=-2.0,
+                                              point=-2.0)))
+
+
 def test_cornell_study_runs_end_to_end_and_its_report_reproduces(tmp_path):
     """Real renders through the runner: every knob point, depth sufficiency and pruning, then `report`
     re-makes report.md and the plots from the saved files alone."""
@@ -226,9 +240,9 @@ def test_cornell_study_runs_end_to_end_and_its_report_reproduces(tmp_path):
     assert n_points == 2 + 2 + 2 + 2 and len(rows) == n_points * 2 * 4
     assert all(float(r["err_hcr"]) == float(r["err_crlb"]) == 0.0 for r in rows if r["reference"] == "True")
     k = res["knobs"]
-    # two replicate render sets: the 4 grid points and, with independent seeds, an FD pair (θ ± 0.02, one seed
+    # three replicate render sets: the 4 grid points and, with independent seeds, an FD pair (θ ± 0.02, one seed
     # per stencil: common random numbers inside it) at each of them — no render shared with the grid
-    assert all(p["renders"] == 2 * (4 + 2 * 4) and p["cost"] > 0 for s in k.values() for p in s["points"])
+    assert all(p["renders"] == 3 * (4 + 2 * 4) and p["cost"] > 0 for s in k.values() for p in s["points"])
     spp4, bin2 = k["spp"]["points"][0], next(p for p in k["bin"]["points"] if p["value"] == 2)
     # bin 2 at 16 spp renders 16/4 per fine pixel: the pixel-samples of the spp-4 setting (each from its own set)
     assert bin2["samples"] == spp4["samples"] and bin2["renders"] == spp4["renders"]
@@ -238,7 +252,12 @@ def test_cornell_study_runs_end_to_end_and_its_report_reproduces(tmp_path):
     assert next(p for p in k["prune"]["points"] if p["value"] == "green_wall")["error"] > 0
     report = (out / "report.md").read_text()
     assert "**Depth sufficiency**" in report and "| green_wall |" in report and "**Overall:**" in report
-    assert ("**Caution:**" in report) == (res["spp_convergence"]["error"] > 0.05)  # reference not converged in spp
+    # 3 replicate sets give confidence limits: every setting's noise is > 0 (real renders; at 16 px and 16 spp
+    # some upper ends are open, noise ∞), and the report cautions exactly when the reference's noise exceeds
+    # tolerance / 2
+    assert all(p["noise"] > 0 for s in k.values() for p in s["points"])
+    assert k["spp"]["points"][1]["noise"] == res["reference_noise"]
+    assert ("**Caution:**" in report) == (res["reference_noise"] > 0.05 / 2) == (not res["reference_converged"])
     for f in ("fidelity.png", "depth.png"):
         (d / f).unlink()
     (out / "report.md").unlink()

@@ -12,12 +12,19 @@ with the point's wall time, renders and pixel-samples. Knobs:
   max_depth  the integrator's path depth (scene reloaded with `defines: {max_depth: d}`; 1 = emitters
              seen directly, 2 = direct lighting, 3 = one indirect bounce, ...);
   gradient   the CRLB's Jacobian by central FD with common random numbers (reference) or Mitsuba AD.
-Error of a point: |b/b_ref − 1| of its bounds against the reference's, aggregated (`aggregate`: max or
-median) over θ, noise models and bound kinds (HCR, CRLB). Recommendation per knob: the cheapest value
-within `tolerance` (`nlosbench.fidelity.recommend`); overall: the per-knob choices together, computed
-once more (`verify`) for their actual error and speed-up. Depth sufficiency: the max_depth points over
-the NLOS grid points (θ > `los_until`) and the depth from which the bound stops changing. Pruning: the
-reference with each element of `prune` removed from the scene (one at a time) against the full scene.
+Error of a point: |b/b_ref − 1| of its bounds' point estimates against the reference's, aggregated
+(`aggregate`: max or median) over θ, noise models and bound kinds (HCR, CRLB). The point estimates come
+from unbiased estimates of λ (HCR) and of the Fisher information (CRLB), U-statistics over `replicates`
+independent render sets, so they carry no 1/spp bias (the plug-in λ̂'s, which made a 512-spp reference
+look unconverged), only Monte Carlo noise: a bound's noise is the relative half-width of its confidence
+interval (one-sided limits at `level`), a point's noise √(noise² + reference noise²) aggregated like
+the error. The reference counts as converged when its own noise is ≤ tolerance / 2, so that an error
+at the tolerance is resolved; the report says when it is not and how many replicates would make it so.
+Recommendation per knob: the cheapest value within `tolerance` (`nlosbench.tradeoff.recommend`);
+overall: the per-knob choices together, computed once more (`verify`) for their actual error and
+speed-up. Depth sufficiency: the max_depth points over the NLOS grid points (θ > `los_until`) and the
+depth from which the bound stops changing. Pruning: the reference with each element of `prune` removed
+from the scene (one at a time) against the full scene.
 
 Every point is computed from scratch by the bound service (`curve`) on its own render bank of the
 model (or of its b×b-binned sensor, `forward.Binned`), serially in this process and without the render
@@ -65,7 +72,9 @@ SCHEMA = {
                                     "the reference", items=Field(str, choices=GRADIENTS)),
     "fd_step": Field(float, None, "FD step ξ of the CRLB term (parameter units; null: the grid neighbours)",
                      nullable=True),
-    "replicates": Field(int, 2, "independent replicate render sets per setting (unbiased U-statistics need 2)"),
+    "replicates": Field(int, 3, "independent replicate render sets per setting (unbiased U-statistics need 2, "
+                                "their confidence limits 3)"),
+    "level": Field(float, 0.95, "one-sided confidence level of each bound's limits (its noise)"),
     "ad": Field(dict, {}, "AD integrator options, e.g. {sppc: 4, sppp: 4, sppi: 0} for prb_projective on CPU"),
     "seeds": Field(str, "independent", "render seeds across the θ grid: independent or common (as in `bounds`)",
                    choices=("independent", "common")),
@@ -100,13 +109,28 @@ class Setting:
 
 @dataclass
 class _Bounds:
-    """One noise model's bounds at one setting over the θ grid: log10 HCR and CRLB (G,), CRLB flags, and
-    how many HCR sups sit at the smallest grid Δ (grid-limited)."""
+    """One noise model's bounds at one setting over the θ grid: log10 point estimates of the HCR and CRLB
+    (G,), their noise (relative confidence half-widths, (G,); NaN where fewer than 3 replicates give no
+    interval), CRLB flags, and how many HCR sups sit at the smallest grid Δ (grid-limited)."""
 
     hcr: np.ndarray
     crlb: np.ndarray
+    hcr_noise: np.ndarray
+    crlb_noise: np.ndarray
     flags: list[str]
     sup_at_smallest: int
+
+
+def bound_noise(b) -> float:
+    """Relative half-width of a Bound's confidence interval about its point estimate: the larger of
+    10^(upper − point) − 1 and 1 − 10^(lower − point); 0 for an exact bound, ∞ for an open end or no
+    finite point, NaN for a point estimate without limits (fewer than 3 replicates)."""
+    if b.point is None or "estimate-only" in b.flags:
+        return math.nan
+    if not math.isfinite(b.point) or b.upper is None or not math.isfinite(b.upper):
+        return math.inf
+    lo = 0.0 if b.lower is None or b.lower == -math.inf else 10.0 ** (b.lower - b.point)
+    return max(10.0 ** (b.upper - b.point) - 1.0, 1.0 - lo)
 
 
 def _integrator_depth(model) -> int | None:
@@ -162,7 +186,8 @@ class _Sweep:
         self._warm_up(base, s.gradient)
         model = base if s.bin == 1 else Binned(base, s.bin)
         noises = [n.binned(s.bin) if s.bin > 1 else n for n in self.ctx.noises]
-        svc = BoundService(RenderBank(model, progress=self.ctx.progress, seed=self.ctx.seed), noises)
+        svc = BoundService(RenderBank(model, progress=self.ctx.progress, seed=self.ctx.seed), noises,
+                           level=self.cfg["level"])
         before, t0 = base.stats.snapshot(), time.perf_counter()
         curve = svc.curve(self.thetas, s.spp, self.cfg["seeds"], self.cfg["replicates"], crlb=True, zzb=False,
                           fd_step=self.cfg["fd_step"], gradient=s.gradient, ad=dict(self.cfg["ad"]), check_step=False)
@@ -173,9 +198,10 @@ class _Sweep:
         out = {}
         for j, noise in enumerate(self.ctx.noises):
             pts = [pt for pt in points if pt.noise_index == j]
-            out[str(noise)] = _Bounds(np.array([pt.bounds["hcr"].log10 for pt in pts]),
-                                      np.array([pt.bounds["crlb"].log10 for pt in pts]),
-                                      [pt.bounds["crlb"].reason for pt in pts],
+            hcr, crlb = [pt.bounds["hcr"] for pt in pts], [pt.bounds["crlb"] for pt in pts]
+            out[str(noise)] = _Bounds(np.array([b.point for b in hcr]), np.array([b.point for b in crlb]),
+                                      np.array([bound_noise(b) for b in hcr]), np.array([bound_noise(b) for b in crlb]),
+                                      [b.reason for b in crlb],
                                       sum("sup-at-smallest-delta" in pt.bounds["hcr"].flags for pt in pts))
         return out, cost
 
@@ -290,6 +316,23 @@ def _errors(res: dict, ref: dict, mask: np.ndarray | None = None) -> dict[str, n
             for kind in ("hcr", "crlb")}
 
 
+def _noise(res: dict, ref: dict, mask: np.ndarray | None = None) -> np.ndarray:
+    """Noise of the errors against the reference, over noise models, θ (masked) and both bound kinds:
+    √(noise² + reference noise²); the reference's own noise where `res` is the reference."""
+    m = slice(None) if mask is None else mask
+    out = []
+    for n in ref:
+        for kind in ("hcr_noise", "crlb_noise"):
+            a, r = getattr(res[n], kind)[m], getattr(ref[n], kind)[m]
+            out.append(r if res is ref else np.hypot(a, r))
+    return np.concatenate(out)
+
+
+def _aggregate_noise(noise: np.ndarray, how: str) -> float:
+    """Aggregated noise; NaN when any bound has no interval (fewer than 3 replicates)."""
+    return math.nan if np.isnan(noise).any() else aggregate(noise, how)
+
+
 def _point(value, setting: Setting, res: dict, cost: RenderStats, ref: dict, cfg: dict) -> dict:
     e = _errors(res, ref)
     how = cfg["aggregate"]
@@ -304,6 +347,7 @@ def _point(value, setting: Setting, res: dict, cost: RenderStats, ref: dict, cfg
         "error": aggregate(np.concatenate([e["hcr"], e["crlb"]]), how),
         "error_hcr": aggregate(e["hcr"], how),
         "error_crlb": aggregate(e["crlb"], how),
+        "noise": _aggregate_noise(_noise(res, ref), how),
     }
 
 
@@ -357,6 +401,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     overall = _overall(sweep, summary, ref, cfg)
     depth = _depth_sufficiency(sweep, summary, ref, thetas, cfg) if "max_depth" in summary else None
     ref_cost = sweep.done[ref][1]
+    ref_noise = _aggregate_noise(_noise(ref_res, ref_res), how)
     results = {
         "parameter": ctx.model.params.names[0],
         "grid_points": len(thetas),
@@ -364,6 +409,12 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         "reference": vars(ref).copy(),
         "reference_cost": {"seconds": ref_cost.seconds, "renders": ref_cost.renders},
         "reference_sup_at_smallest_delta": sum(r.sup_at_smallest for r in ref_res.values()),
+        # the reference's own Monte Carlo noise (relative confidence half-width, aggregated): converged when
+        # an error at the tolerance is resolved
+        "reference_noise": ref_noise,
+        "reference_converged": bool(ref_noise <= tol / 2),
+        "replicates": cfg["replicates"],
+        "level": cfg["level"],
         "tolerance": tol,
         "aggregate": how,
         "cost": cfg["cost"],
@@ -372,8 +423,6 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         "knobs": summary,
         "overall": overall,
         "depth": depth,
-        # the next-lower spp's error: how far the reference itself may be from converged
-        "spp_convergence": summary["spp"]["points"][-2] if "spp" in summary else None,
     }
     return results  # plots: report() draws them from the saved files
 
@@ -398,6 +447,7 @@ def _overall(sweep: _Sweep, summary: dict, ref: Setting, cfg: dict) -> dict:
     out.update(
         verified=True,
         error=p["error"],
+        noise=p["noise"],
         cost=p["cost"],
         speedup=r["cost"] / p["cost"],
         within=p["error"] <= cfg["tolerance"],
@@ -450,6 +500,32 @@ def _pct(e: float) -> str:
     return "∞" if math.isinf(e) else f"{100 * e:.3g} %"
 
 
+def _noise_cell(p: dict) -> str:
+    return "n/a" if math.isnan(p["noise"]) else f"±{_pct(p['noise'])}"
+
+
+def _within(p: dict, tol: float) -> str:
+    """yes / no, and "(not resolved)" where the error is within its noise of the tolerance."""
+    verdict = "yes" if p["error"] <= tol else "no"
+    return verdict + (" (not resolved)" if math.isnan(p["noise"]) or abs(p["error"] - tol) <= p["noise"] else "")
+
+
+def _convergence(results: dict) -> str:
+    """One sentence on the reference's own noise and whether it resolves the tolerance."""
+    tol, noise, R = results["tolerance"], results["reference_noise"], results["replicates"]
+    head = (f"The bounds compared are point estimates from unbiased λ and Fisher information (U-statistics over {R} "
+            "independent render sets), so the reference has no spp bias to converge away; its Monte Carlo noise ")
+    if math.isnan(noise):
+        return head + ("is unknown: confidence limits need replicates >= 3. **Caution:** errors below may be noise.")
+    level = f"{results['level']:.0%} one-sided limits"
+    if results["reference_converged"]:
+        return head + f"is ±{_pct(noise)} ({level}): converged (≤ tolerance / 2 = {_pct(tol / 2)})."
+    need = math.ceil(R * (noise / (tol / 2)) ** 2) if math.isfinite(noise) else None
+    more = f"about {need} replicates (or that many times the spp)" if need else "resolved bounds (an open end)"
+    return head + (f"is ±{_pct(noise)} ({level}), more than tolerance / 2 = {_pct(tol / 2)}. **Caution:** the "
+                   f"reference is not converged: errors near the tolerance are noise; {more} would converge it.")
+
+
 def report(study_dir: Path, results: dict) -> str:
     fidelity_plots(study_dir, results)
     ref, tol = results["reference"], results["tolerance"]
@@ -469,18 +545,12 @@ def report(study_dir: Path, results: dict) -> str:
             else ""
         ),
         "",
-        f"| knob | value | cost [{unit}] | renders | error HCR | error CRLB | error | within |",
-        "|---|---|---|---|---|---|---|---|",
+        "",
+        _convergence(results),
+        "",
+        f"| knob | value | cost [{unit}] | renders | error HCR | error CRLB | error | noise | within |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
-    conv = results.get("spp_convergence")
-    if conv is not None and conv["error"] > tol:
-        lines[1:1] = [
-            "",
-            f"**Caution:** at {conv['value']} spp the bound differs from the reference's by {_pct(conv['error'])}: "
-            "the reference is not converged in spp, so every error below includes rendering noise of about that "
-            "size (bounds from Monte Carlo renders are biased low; see the `inexact` study). Raise the reference "
-            "spp or use common seeds before trusting a recommendation.",
-        ]
     for knob, s in results["knobs"].items():
         if knob == "prune":
             continue
@@ -489,13 +559,15 @@ def report(study_dir: Path, results: dict) -> str:
             work = f"{p['renders']}" + (f" + {p['grad_passes']} AD passes" if p["grad_passes"] else "")
             lines.append(
                 f"| {knob} | {p['value']}{mark} | {p['cost']:.4g} | {work} | {_pct(p['error_hcr'])} | "
-                f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {'yes' if p['error'] <= tol else 'no'} |"
+                f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {_noise_cell(p)} | {_within(p, tol)} |"
             )
-    lines += ["", "| knob | recommended | reference | error | speed-up |", "|---|---|---|---|---|"]
+    lines += ["", "| knob | recommended | reference | error | noise | speed-up |", "|---|---|---|---|---|---|"]
     for knob, s in results["knobs"].items():
         if "recommendation" in s:
             r = s["recommendation"]
-            lines.append(f"| {knob} | {r['value']} | {s['reference']} | {_pct(r['error'])} | {r['speedup']:.3g}× |")
+            chosen = next(p for p in s["points"] if p["value"] == r["value"])
+            lines.append(f"| {knob} | {r['value']} | {s['reference']} | {_pct(r['error'])} | {_noise_cell(chosen)} | "
+                         f"{r['speedup']:.3g}× |")
     o = results["overall"]
     combo = ", ".join(
         f"{k} {o['setting'][k]}" for k in ("spp", "bin", "max_depth", "gradient") if o["setting"][k] is not None
@@ -504,7 +576,8 @@ def report(study_dir: Path, results: dict) -> str:
         "",
         f"**Overall:** {combo}; predicted speed-up {o['predicted_speedup']:.3g}× (product of the knobs'). "
         + (
-            f"Computed: error {_pct(o['error'])} ({'within' if o['within'] else 'NOT within'} tolerance: "
+            f"Computed: error {_pct(o['error'])}, noise {_noise_cell(o)} "
+            f"({'within' if o['within'] else 'NOT within'} tolerance: "
             + ("the errors do not compound here" if o["within"]
                else "the errors compound: keep one knob at its reference")
             + f"), speed-up {o['speedup']:.3g}×."
