@@ -81,7 +81,7 @@ params:
     description: scale of the crate's paint colour
 """
 
-# -- step 4: the experiment (the scene path is absolute: paths in a config are read from the working folder)
+# -- step 4: the experiment (a relative scene spec path is read from the config's folder)
 CONFIG = """\
 # The crate's position from one noisy image: bounds, a Fisher map and two estimators (scaled to seconds).
 name: own-scene
@@ -230,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
 
     # step 4: the experiment, dry run first
     config = out / "experiment.yaml"
-    config.write_text(CONFIG.format(spec=spec))
+    config.write_text(CONFIG.format(spec=spec.relative_to(out)))  # scene/room.yaml
     again = ["--resume"] if (out / "smoke" / "results.json").exists() else []  # a second run keeps finished work
     cli("run", str(config), "--smoke", "--quiet", "--out", str(out / "smoke"), *again)
 

@@ -10,6 +10,7 @@ from nlosbench.experiment import config
 from nlosbench.schema import ConfigError, Field, validate_block
 
 CFG = Path(__file__).parent / "configs" / "cornell_bounds.yaml"
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _write(tmp_path, mutate) -> Path:
@@ -46,6 +47,25 @@ def test_overrides_and_defaults():
     assert cfg["studies"][0]["crlb"] is True  # default filled in
     with pytest.raises(ConfigError, match="key.path=value"):
         config.load(CFG, ["seed"])
+
+
+def test_a_relative_scene_spec_is_read_from_the_configs_folder(tmp_path, monkeypatch):
+    """`scene.name: scenes/x.yaml` beside the config is found from any working folder; a path that is not
+    beside the config is left to the working folder (as before)."""
+    import shutil
+
+    (tmp_path / "exp" / "scenes").mkdir(parents=True)
+    for f in ("cornell_ball.yaml", "cornell_ball.xml"):
+        shutil.copy(ROOT / "scenes" / f, tmp_path / "exp" / "scenes" / f)
+    cfg_path = tmp_path / "exp" / "c.yaml"
+    cfg_path.write_text(yaml.safe_dump({"name": "rel", "scene": {"name": "scenes/cornell_ball.yaml"},
+                                        "noise": [{"model": "awgn", "sigma": 1.0}],
+                                        "studies": [{"type": "bounds", "grid": [0.1, 0.2]}]}))
+    monkeypatch.chdir(tmp_path)
+    assert config.load(cfg_path)["scene"]["name"] == str((tmp_path / "exp" / "scenes" / "cornell_ball.yaml"))
+    monkeypatch.chdir(ROOT)  # not beside the config: left as written, read from the working folder
+    cfg_path.write_text(cfg_path.read_text().replace("scenes/cornell_ball.yaml", "scenes/pi_hallway.yaml"))
+    assert config.load(cfg_path)["scene"]["name"] == "scenes/pi_hallway.yaml"
 
 
 def test_defaults_are_copies():

@@ -49,8 +49,21 @@ def load(path: str | Path, overrides: list[str] = (), smoke: bool = False) -> di
         raise ConfigError("", f"{path} is not valid YAML: {e}") from None
     for item in overrides:
         apply_override(raw, item)
+    _scene_beside(raw, path.parent)
     cfg = resolve(raw)
     return smoke_config(cfg) if smoke else cfg
+
+
+def _scene_beside(raw: dict, folder: Path) -> None:
+    """A relative scene spec path (`scene.name` ending in .yaml or holding a '/') is read from the config's
+    folder when it is there (else from the working folder, as before): made absolute in place."""
+    sc = raw.get("scene")
+    name = sc.get("name") if isinstance(sc, dict) else None
+    if not isinstance(name, str) or not (name.endswith((".yaml", ".yml")) or "/" in name) or Path(name).is_absolute():
+        return
+    beside = folder / name
+    if beside.is_file():
+        sc["name"] = str(beside.resolve())
 
 
 def smoke_config(cfg: dict) -> dict:
