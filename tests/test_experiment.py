@@ -62,7 +62,7 @@ def test_a_relative_scene_spec_is_read_from_the_configs_folder(tmp_path, monkeyp
                                         "noise": [{"model": "awgn", "sigma": 1.0}],
                                         "studies": [{"type": "bounds", "grid": [0.1, 0.2]}]}))
     monkeypatch.chdir(tmp_path)
-    assert config.load(cfg_path)["scene"]["name"] == str((tmp_path / "exp" / "scenes" / "cornell_ball.yaml"))
+    assert config.load(cfg_path)["scene"]["name"] == str(tmp_path / "exp" / "scenes" / "cornell_ball.yaml")
     monkeypatch.chdir(ROOT)  # not beside the config: left as written, read from the working folder
     cfg_path.write_text(cfg_path.read_text().replace("scenes/cornell_ball.yaml", "scenes/pi_hallway.yaml"))
     assert config.load(cfg_path)["scene"]["name"] == "scenes/pi_hallway.yaml"
