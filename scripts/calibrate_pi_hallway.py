@@ -74,8 +74,8 @@ def main(argv=None) -> list[dict]:
         crlb, lo, hi = (float(v[0]) * 1e4 for v in res.crlb_interval(a.level))
         single = float(np.mean(1e4 / res.single[:, 0, 0]))
         paper = PAPER_HCR_HAT.get(round(th, 3))
-        row = dict(theta=th, F=f, se=se, crlb_cm2=crlb, lo_cm2=lo, hi_cm2=hi, single_cm2=single,
-                   excess=float(res.excess[0, 0]) / f if f > 0 else float("nan"), seconds=time.perf_counter() - ts)
+        row = {"theta": th, "F": f, "se": se, "crlb_cm2": crlb, "lo_cm2": lo, "hi_cm2": hi, "single_cm2": single,
+               "excess": float(res.excess[0, 0]) / f if f > 0 else float("nan"), "seconds": time.perf_counter() - ts}
         rows.append(row)
         print(f"{th:6.3f} {f:11.4g} ± {se:<9.3g} {crlb:11.4g} [{lo:8.3g}, {hi:8.3g}] {single:12.4g} "
               f"{row['excess']:9.3g} {paper if paper else '':>13} {row['seconds']:6.0f}", flush=True)
