@@ -152,26 +152,86 @@ def test_hallway_files_are_what_the_generator_writes():
 
 
 # -- Π hallway ---------------------------------------------------------------------------------------
-def test_pi_hallway_loads_renders_and_the_object_slides(pi):
+def _teapot_script():
+    import importlib.util
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    spec = importlib.util.spec_from_file_location("make_teapot", root / "scripts" / "make_teapot.py")
+    gen = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(gen)
+    return root, gen
+
+
+def _bbox(model, theta) -> tuple[np.ndarray, np.ndarray]:
+    model._apply(model.params.validate(theta))
+    b = _shape(model, "object").bbox()
+    return np.array(b.min, dtype=np.float64), np.array(b.max, dtype=np.float64)
+
+
+def test_teapot_file_is_what_the_generator_writes():
+    """scenes/teapot.ply equals the output of scripts/make_teapot.py byte for byte (edit the script, not the
+    mesh), and the mesh is the Utah teapot at the stated size: 0.35 m tall, Utah proportions (length / height
+    = 0.7148 / 0.35 from the tessellated patches, body width / height = 4 / 3.15), outward-facing triangles."""
+    root, gen = _teapot_script()
+    v, f = gen.mesh()
+    assert (root / "scenes" / "teapot.ply").read_bytes() == gen.ply_bytes(v, f)
+    assert len(gen.control_points()) == 306 and gen.patch_indices().shape == (32, 4, 4)
+    lo, hi = v.min(0).astype(np.float64), v.max(0).astype(np.float64)
+    assert gen.HEIGHT == 0.35 and lo[1] == pytest.approx(0.0, abs=1e-7) and hi[1] == pytest.approx(0.35, rel=1e-6)
+    assert hi[2] - lo[2] == pytest.approx(0.35 * 4 / 3.15, rel=1e-5)  # the body's diameter: 4 units
+    assert hi[0] - lo[0] == pytest.approx(0.7148, abs=5e-4)            # handle to spout tip (spout towards +x)
+    assert hi[0] > -lo[0]
+    t = v[f].astype(np.float64)
+    volume = np.einsum("ij,ij->i", t[:, 0], np.cross(t[:, 1], t[:, 2])).sum() / 6
+    # outward normals give a positive enclosed volume: the body alone is ≈ π·(0.22)²·0.25 ≈ 0.035 m³
+    assert 0.02 < volume < 0.05, volume
+    assert 3500 < len(f) < 4100 and len(v) < 2500  # a modest mesh: renders fast on CPU
+
+
+def test_pi_hallway_loads_renders_and_the_teapot_slides(pi):
     assert pi.params.names == ("object_position",)
     a, b = pi.render([0.7], 16, 0), pi.render([0.8], 16, 0)
     assert a.shape == (30, 40, 3) and bool(np.isfinite(a.numpy()).all())
-    # sliding 10 cm behind the corner hides part of the red object and uncovers grey floor and wall
-    # (same seed): red falls while green and blue rise
-    d = (a - b).sum(dim=(0, 1))
-    assert d[0] > 0 and d[1] < 0 and d[2] < 0, d
+    # sliding 10 cm behind the corner hides part of the red teapot (green and blue ≈ 0) and uncovers white
+    # paint (same seed): green and blue rise, and the image gets less red. Seeds 0–4 at these settings:
+    # Δ(G, B) = 5.1–6.4, Δ(R − G) = −1.5 to −1.8
+    d = (b - a).sum(dim=(0, 1))
+    assert d[1] > 2 and d[2] > 2 and d[0] - d[1] < -0.5, d
 
 
-def test_pi_hallway_object_leaves_the_line_of_sight_near_0_9_m(pi):
-    for t in (0.7, 0.8, 0.85):
-        assert visible_hits(pi, [t], "object", 200) > 0, t
-    for t in (0.9, 1.2, 1.69):
-        assert visible_hits(pi, [t], "object", 200) == 0, t
+def test_pi_hallway_teapot_bounding_box_and_theta_moves_it_along_corridor_b(pi):
+    """The teapot's box: 0.444 m along B (its body), 0.35 m tall with its base 1 mm above the floor, 0.715 m
+    across B (spout towards the far wall z = -1, handle 3.7 cm from the near wall z = 0); its axis at
+    x = 0.5 + θ on the line z = -0.37. θ moves it along +x only, metre for metre."""
+    lo, hi = _bbox(pi, [0.7])
+    assert np.allclose(hi - lo, [0.35 * 4 / 3.15, 0.35, 0.7148], atol=5e-4), hi - lo
+    assert (lo[0] + hi[0]) / 2 == pytest.approx(0.5 + 0.7, abs=1e-5)
+    assert lo[1] == pytest.approx(0.001, abs=1e-6)
+    assert -1.0 < lo[2] < -0.37 - 0.36 and -0.04 < hi[2] < 0.0  # inside corridor B, 1 m wide
+    for theta in (0.95, 1.69):
+        lo2, hi2 = _bbox(pi, [theta])
+        assert np.allclose(lo2 - lo, [theta - 0.7, 0, 0], atol=2e-6) and np.allclose(hi2 - hi, [theta - 0.7, 0, 0], atol=2e-6)
+    assert 4.0 - hi2[0] > 0.5  # at the far end of Θ the teapot is still well inside B (x < 4)
+
+
+def test_pi_hallway_teapot_leaves_the_line_of_sight_near_0_9_m(pi):
+    """Rays from the camera through a 400 × 400 grid over the teapot's bounding sphere (≈ 2 mm apart): the
+    last θ with a ray that sees the teapot, found by bisection to 0.5 mm, is 0.887 m (the paper: ≈ 0.9)."""
+    for t in (0.7, 0.8, 0.85, 0.88):
+        assert visible_hits(pi, [t], "object", 400) > 0, t
+    for t in (0.9, 1.0, 1.2, 1.69):
+        assert visible_hits(pi, [t], "object", 400) == 0, t
+    lo, hi = 0.88, 0.9
+    while hi - lo > 5e-4:
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if visible_hits(pi, [mid], "object", 400) > 0 else (lo, mid)
+    assert 0.884 < hi < 0.890, hi
 
 
 def test_pi_hallway_image_change_is_far_larger_in_los(pi):
-    def change(t):
-        return float((pi.render([t + 0.05], 64, 1) - pi.render([t], 64, 1)).abs().sum())
+    def change(t, seed):
+        return float((pi.render([t + 0.05], 64, seed) - pi.render([t], 64, seed)).abs().sum())
 
-    # seeds 0–9 at these settings: LOS/NLOS ratio 7.2–16
-    assert change(0.7) > 5 * change(1.3)
+    # seeds 0–4 at these settings: LOS/NLOS ratio 17–24
+    assert change(0.7, 1) > 5 * change(1.3, 1)
