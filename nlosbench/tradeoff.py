@@ -112,3 +112,19 @@ def settled(values: list, errors: list[float], tolerance: float):
     while k > 0 and errors[k - 1] <= tol:
         k -= 1
     return values[k]
+
+
+def pareto_front(costs, errors) -> list[int]:
+    """Indices of the points no other point dominates (cost ≤ and error ≤, one of them <), ordered by
+    cost: the speed–accuracy trade-offs worth having. Points with a non-finite cost or error are left out."""
+    c, e = np.asarray(costs, dtype=np.float64), np.asarray(errors, dtype=np.float64)
+    if c.shape != e.shape or c.ndim != 1:
+        raise ValueError(f"pareto_front: costs and errors must be 1-D of one length, got {c.shape} and {e.shape}")
+    ok = [i for i in range(c.size) if math.isfinite(c[i]) and math.isfinite(e[i])]
+    front, best = [], math.inf
+    for i in sorted(ok, key=lambda i: (c[i], e[i])):
+        if e[i] < best:
+            front.append(i)
+            best = e[i]
+    return front
+

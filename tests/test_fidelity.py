@@ -20,7 +20,7 @@ from nlosbench.io import read_csv
 from nlosbench.schema import grid_values
 from nlosbench.studies import fidelity as study
 from nlosbench.studies.context import RunContext
-from nlosbench.tradeoff import Point, aggregate, recommend, relative_error, settled
+from nlosbench.tradeoff import Point, aggregate, pareto_front, recommend, relative_error, settled
 
 NOISES = [nb.noise.AWGN(sigma=0.3), nb.noise.Poisson(scale=5.0)]
 
@@ -54,6 +54,22 @@ def test_recommendation_on_a_known_cost_accuracy_curve():
     r = recommend("gradient", pts, "a", 0.05)
     assert (r.value, r.speedup) == ("c", 2.5)
     assert recommend("gradient", pts, "a", 0.001).value == "a"  # nothing cheaper qualifies: the reference
+
+
+def test_pareto_front_keeps_exactly_the_undominated_points(rng):
+    """Against a brute-force dominance check on random clouds (ties included), and a hand-made case."""
+    assert pareto_front([4, 1, 2, 3, 2, math.nan], [1, 5, 3, 4, 2, 0]) == [1, 4, 0]
+    for _ in range(200):
+        c, e = rng.integers(0, 6, 12).astype(float), rng.integers(0, 6, 12).astype(float)
+        undominated = {i for i in range(12) if not any(c[k] <= c[i] and e[k] <= e[i] and (c[k], e[k]) != (c[i], e[i])
+                                                        for k in range(12))}
+        front = pareto_front(c, e)
+        # one representative per undominated (cost, error) pair, ordered by cost
+        assert {(c[i], e[i]) for i in front} == {(c[i], e[i]) for i in undominated} and len(front) == len(
+            {(c[i], e[i]) for i in undominated})
+        assert list(c[front]) == sorted(c[front])
+    with pytest.raises(ValueError, match="one length"):
+        pareto_front([1, 2], [1])
 
 
 def test_depth_settles_where_every_later_change_is_within_tolerance():

@@ -37,7 +37,8 @@ def _cast(model, origins: np.ndarray, dirs: np.ndarray):
     import mitsuba as mi
 
     o = mi.Point3f(*(mi.Float(np.ascontiguousarray(np.broadcast_to(origins, dirs.shape)[:, k])) for k in range(3)))
-    return model.scene.ray_intersect(mi.Ray3f(o, mi.Vector3f(*(mi.Float(np.ascontiguousarray(dirs[:, k])) for k in range(3)))))
+    d = mi.Vector3f(*(mi.Float(np.ascontiguousarray(dirs[:, k])) for k in range(3)))
+    return model.scene.ray_intersect(mi.Ray3f(o, d))
 
 
 def _view_rays(model, theta, ident: str, n: int):
@@ -129,7 +130,8 @@ def test_hallway_ball_is_whole_in_view_up_to_point_240(hallway):
 
 def test_hallway_moving_the_ball_changes_the_image_far_more_in_los_than_in_nlos(hallway):
     def change(k):  # move the ball 5 cm (common random numbers: same seed)
-        return float((hallway.render([point(k + 5), 0.10], 32, 3) - hallway.render([point(k), 0.10], 32, 3)).abs().sum())
+        moved, here = hallway.render([point(k + 5), 0.10], 32, 3), hallway.render([point(k), 0.10], 32, 3)
+        return float((moved - here).abs().sum())
 
     # at this size few sample paths reach a ball in the room, so the NLOS change is often exactly 0
     los, nlos = change(100), change(500)
@@ -211,7 +213,8 @@ def test_pi_hallway_teapot_bounding_box_and_theta_moves_it_along_corridor_b(pi):
     assert -1.0 < lo[2] < -0.37 - 0.36 and -0.04 < hi[2] < 0.0  # inside corridor B, 1 m wide
     for theta in (0.95, 1.69):
         lo2, hi2 = _bbox(pi, [theta])
-        assert np.allclose(lo2 - lo, [theta - 0.7, 0, 0], atol=2e-6) and np.allclose(hi2 - hi, [theta - 0.7, 0, 0], atol=2e-6)
+        shift = [theta - 0.7, 0, 0]
+        assert np.allclose(lo2 - lo, shift, atol=2e-6) and np.allclose(hi2 - hi, shift, atol=2e-6)
     assert 4.0 - hi2[0] > 0.5  # at the far end of Θ the teapot is still well inside B (x < 4)
 
 

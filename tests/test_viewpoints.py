@@ -46,7 +46,9 @@ def test_heat_map_is_finite_and_written(study):
     assert res["renders"] == 9 * (1 + 2 * 2) and res["infinite_cells"] == 0  # a render + 2 FD rounds each
     for k in range(2):
         g = _grid(ctx, k)
-        assert np.all(np.isfinite(g)) and np.all(g > 0)
+        # unbiased estimates (2 FD rounds) of a near-zero information can be negative behind the corner;
+        # the row that sees the teapot (camera moved left) cannot
+        assert np.all(np.isfinite(g)) and np.all(g[0] > 0), g
     for label in ("center", "corner_minus_plus", "corner_plus_minus"):
         assert (out / "views" / f"{label}_rgb.exr").exists()
         assert (out / "views" / f"{label}_noise0_fisher_object_position.exr").exists()
@@ -59,13 +61,14 @@ def test_information_falls_as_the_camera_moves_right(study):
     """The object at θ = 0.9 m sits just behind the A/B corner (1, 0): the camera's sight line past the
     corner is x = 1 + (1 − x_cam)|z| / z_cam, so a camera moved left (−x) sees the object directly and one
     moved right does not. In every row of offsets along the corridor (z), the mean Fisher information
-    must fall from left to right, and left ≫ right. Measured with seeds 0–2: left/right 24–28 (AWGN),
-    45–59 (Poisson), monotone in every row; asserted: monotone and > 5."""
+    must fall from left to right, and left ≫ right. Measured (64 spp, 2 unbiased FD rounds) with seeds 0 / 1,
+    row means left, middle, right: AWGN 6.4, 1.8, 0.022 / 7.3, 1.9, 0.015; Poisson 127, 35, 0.15 / 146, 28,
+    0.09. Single cells behind the corner are noise-dominated (one was −8.7), so asserted on the row means:
+    strictly falling, and left > 5 × right."""
     ctx, _, _ = study
     for k in range(2):
-        g = _grid(ctx, k)
-        assert np.all(g[0] > g[1]) and np.all(g[1] > g[2]), g
-        assert g[0].mean() > 5 * g[2].mean(), g
+        m = _grid(ctx, k).mean(axis=1)
+        assert m[0] > m[1] > m[2] and m[0] > 5 * m[2], m
 
 
 def test_camera_rig_moves_aims_and_restores_the_pose(study):
@@ -74,8 +77,8 @@ def test_camera_rig_moves_aims_and_restores_the_pose(study):
     ctx, _, res = study
     model = ctx.model
     rig = viewpoints.CameraRig(model)
-    # the default target is where the optical axis meets the scene: the floor point the file aims at
-    assert np.allclose(rig.target, [0.75, 0.0, -0.5], atol=1e-4)
+    # the default target is where the optical axis meets the scene: the far wall's foot the file aims at
+    assert np.allclose(rig.target, [1.0, 0.2, -1.0], atol=1e-4)
     before = model.render([0.9], 16, 5)
     with rig.at([-0.3, 0.0, 0.2]):
         m = np.array(mi.traverse(model.scene.sensors()[0])["to_world"].matrix).reshape(4, 4)
@@ -111,12 +114,22 @@ def test_bad_grids_and_scenes_are_refused():
 
 def test_a_worker_pool_gives_the_same_heat_map(study, tmp_path):
     """Viewpoints run as executor tasks in a spawned worker that loads and poses its own scene copy:
-    the derived seeds make the numbers identical to the in-process run. (Needs MitsubaModel to load scenes
+    the derived seeds make the numbers the same as the in-process run's. (Needs MitsubaModel to load scenes
     with `optimize=False`: Mitsuba's shape merging orders the emitters differently in each process, and
-    with several emitters the same seed then gives a different image.)"""
+    with several emitters the same seed then gives a different image.) Not bit for bit: after a camera move
+    the teapot scene's images depend on the process's render history in the last bit of ~10 of 3600 pixels
+    (measured also with freezing off; at a fixed camera they do not), which moves a mean Fisher information
+    by ~3e-9 relative; asserted: the same rows, every number within 1e-6 relative."""
     from nlosbench.executors import LocalPoolExecutor
 
     ctx, block, _ = study
     with LocalPoolExecutor(ctx.model_spec, workers=1) as pool:
         viewpoints.run(dataclasses.replace(ctx, dir=tmp_path, executor=pool, resume=False), block)
-    assert (tmp_path / "vp" / "viewpoints.csv").read_text() == (ctx.dir / "vp" / "viewpoints.csv").read_text()
+    rows = [list(csv.reader(open(d / "vp" / "viewpoints.csv"))) for d in (tmp_path, ctx.dir)]
+    assert len(rows[0]) == len(rows[1]) == 1 + 9 * 2
+    for a, b in zip(*rows, strict=True):
+        for x, y in zip(a, b, strict=True):
+            try:
+                assert float(x) == pytest.approx(float(y), rel=1e-6, abs=1e-12), (a, b)
+            except ValueError:  # a label
+                assert x == y

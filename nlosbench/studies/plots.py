@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import read_csv, read_exr, save_figure
+from ..tradeoff import pareto_front
 from .tables import cell, mse_units
 
 
@@ -141,39 +142,47 @@ def plot_mse(
 
 def plot_speed(rows: list[dict], units: str, path: Path, bayes: bool = False) -> Path:
     """Speed against error: per estimator setting (and noise model), mean wall seconds and renders
-    (+ AD passes) per trial against the MSE averaged over θ* (bayes: the Bayesian MSE), log–log."""
+    (+ AD passes) per trial against the MSE averaged over θ* (bayes: the Bayesian MSE) ± its SE, log–log,
+    with each noise model's Pareto front (the settings no other one beats on both cost and MSE)."""
     plt = _plt()
     from matplotlib.ticker import NullFormatter
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     several = len({r["noise"] for r in rows}) > 1
-    xs: list[list[float]] = [[], []]
+    key = "bayes_mse" if bayes else "mse"
+    points: dict = defaultdict(list)  # noise → [(label, seconds, renders, mse, se)]
     for j, label in dict.fromkeys((r["noise"], r["estimator"]) for r in rows):
-        key = "bayes_mse" if bayes else "mse"
         rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r[key] > 0]
         if not rs:  # every fit failed (or hit θ* exactly): nothing to place on a log axis
             continue
-        mse = float(np.mean([r[key] for r in rs]))
-        secs = float(np.mean([r["mean_seconds"] for r in rs]))
-        rend = float(np.mean([r["mean_renders"] + r.get("mean_grad_passes", 0.0) for r in rs]))
-        for ax, x, seen in zip(axes, (secs, rend), xs, strict=True):
-            seen.append(x)
-            ax.scatter([x], [mse], s=40)
-            ax.annotate(
-                f"{label} (noise {j})" if several else label,
-                (x, mse),
-                fontsize=8,
-                xytext=(4, 4),
-                textcoords="offset points",
-            )
-    for ax, xl, seen in zip(axes, ("wall seconds per trial", "renders + AD passes per trial"), xs, strict=True):
+        se = math.sqrt(sum(r[f"{key}_se"] ** 2 for r in rs)) / len(rs)
+        points[j].append((label, float(np.mean([r["mean_seconds"] for r in rs])),
+                          float(np.mean([r["mean_renders"] + r.get("mean_grad_passes", 0.0) for r in rs])),
+                          float(np.mean([r[key] for r in rs])), se))
+    for col, (ax, xl) in enumerate(zip(axes, ("wall seconds per trial", "renders + AD passes per trial"),
+                                       strict=True)):
+        seen = []
+        for k, (j, pts) in enumerate(points.items()):
+            x = [p[1 + col] for p in pts]
+            y, ye = [p[3] for p in pts], [min(p[4], 0.999 * p[3]) for p in pts]  # keep the bar on a log axis
+            seen += x
+            ax.errorbar(x, y, yerr=[ye, [p[4] for p in pts]], fmt="o", color=f"C{k}", capsize=3,
+                        label=f"noise {j}" if several else None)
+            for p, xi in zip(pts, x, strict=True):
+                ax.annotate(p[0], (xi, p[3]), fontsize=8, xytext=(4, 4), textcoords="offset points")
+            front = pareto_front(x, y)
+            if len(front) > 1:
+                ax.step([x[i] for i in front], [y[i] for i in front], where="post", color=f"C{k}", alpha=0.5,
+                        lw=1.2, label="Pareto front" + (f" (noise {j})" if several else ""))
         if seen and min(seen) > 0:  # a log axis needs positive data (cached renders count 0)
             ax.set_xscale("log")
             ax.set_yscale("log")
         ax.set_xlabel(xl)
-        ax.set_ylabel(f"MSE averaged over θ* [{units}]")
+        ax.set_ylabel(f"{'Bayesian MSE' if bayes else 'MSE'} averaged over θ* ± SE [{units}]")
         ax.xaxis.set_minor_formatter(NullFormatter())
         ax.grid(True, which="both", alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
     fig.suptitle("speed against error (one point per estimator setting)")
     fig.tight_layout()
     save_figure(fig, path, dpi=110)
