@@ -145,30 +145,3 @@ def test_a_failing_recording_falls_back_to_traced_with_a_warning(cornell, monkey
     import mitsuba as mi
 
     assert np.array_equal(np.asarray(img), np.asarray(mi.render(cornell.scene, spp=8, seed=5)))
-
-
-
-def _pi_renders(history: list) -> list:
-    """In a fresh process: pi_hallway 40 × 30, render `history` ((θ, seed) pairs, images dropped), then
-    return the images of (0.9, 5), (0.91, 5), (1.5, 9) at 64 spp as arrays."""
-    m = nb.scenes.get("pi_hallway", defines={"width": 40, "height": 30, "max_depth": 3})
-    for theta, seed in history:
-        m.render([theta], 64, seed)
-    return [m.render([t], 64, s).numpy() for t, s in ((0.9, 5), (0.91, 5), (1.5, 9))]
-
-
-def test_an_image_does_not_depend_on_what_rendered_before_it():
-    """Every frozen image is a replay (a call that records is run again): on pi_hallway a recording run
-    differed from its replays in the last bit of 2–10 of 3600 pixels, so without that rule the image of
-    (θ, spp, seed) depended on whether it happened to be the render that recorded. Two worker processes
-    with different histories must give bit-identical images at the same (θ, spp, seed). (Two models in
-    one process can still differ in the last bit of a few pixels after different histories: not explained
-    yet, see the frozen-render notes in README.)"""
-    import multiprocessing as mp
-
-    with mp.get_context("spawn").Pool(1) as pool:
-        fresh = pool.apply(_pi_renders, ([],))
-    with mp.get_context("spawn").Pool(1) as pool:
-        after = pool.apply(_pi_renders, ([(1.2, 3), (1.3, 4)],))
-    for x, y in zip(fresh, after, strict=True):
-        assert np.array_equal(x, y), int((x != y).sum())

@@ -114,22 +114,12 @@ def test_bad_grids_and_scenes_are_refused():
 
 def test_a_worker_pool_gives_the_same_heat_map(study, tmp_path):
     """Viewpoints run as executor tasks in a spawned worker that loads and poses its own scene copy:
-    the derived seeds make the numbers the same as the in-process run's. (Needs MitsubaModel to load scenes
+    the derived seeds make the numbers identical to the in-process run. (Needs MitsubaModel to load scenes
     with `optimize=False`: Mitsuba's shape merging orders the emitters differently in each process, and
-    with several emitters the same seed then gives a different image.) Not bit for bit: after a camera move
-    the teapot scene's images depend on the process's render history in the last bit of ~10 of 3600 pixels
-    (measured also with freezing off; at a fixed camera they do not), which moves a mean Fisher information
-    by ~3e-9 relative; asserted: the same rows, every number within 1e-6 relative."""
+    with several emitters the same seed then gives a different image.)"""
     from nlosbench.executors import LocalPoolExecutor
 
     ctx, block, _ = study
     with LocalPoolExecutor(ctx.model_spec, workers=1) as pool:
         viewpoints.run(dataclasses.replace(ctx, dir=tmp_path, executor=pool, resume=False), block)
-    rows = [list(csv.reader(open(d / "vp" / "viewpoints.csv"))) for d in (tmp_path, ctx.dir)]
-    assert len(rows[0]) == len(rows[1]) == 1 + 9 * 2
-    for a, b in zip(*rows, strict=True):
-        for x, y in zip(a, b, strict=True):
-            try:
-                assert float(x) == pytest.approx(float(y), rel=1e-6, abs=1e-12), (a, b)
-            except ValueError:  # a label
-                assert x == y
+    assert (tmp_path / "vp" / "viewpoints.csv").read_text() == (ctx.dir / "vp" / "viewpoints.csv").read_text()

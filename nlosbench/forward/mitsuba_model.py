@@ -165,7 +165,19 @@ class MitsubaModel(ForwardModel):
         import mitsuba as mi
 
         # opaque θ: the scene holds evaluated values (not literals), so a new θ never re-records the frozen render
-        self.binder.apply(self._params, [dr.opaque(mi.Float, float(v)) for v in theta])
+        values = [dr.opaque(mi.Float, float(v)) for v in theta]
+        if self.backend == "llvm":
+            # the update on one thread: in parallel, recomputing a moved mesh's vertex normals (and its
+            # acceleration structure) varied in the last bit of a few values from call to call, so the same
+            # (θ, spp, seed) gave images differing in 2 of 3600 pixels in a third of runs (pi_hallway's teapot)
+            threads = dr.thread_count()
+            dr.set_thread_count(1)
+            try:
+                self.binder.apply(self._params, values)
+            finally:
+                dr.set_thread_count(threads)
+        else:
+            self.binder.apply(self._params, values)
         self._applied = theta.copy()
 
     def _passes(self, spp: int, seed: int):

@@ -93,10 +93,6 @@ def freeze_default(option: bool | None = None) -> bool:
     return os.environ.get(FREEZE_ENV, "1").strip().lower() not in ("0", "false", "no", "off")
 
 
-#: frozen calls per pass before giving up on a replay (a new spp records once, a changed layout once more)
-_REPLAY_TRIES = 4
-
-
 def _render_pass(scene, seed, spp: int):
     """The frozen body: one `mi.render` of the scene's own sensor and integrator → TensorXf (H, W, C)."""
     import mitsuba as mi
@@ -130,24 +126,16 @@ class FrozenRender:
         import drjit as dr
         import mitsuba as mi
 
-        if not self.enabled:
-            return mi.render(scene, spp=spp, seed=seed)
-        if scene is not self._warm:
+        if not self.enabled or scene is not self._warm:
             # the first render of a scene allocates its film storage, which changes what the frozen function
-            # sees as its input: render it traced (image discarded) rather than keep a recording used once
-            dr.eval(mi.render(scene, spp=spp, seed=seed))
-            self._warm = scene
+            # sees as its input: rendering it traced saves a recording that would be used once
+            img = mi.render(scene, spp=spp, seed=seed)
+            self._warm = scene if self.enabled else self._warm
+            return img
         try:
-            # every image is a replay: a recording run can differ from its replays in the last bit of a few
-            # pixels (measured: 2–10 of 3600 pixels, 1 ulp, on pi_hallway), which would make an image depend
-            # on which (θ, seed) happened to record; so a call that recorded is run again
-            for _ in range(_REPLAY_TRIES):
-                n = self.n_recordings
-                img = self._frozen(scene, dr.opaque(mi.UInt32, seed), int(spp))
-                dr.eval(img)
-                if self.n_recordings == n:
-                    return img
-            raise RuntimeError(f"still recording after {_REPLAY_TRIES} calls")
+            img = self._frozen(scene, dr.opaque(mi.UInt32, seed), int(spp))
+            dr.eval(img)
+            return img
         except Exception as e:  # noqa: BLE001 - any recording failure: render traced from now on
             self.enabled = False
             self._frozen.clear()

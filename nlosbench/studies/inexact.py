@@ -28,7 +28,7 @@ import numpy as np
 from ..bank import check_spp
 from ..bounds.decay import decay_check, pixel_variances
 from ..bounds.inexact import check_levels, quadratic
-from ..bounds.service import interval_points
+from ..bounds.service import SEEDS, interval_points
 from ..io import read_csv, write_csv
 from ..schema import GRID, ConfigError, Field, grid_spec, grid_values, noise_spec, number_or
 from .context import RunContext
@@ -46,6 +46,8 @@ SCHEMA = {
                                                              "2048, 3072, …, 11264)", items=int),
     "n_eff": Field(int, 65536, "spp of the direct render set (equal budget: about the sum of the levels)"),
     "replicates": Field(int, 8, "independent renders per level and for N_eff, N/R spp each (bootstrap units)"),
+    "seeds": Field(str, "independent", "render seeds across θ* and θ*+Δ in each replicate and level: independent "
+                                       "(the paper) or common (common random numbers: tighter λ at small Δ)"),
     "bootstrap": Field(int, 200, "half-sample resamples for the confidence intervals (0: none)"),
     "confidence": Field(float, 0.9, "confidence level of the bootstrap intervals"),
     "noise": Field(noise_spec, None, "index or list of indices into the experiment's noise models (null: all)",
@@ -122,6 +124,8 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     power = cfg["power"]
     if not (power == "measured" or (isinstance(power, (int, float)) and not isinstance(power, bool) and power > 0)):
         raise ConfigError(f"{sid}.power", f"expected a number > 0 or 'measured', got {power!r}")
+    if cfg["seeds"] not in SEEDS:
+        raise ConfigError(f"{sid}.seeds", f"expected one of {list(SEEDS)}, got {cfg['seeds']!r}")
     if cfg["bootstrap"] < 0 or (cfg["bootstrap"] and R < 2):
         raise ConfigError(f"{sid}.bootstrap", "must be >= 0 and needs replicates >= 2")
     if not 0 < cfg["confidence"] < 1:
@@ -146,13 +150,14 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     p, out = plan(ctx, cfg), ctx.study_dir(cfg)
     svc, R = ctx.bounds, p.replicates
     before, t0 = ctx.bank.renders, time.perf_counter()
-    X = svc.interval_renders(p.thetas, p.deltas, p.levels, R)
+    X = svc.interval_renders(p.thetas, p.deltas, p.levels, R, cfg["seeds"])
     summary: dict = {
         "parameter": ctx.model.params.names[0],
         "units": ctx.model.params.units[0],
         "levels": p.levels.tolist(),
         "n_eff": p.n_eff,
         "replicates": R,
+        "seeds": cfg["seeds"],
         "bootstrap": cfg["bootstrap"],
         "confidence": cfg["confidence"],
         "theta_points": len(p.thetas),
@@ -187,6 +192,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         cfg["bootstrap"],
         cfg["confidence"],
         ctx.seed_for("inexact-bootstrap"),
+        seeds=cfg["seeds"],
         noises=list(p.noises),
     )
     summary.update(renders=ctx.bank.renders - before, render_seconds=time.perf_counter() - t0)
@@ -311,7 +317,8 @@ def report(study_dir: Path, results: dict) -> str:
         + f"). λ̂: weighted least squares of λ̃ = λ + C/N^p over "
         f"{len(lv)} levels N = {', '.join(map(str, lv))} (Σ = {results['samples_levels_per_image']} spp per image) "
         f"with p = {results['power']:.3f} ({results['power_source']}); HCR_Neff: one render set at "
-        f"N_eff = {results['n_eff']} spp. Each level and N_eff: {results['replicates']} independent replicates.",
+        f"N_eff = {results['n_eff']} spp. Each level and N_eff: {results['replicates']} independent replicates, "
+        f"{results.get('seeds', 'independent')} seeds across θ* and θ*+Δ.",
         "",
         "HCR_Neff is typically *below* the true HCR (rendering noise inflates λ); HCR-hat is above it only "
         "*in expectation* — one run can fall on either side. The bracketed ranges are "

@@ -80,16 +80,13 @@ class CameraRig:
     @contextmanager
     def at(self, offset):
         """Within the block, renders see the camera moved by `offset` (world metres) and re-aimed."""
-        import drjit as dr
         import mitsuba as mi
 
         o = self.origin + np.asarray(offset, dtype=np.float64)
         cache, self.model.cache = self.model.cache, None
-        pose = mi.Transform4f().look_at(origin=_point(o), target=_point(self.target), up=_point(self.up))
-        dr.make_opaque(pose)  # like θ: a literal pose that changes value would re-record the frozen render
-        self.sensor_params["to_world"] = pose
+        self.sensor_params["to_world"] = mi.Transform4f().look_at(origin=_point(o), target=_point(self.target),
+                                                                  up=_point(self.up))
         self.sensor_params.update()
-        dr.eval(self.model.scene.sensors()[0])
         try:
             yield
         finally:
