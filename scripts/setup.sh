@@ -2,13 +2,15 @@
 # One-time set-up, idempotent: system libLLVM >= 16 for Dr.Jit's LLVM backend, then .venv with
 # torch, Mitsuba 3 and the rest. A second run skips what is already done.
 # torch: a torch already in the venv (a CUDA build, say) is kept and pinned while nlosbench installs;
-# only a venv without torch gets $NLOSBENCH_TORCH (default torch==2.13.0, the CPU wheel).
+# only a venv without torch gets $NLOSBENCH_TORCH (default torch==2.13.0): a wheel on disk if pip finds one
+# there, else PyPI's build where an NVIDIA GPU is present, else the CPU build from PyTorch's CPU index.
 # Sourcing this file (tests do) defines the functions without running anything.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 VENV=${VENV:-.venv}
 PY=${PYTHON:-python3}
 TORCH=${NLOSBENCH_TORCH:-torch==2.13.0}
+TORCH_CPU_INDEX=${NLOSBENCH_TORCH_CPU_INDEX:-https://download.pytorch.org/whl/cpu}
 
 # --- libLLVM: Dr.Jit 1.5 needs >= 15; Debian's 14 and 15 crash it, so we want >= 16 (libllvm19).
 newest_llvm() {
@@ -49,6 +51,23 @@ try: print(m.version("torch"))
 except m.PackageNotFoundError: pass'
 }
 
+has_nvidia_gpu() {
+    [ -e /dev/nvidia0 ] || { command -v nvidia-smi >/dev/null && nvidia-smi -L >/dev/null 2>&1; }
+}
+
+install_torch() {
+    local pip=("$VENV/bin/pip" install -q --disable-pip-version-check)
+    if "${pip[@]}" --no-index "$TORCH" 2>/dev/null; then
+        echo "setup: $TORCH from a wheel on this disk"
+    elif has_nvidia_gpu; then
+        echo "setup: NVIDIA GPU found: $TORCH from the package index (a CUDA build)"
+        "${pip[@]}" "$TORCH"
+    else
+        echo "setup: no NVIDIA GPU: $TORCH from $TORCH_CPU_INDEX (the CPU build)"
+        "${pip[@]}" --index-url "$TORCH_CPU_INDEX" "$TORCH"
+    fi
+}
+
 # --- virtual environment and packages; the stamp holds a hash of pyproject.toml.
 install_packages() {
     [ -x "$VENV/bin/python" ] || { echo "setup: creating $VENV"; "$PY" -m venv "$VENV"; }
@@ -62,9 +81,11 @@ install_packages() {
     if [ -n "$have" ]; then
         echo "setup: keeping the torch $have in $VENV"
     else
-        # pinned: a bare 'torch' (or a range) would pull GBs of CUDA wheels onto a CPU machine.
+        # pinned, and from where: a bare 'torch' (or a range), or even the pinned one from PyPI on Linux
+        # x86-64, is a CUDA build of several GB. So: a wheel already on disk (pip's find-links) first; then,
+        # on a machine with an NVIDIA GPU, PyPI's build; on any other machine PyTorch's CPU index.
         echo "setup: no torch in $VENV; installing $TORCH"
-        "$VENV/bin/pip" install -q --disable-pip-version-check "$TORCH"
+        install_torch
         have=$(installed_torch "$VENV")
         [ -n "$have" ] || { echo "setup: installing $TORCH left no torch in $VENV" >&2; return 1; }
     fi

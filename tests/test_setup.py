@@ -1,5 +1,6 @@
-"""scripts/setup.sh keeps a torch the venv already has (a user's CUDA build) and installs the CPU wheel
-torch==2.13.0 only into a venv without torch; the pyproject stamp makes a second run a no-op.
+"""scripts/setup.sh keeps a torch the venv already has (a user's CUDA build) and installs torch==2.13.0
+only into a venv without torch (a wheel on disk first, else the CPU build unless there is an NVIDIA GPU);
+the pyproject stamp makes a second run a no-op.
 
 The venv is real (`python -m venv --without-pip`) but its `pip` is a stub that logs each call and, for a
 `torch==X` argument, writes torch's metadata as pip would; no network, a second or so per test.
@@ -19,6 +20,8 @@ SETUP = ROOT / "scripts" / "setup.sh"
 STUB_PIP = r"""#!/usr/bin/env bash
 # logs one call per line: the working directory, then the arguments, tab-separated
 printf '%s' "$PWD" >> "$PIP_LOG"; printf '\t%s' "$@" >> "$PIP_LOG"; printf '\n' >> "$PIP_LOG"
+# NO_WHEEL=1: no torch wheel on this disk, so an offline (--no-index) install fails as pip's would
+for a in "$@"; do [ "$a" = --no-index ] && [ "${NO_WHEEL:-}" = 1 ] && exit 1; done
 for a in "$@"; do
     case "$a" in
         torch==*) v=${a#torch==}; d="$SITE/torch-$v.dist-info"; mkdir -p "$d"
@@ -90,6 +93,30 @@ def test_cpu_torch_is_installed_only_into_a_venv_without_torch(tmp_path):
     assert len(calls) == 2 and installs_torch(calls[0]) and "torch==2.13.0" in calls[0]
     assert not installs_torch(calls[1]) and "-e" in calls[1]
     assert constraint_file(calls[1]).read_text().split() == ["torch==2.13.0"]
+
+
+@pytest.mark.parametrize("gpu", [False, True])
+def test_without_a_wheel_on_disk_a_cpu_machine_gets_the_cpu_build(tmp_path, gpu):
+    """No torch wheel on disk: a machine without an NVIDIA GPU installs from PyTorch's CPU index (PyPI's
+    Linux x86-64 torch is a CUDA build of several GB); one with a GPU (a fake `nvidia-smi`) from the index."""
+    if Path("/dev/nvidia0").exists():
+        pytest.skip("this machine has an NVIDIA device node: both cases would see a GPU")
+    env = make_venv(tmp_path / "venv", None) | {"NO_WHEEL": "1"}
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    if gpu:
+        (bin_dir / "nvidia-smi").write_text("#!/usr/bin/env bash\necho 'GPU 0: fake'\n")
+        (bin_dir / "nvidia-smi").chmod(0o755)
+    path = [d for d in env["PATH"].split(os.pathsep) if not (Path(d) / "nvidia-smi").exists()]
+    env["PATH"] = os.pathsep.join([str(bin_dir), *path])
+    r = install_packages(env)
+    assert r.returncode == 0, r.stderr
+    offline, torch_call, project = pip_calls(env)
+    assert "--no-index" in offline and installs_torch(offline)
+    assert installs_torch(torch_call) and "--no-index" not in torch_call
+    index = torch_call[torch_call.index("--index-url") + 1] if "--index-url" in torch_call else None
+    assert index == (None if gpu else "https://download.pytorch.org/whl/cpu"), torch_call
+    assert "-e" in project and constraint_file(project).read_text().split() == ["torch==2.13.0"]
 
 
 def test_stamp_makes_the_second_run_a_no_op_until_pyproject_changes(tmp_path):
