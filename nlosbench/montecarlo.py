@@ -248,8 +248,9 @@ def bias_test(E: np.ndarray, clusters: np.ndarray, level: float = 0.95) -> dict:
     trial. With C ≥ 2 clusters the standard error comes from the C cluster means (their spread holds the
     clean image's own Monte Carlo error and the trials' noise), Student t with C − 1 degrees of freedom;
     with one cluster from the trials (the clean image's error then is not in it: `truth_in_se` False).
-    Returns bias (P,), its SE (P,), the largest |t| and `biased` (some component beyond the two-sided
-    `level` quantile, Bonferroni over P)."""
+    Returns bias (P,), its SE (P,), the largest |t|, its two-sided p-value (Bonferroni over P; with few
+    clusters a moderate t is not significant, so the report gives t and p, not only the verdict), the degrees
+    of freedom and `biased` (some component beyond the two-sided `level` quantile, Bonferroni over P)."""
     from scipy import stats
 
     P = E.shape[1]
@@ -266,8 +267,9 @@ def bias_test(E: np.ndarray, clusters: np.ndarray, level: float = 0.95) -> dict:
         t = np.abs(bias) / se
     q = float(stats.t.ppf(1 - (1 - level) / (2 * P), dof)) if dof >= 1 else math.nan
     tmax = float(np.nanmax(t)) if np.isfinite(t).any() else math.nan
-    return {"bias": bias, "se": se, "t": tmax, "biased": bool(math.isfinite(tmax) and tmax > q),
-            "clusters": int(len(ids)), "truth_in_se": in_se}
+    p = min(1.0, 2 * P * float(stats.t.sf(tmax, dof))) if dof >= 1 and math.isfinite(tmax) else math.nan
+    return {"bias": bias, "se": se, "t": tmax, "p": p, "dof": int(dof),
+            "biased": bool(math.isfinite(tmax) and tmax > q), "clusters": int(len(ids)), "truth_in_se": in_se}
 
 
 def compare(mse: float, mse_se: float, bound: dict) -> str:
@@ -335,6 +337,8 @@ def summarize(
                 bias=float(np.linalg.norm(bias)),
                 bias_se=float(np.linalg.norm(bt["se"])),
                 bias_t_stat=bt["t"],
+                bias_p=bt["p"],
+                bias_dof=bt["dof"],
                 biased=bt["biased"],
                 bias_clusters=bt["clusters"],
                 bias_se_has_truth_error=bt["truth_in_se"],
@@ -343,7 +347,8 @@ def summarize(
             )
         else:
             row.update(mse=math.nan, mse_se=math.nan, var=math.nan, var_se=math.nan, bias=math.nan, bias_se=math.nan,
-                       bias_t_stat=math.nan, biased=False, bias_clusters=0, bias_se_has_truth_error=False,
+                       bias_t_stat=math.nan,
+                       bias_p=math.nan, bias_dof=0, biased=False, bias_clusters=0, bias_se_has_truth_error=False,
                        **{f"bias_{n}": math.nan for n in names}, **{f"bias_se_{n}": math.nan for n in names})
         secs, rend, grads = ([r[k] for r in rs] for k in ("seconds", "renders", "grad_passes"))
         row.update(

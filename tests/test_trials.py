@@ -450,3 +450,24 @@ def test_hcr_interval_from_spp_levels_is_compared(tmp_path):
     (row,) = res["summary"]
     assert row["mse_over_hcr_hat"] < row["mse_over_hcr_neff"]
     assert "HCR-hat" in study.report(ctx.dir / "trials", res)
+
+
+def test_bias_test_p_value_is_uniform_without_bias_and_matches_the_verdict():
+    """Zero-mean errors in 4 clean-image clusters of 3 trials (3 degrees of freedom): the two-sided p-value
+    is uniform, so over 2000 data sets P(p < 0.05) = 0.05 (binomial SD 0.005; asserted within ±0.015) and
+    P(p < 0.5) = 0.5 (±0.035); `biased` is exactly p < 0.05 (one parameter, level 0.95). A true bias of
+    3 SE-of-the-mean is found far more often (measured 0.53 over 2000; asserted > 0.4 over 500)."""
+    from nlosbench.montecarlo import bias_test
+
+    rng = np.random.default_rng(7)
+    clusters = np.repeat(np.arange(4), 3)
+    ps, flags = [], []
+    for _ in range(2000):
+        r = bias_test(rng.normal(size=(12, 1)), clusters)
+        ps.append(r["p"])
+        flags.append(r["biased"])
+        assert r["dof"] == 3 and r["biased"] == (r["p"] < 0.05)
+    ps = np.array(ps)
+    assert abs((ps < 0.05).mean() - 0.05) < 0.015 and abs((ps < 0.5).mean() - 0.5) < 0.035
+    shifted = [bias_test(rng.normal(size=(12, 1)) + 3 / np.sqrt(12), clusters)["p"] < 0.05 for _ in range(500)]
+    assert np.mean(shifted) > 0.4

@@ -470,13 +470,15 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
               "= consistent with the interval; **above** = MSE − 2 SE over the upper end (a better estimator may "
               "exist). Var is shown without a verdict: comparing it with a bound for unbiased estimators would "
               "need the bias gradient. The bias test: mean error against its SE over the clean-image replicates "
-              "(which holds the clean image's own Monte Carlo error), Student t, two-sided 95 %."]
+              "(which holds the clean image's own Monte Carlo error), Student t with (clean-image replicates − 1) "
+              "degrees of freedom, two-sided 95 %; p is its two-sided p-value (with 4 replicates a t below 3.18 "
+              "is not significant at 95 %: more `truth_replicates` make the test sharper)."]
     for j in sorted({r["noise"] for r in rows}):
         lines += ["", f"### The paper's format (noise {j}: {results['noise'][str(j)]}; {units})", ""]
         paper = [b for b in ("hcr_neff", "hcr_hat") if b in bounds]
         lines += paper_table(rows, results["bound_rows"], paper, results["params"], results["units"], j)
         lines += ["", f"### Against the bounds that apply (noise {j}; {units})", ""]
-        head = ["θ*", "estimator", "n", "MSE ± SE", "Var", "bias ± SE (t)"]
+        head = ["θ*", "estimator", "n", "MSE ± SE", "Var", "bias ± SE (t, p)"]
         head += [f"{b} [{lvl} ends]" for b in bounds if b in ("hcr", "crlb")] + ["verdict", "fit status",
                                                                                 "s / trial", "renders / trial"]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -486,7 +488,7 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
             theta = ", ".join(fmt(r[f"theta_{n}"], 4) for n in results["params"])
             bias = ", ".join(f"{fmt(r[f'bias_{n}'], 3)} ± {fmt(r[f'bias_se_{n}'], 2)}" for n in results["params"])
             cells = [theta, r["estimator"], r["n"], f"{fmt(r['mse'])} ± {fmt(r['mse_se'], 2)}", fmt(r["var"]),
-                     f"{bias} ({fmt(r['bias_t_stat'], 2)})"]
+                     f"{bias} ({fmt(r['bias_t_stat'], 2)}, {fmt(float(r.get('bias_p', 'nan')), 2)})"]
             for k in (k for k in bounds if k in ("hcr", "crlb")):
                 cells.append(f"{fmt_log10(float(b[f'log10_{k}']))} [{fmt_log10(float(b.get(f'{k}_lower', 'nan')))}, "
                              f"{fmt_log10(float(b.get(f'{k}_upper', 'nan')))}]" if b else "–")
@@ -497,7 +499,7 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
     lines += ["", "**Below an interval**: " + ("; ".join(
         f"{r['estimator']} at θ* #{r['theta_index']} ({b}): " + (
             f"explained by its measured bias {fmt(r['bias'], 3)} ± {fmt(r['bias_se'], 2)} "
-            f"(t = {fmt(r['bias_t_stat'], 2)})"
+            f"(t = {fmt(r['bias_t_stat'], 2)}, p = {fmt(float(r.get('bias_p', 'nan')), 2)})"
             if r["biased"] else f"no significant bias at n = {r['n']} (|bias| {fmt(r['bias'], 3)} ± "
             f"{fmt(r['bias_se'], 2)}): too few trials to see it, or an estimator to investigate")
         for r, b in notes) or "none.")]
