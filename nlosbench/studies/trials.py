@@ -316,8 +316,9 @@ def run(ctx, cfg: dict) -> dict:
     params = ctx.model.params
     svc = BoundService(ctx.bank, ctx.noises, cfg["level"])
     grid = params.grid(cfg["hcr_grid"])
-    bank_grid = BankGrid(grid, svc.replicates(grid, p.bound_spp, cfg["seeds"], p.replicates, "bank grid")[0],
-                         p.bound_spp)
+    # the estimators' grid is the mean of the bound's replicate sets (R × bound_spp samples, no new render)
+    reps = svc.replicates(grid, p.bound_spp, cfg["seeds"], p.replicates, "bank grid")
+    bank_grid = BankGrid(grid, reps.mean(dim=0), p.replicates * p.bound_spp)
     bound_rows, zzb = [], {}
     if p.mode == "bayesian":
         curve = svc.curve(grid[:, 0], p.bound_spp, cfg["seeds"], p.replicates, crlb=False, zzb=True,
