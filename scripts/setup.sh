@@ -3,7 +3,7 @@
 # torch, Mitsuba 3 and the rest. A second run skips what is already done.
 # torch: a torch already in the venv (a CUDA build, say) is kept and pinned while nlosbench installs;
 # only a venv without torch gets $NLOSBENCH_TORCH (default torch==2.13.0): a wheel on disk if pip finds one
-# there, else PyPI's build where an NVIDIA GPU is present, else the CPU build from PyTorch's CPU index.
+# there, else PyPI's build where an NVIDIA GPU is present, else the CPU build (PyTorch's CPU index added).
 # Sourcing this file (tests do) defines the functions without running anything.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -56,16 +56,22 @@ has_nvidia_gpu() {
 }
 
 install_torch() {
-    local pip=("$VENV/bin/pip" install -q --disable-pip-version-check)
-    if "${pip[@]}" --no-index "$TORCH" 2>/dev/null; then
+    local pip=("$VENV/bin/pip" --disable-pip-version-check) probe
+    probe=$(mktemp -d)
+    # a wheel of $TORCH on this disk (pip's find-links)? `download --no-deps` looks without fetching anything
+    if "${pip[@]}" download -q --no-index --no-deps -d "$probe" "$TORCH" >/dev/null 2>&1; then
         echo "setup: $TORCH from a wheel on this disk"
+        "${pip[@]}" install -q "$TORCH"        # pip takes the local build (e.g. 2.13.0+cpu sorts above 2.13.0)
     elif has_nvidia_gpu; then
         echo "setup: NVIDIA GPU found: $TORCH from the package index (a CUDA build)"
-        "${pip[@]}" "$TORCH"
+        "${pip[@]}" install -q "$TORCH"
     else
-        echo "setup: no NVIDIA GPU: $TORCH from $TORCH_CPU_INDEX (the CPU build)"
-        "${pip[@]}" --index-url "$TORCH_CPU_INDEX" "$TORCH"
+        echo "setup: no NVIDIA GPU: $TORCH's CPU build from $TORCH_CPU_INDEX"
+        "${pip[@]}" install -q --extra-index-url "$TORCH_CPU_INDEX" "$TORCH"   # +cpu sorts above PyPI's build
     fi
+    local rc=$?
+    rm -rf "$probe"
+    return $rc
 }
 
 # --- virtual environment and packages; the stamp holds a hash of pyproject.toml.
@@ -83,7 +89,7 @@ install_packages() {
     else
         # pinned, and from where: a bare 'torch' (or a range), or even the pinned one from PyPI on Linux
         # x86-64, is a CUDA build of several GB. So: a wheel already on disk (pip's find-links) first; then,
-        # on a machine with an NVIDIA GPU, PyPI's build; on any other machine PyTorch's CPU index.
+        # on a machine with an NVIDIA GPU, PyPI's build; on any other machine the CPU build.
         echo "setup: no torch in $VENV; installing $TORCH"
         install_torch
         have=$(installed_torch "$VENV")

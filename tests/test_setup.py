@@ -20,8 +20,8 @@ SETUP = ROOT / "scripts" / "setup.sh"
 STUB_PIP = r"""#!/usr/bin/env bash
 # logs one call per line: the working directory, then the arguments, tab-separated
 printf '%s' "$PWD" >> "$PIP_LOG"; printf '\t%s' "$@" >> "$PIP_LOG"; printf '\n' >> "$PIP_LOG"
-# NO_WHEEL=1: no torch wheel on this disk, so an offline (--no-index) install fails as pip's would
-for a in "$@"; do [ "$a" = --no-index ] && [ "${NO_WHEEL:-}" = 1 ] && exit 1; done
+# `download` only looks for a wheel: it fails when NO_WHEEL=1 (none on this disk) and installs nothing
+for a in "$@"; do [ "$a" = download ] && { [ "${NO_WHEEL:-}" = 1 ] && exit 1; exit 0; }; done
 for a in "$@"; do
     case "$a" in
         torch==*) v=${a#torch==}; d="$SITE/torch-$v.dist-info"; mkdir -p "$d"
@@ -90,15 +90,18 @@ def test_cpu_torch_is_installed_only_into_a_venv_without_torch(tmp_path):
     r = install_packages(env)
     assert r.returncode == 0, r.stderr
     calls = pip_calls(env)
-    assert len(calls) == 2 and installs_torch(calls[0]) and "torch==2.13.0" in calls[0]
-    assert not installs_torch(calls[1]) and "-e" in calls[1]
-    assert constraint_file(calls[1]).read_text().split() == ["torch==2.13.0"]
+    probe, torch_call, project = calls  # a wheel on disk (the stub has one): a plain install takes it
+    assert "download" in probe and "--no-index" in probe and not installs_torch(probe)
+    assert installs_torch(torch_call) and "torch==2.13.0" in torch_call and "--extra-index-url" not in torch_call
+    assert not installs_torch(project) and "-e" in project
+    assert constraint_file(project).read_text().split() == ["torch==2.13.0"]
 
 
 @pytest.mark.parametrize("gpu", [False, True])
 def test_without_a_wheel_on_disk_a_cpu_machine_gets_the_cpu_build(tmp_path, gpu):
-    """No torch wheel on disk: a machine without an NVIDIA GPU installs from PyTorch's CPU index (PyPI's
-    Linux x86-64 torch is a CUDA build of several GB); one with a GPU (a fake `nvidia-smi`) from the index."""
+    """No torch wheel on disk: a machine without an NVIDIA GPU adds PyTorch's CPU index, whose `+cpu` build
+    sorts above PyPI's (PyPI's Linux x86-64 torch is a CUDA build of several GB); one with a GPU (a fake
+    `nvidia-smi`) installs from the index as it is."""
     if Path("/dev/nvidia0").exists():
         pytest.skip("this machine has an NVIDIA device node: both cases would see a GPU")
     env = make_venv(tmp_path / "venv", None) | {"NO_WHEEL": "1"}
@@ -111,10 +114,10 @@ def test_without_a_wheel_on_disk_a_cpu_machine_gets_the_cpu_build(tmp_path, gpu)
     env["PATH"] = os.pathsep.join([str(bin_dir), *path])
     r = install_packages(env)
     assert r.returncode == 0, r.stderr
-    offline, torch_call, project = pip_calls(env)
-    assert "--no-index" in offline and installs_torch(offline)
+    probe, torch_call, project = pip_calls(env)
+    assert "download" in probe and "--no-index" in probe and not installs_torch(probe)
     assert installs_torch(torch_call) and "--no-index" not in torch_call
-    index = torch_call[torch_call.index("--index-url") + 1] if "--index-url" in torch_call else None
+    index = torch_call[torch_call.index("--extra-index-url") + 1] if "--extra-index-url" in torch_call else None
     assert index == (None if gpu else "https://download.pytorch.org/whl/cpu"), torch_call
     assert "-e" in project and constraint_file(project).read_text().split() == ["torch==2.13.0"]
 
