@@ -221,12 +221,16 @@ def _resume_command(args, run_dir: Path) -> str:
 @contextmanager
 def _interrupts():
     """The first Ctrl-C raises KeyboardInterrupt (the run stops its workers and says how to resume); it also
-    restores the default action, so a second Ctrl-C ends the process at once."""
+    sets the default action, which stays for the rest of the process (the cleanup after this block
+    included), so a second Ctrl-C ends the process at once. Without a Ctrl-C the previous handler returns."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    fired = False
 
     def first(signum, frame):
+        nonlocal fired
+        fired = True
         signal.signal(signal.SIGINT, signal.SIG_DFL)
         print("nlosbench: stopping (Ctrl-C again to stop at once)", file=sys.stderr, flush=True)
         raise KeyboardInterrupt
@@ -235,7 +239,8 @@ def _interrupts():
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        if not fired:  # restoring Python's handler here would turn the second Ctrl-C into a slow exit
+            signal.signal(signal.SIGINT, previous)
 
 
 @contextmanager
