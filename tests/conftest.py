@@ -1,4 +1,5 @@
 """Shared fixtures. Mitsuba scenes load once per test session (scene loads are the slow part)."""
+import drjit as dr
 import numpy as np
 import pytest
 
@@ -9,6 +10,22 @@ import nlosbench as nb
 def cornell():
     """The real 32×32 Mitsuba `cornell_ball` scene (llvm_ad_rgb on CPU)."""
     return nb.scenes.get("cornell_ball")
+
+
+@pytest.fixture(params=["llvm", "cuda"])
+def backend_model(request, cornell):
+    """cornell_ball on the requested Dr.Jit backend (the session fixture where it already is)."""
+    backend = request.param
+    if backend == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("no CUDA device (dr.has_backend(dr.JitBackend.CUDA) is False)")
+    if cornell.backend == backend:
+        yield cornell
+        return
+    previous = nb.variant.select()
+    try:
+        yield nb.scenes.get("cornell_ball", variant=f"{backend}_ad_rgb")
+    finally:
+        nb.variant.select(previous)
 
 
 @pytest.fixture

@@ -12,7 +12,6 @@ import drjit as dr
 import pytest
 import torch
 
-import nlosbench as nb
 from nlosbench.forward.cache import render_key
 from nlosbench.forward.passes import PASS_SAMPLES, WAVEFRONT_LIMIT, pass_samples, split_spp
 
@@ -20,22 +19,6 @@ THETA = [0.1, 0.25, 0.6]
 #: CUDA accumulates samples with atomics, so identical renders differ in the last bits: |Δ| ≤ RTOL·|L| + ATOL
 CUDA_RTOL, CUDA_ATOL = 1e-5, 1e-6
 ROOT = Path(__file__).resolve().parents[1]
-
-
-@pytest.fixture(params=["llvm", "cuda"])
-def backend_model(request, cornell):
-    """cornell_ball on the requested Dr.Jit backend (the session fixture where it already is)."""
-    backend = request.param
-    if backend == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
-        pytest.skip("no CUDA device (dr.has_backend(dr.JitBackend.CUDA) is False)")
-    if cornell.backend == backend:
-        yield cornell
-        return
-    previous = nb.variant.select()
-    try:
-        yield nb.scenes.get("cornell_ball", variant=f"{backend}_ad_rgb")
-    finally:
-        nb.variant.select(previous)
 
 
 def _same(model, a: torch.Tensor, b: torch.Tensor) -> bool:

@@ -1,7 +1,6 @@
 """The frozen render path (`drjit.freeze`d `mi.render`, nlosbench/forward/passes.py): same images as the
 traced path, one recording per pass spp, the θ → scene update (geometry included) stays correct, the
 switch turns it off."""
-import drjit as dr
 import numpy as np
 import pytest
 import torch
@@ -28,22 +27,6 @@ def _frozen_and_traced(model, thetas, spp, seed):
     finally:
         model.freeze = saved
     return frozen, traced
-
-
-@pytest.fixture(params=["llvm", "cuda"])
-def backend_model(request, cornell):
-    """cornell_ball on the requested Dr.Jit backend (the session fixture where it already is)."""
-    backend = request.param
-    if backend == "cuda" and not dr.has_backend(dr.JitBackend.CUDA):
-        pytest.skip("no CUDA device (dr.has_backend(dr.JitBackend.CUDA) is False)")
-    if cornell.backend == backend:
-        yield cornell
-        return
-    previous = nb.variant.select()
-    try:
-        yield nb.scenes.get("cornell_ball", variant=f"{backend}_ad_rgb")
-    finally:
-        nb.variant.select(previous)
 
 
 def test_frozen_equals_traced_per_backend(backend_model):

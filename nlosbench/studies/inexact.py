@@ -47,7 +47,8 @@ SCHEMA = {
     "n_eff": Field(int, 65536, "spp of the direct render set (equal budget: about the sum of the levels)"),
     "replicates": Field(int, 8, "independent renders per level and for N_eff, N/R spp each (bootstrap units)"),
     "seeds": Field(str, "independent", "render seeds across θ* and θ*+Δ in each replicate and level: independent "
-                                       "(the paper) or common (common random numbers: tighter λ at small Δ)"),
+                                       "(the paper) or common (common random numbers: tighter λ at small Δ)",
+                   choices=SEEDS),
     "bootstrap": Field(int, 200, "half-sample resamples for the confidence intervals (0: none)"),
     "confidence": Field(float, 0.9, "confidence level of the bootstrap intervals"),
     "noise": Field(noise_spec, None, "index or list of indices into the experiment's noise models (null: all)",
@@ -124,8 +125,6 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     power = cfg["power"]
     if not (power == "measured" or (isinstance(power, (int, float)) and not isinstance(power, bool) and power > 0)):
         raise ConfigError(f"{sid}.power", f"expected a number > 0 or 'measured', got {power!r}")
-    if cfg["seeds"] not in SEEDS:
-        raise ConfigError(f"{sid}.seeds", f"expected one of {list(SEEDS)}, got {cfg['seeds']!r}")
     if cfg["bootstrap"] < 0 or (cfg["bootstrap"] and R < 2):
         raise ConfigError(f"{sid}.bootstrap", "must be >= 0 and needs replicates >= 2")
     if not 0 < cfg["confidence"] < 1:
