@@ -4,7 +4,9 @@ cost/accuracy table; `studies/fidelity.py` measures the table).
 A knob (spp, binning, path depth, gradient method, ...) takes several values around a reference (its
 highest-fidelity value). Each value has a cost (seconds, or pixel-samples) and an error: the relative
 difference |b/b_ref − 1| of its bound from the reference bound, aggregated over the θ grid (and noise
-models, bound kinds) by `max` (the default: every point within tolerance) or `median`.
+models, bound kinds) by `max` (the default: every point within tolerance) or `median`. Bounds from
+Monte Carlo renders are noisy: `error_limits` gives each error joint confidence limits from a jackknife
+over the replicate render sets both bounds share, and a value qualifies when its upper limit does.
 """
 from __future__ import annotations
 
@@ -40,6 +42,41 @@ def aggregate(errors, how: str = "max") -> float:
     return float(np.max(e) if how == "max" else np.median(e))
 
 
+def error_limits(log10_b, log10_ref, loo_b, loo_ref, level: float = 0.95) -> tuple[np.ndarray, np.ndarray]:
+    """Joint confidence limits (lower, upper) on the errors |b/b_ref − 1| of M paired bounds.
+
+    log10_b, log10_ref: (M,) point estimates; loo_b, loo_ref: (M, R) the same without replicate set k, for
+    two models whose replicate sets are paired by k (the same seeds where settings share them, which
+    cancels their common rendering noise; independent sets are paired by index, which is as valid).
+    The log ratio d = log10 b − log10 b_ref gets the delete-one jackknife SE over the R pairs,
+    √((R−1)/R Σ_k (d_k − d̄)²), and a two-sided Student-t interval (R − 1 degrees of freedom), each at
+    1 − (1 − level)/M (Bonferroni), so with probability ≥ `level` every d lies in its interval; the error's
+    limits are |10^d − 1| over it (lower 0 where it holds d = 0). Non-finite inputs, or R < 3, give
+    (0, +inf) there: nothing is resolved."""
+    if not 0 < level < 1:
+        raise ValueError(f"confidence level must lie in (0, 1), got {level}")
+    d = np.asarray(log10_b, dtype=np.float64) - np.asarray(log10_ref, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        dk = np.asarray(loo_b, dtype=np.float64) - np.asarray(loo_ref, dtype=np.float64)
+    M = d.size
+    if dk.shape[:1] != (M,) or dk.ndim != 2:
+        raise ValueError(f"error_limits: need leave-one-outs (M, R) for M = {M} bounds, got {dk.shape}")
+    lower, upper = np.zeros(M), np.full(M, np.inf)
+    R = dk.shape[1]
+    ok = np.isfinite(d) & np.all(np.isfinite(dk), axis=1)
+    if R < 3 or not ok.any():
+        return lower, upper
+    from scipy import stats
+
+    se = np.sqrt((R - 1) / R * ((dk[ok] - dk[ok].mean(axis=1, keepdims=True)) ** 2).sum(axis=1))
+    t = float(stats.t.ppf(1.0 - (1.0 - level) / (2 * M), R - 1))
+    lo, hi = d[ok] - t * se, d[ok] + t * se
+    err = lambda x: np.abs(np.expm1(x * math.log(10.0)))  # noqa: E731
+    upper[ok] = np.maximum(err(lo), err(hi))
+    lower[ok] = np.where((lo <= 0) & (hi >= 0), 0.0, np.minimum(err(lo), err(hi)))
+    return lower, upper
+
+
 def check_tolerance(tolerance: float) -> float:
     """A relative bound tolerance as float > 0, else ValueError."""
     if isinstance(tolerance, bool) or not (
@@ -51,16 +88,24 @@ def check_tolerance(tolerance: float) -> float:
 
 @dataclass(frozen=True)
 class Point:
-    """One value of a knob: its cost (seconds or pixel-samples, > 0) and aggregated bound error."""
+    """One value of a knob: its cost (seconds or pixel-samples, > 0), aggregated bound error, and the
+    upper confidence limit of that error (None: no limits, the error itself decides)."""
 
     value: object
     cost: float
     error: float
+    upper: float | None = None
+
+    @property
+    def decisive(self) -> float:
+        """The error a recommendation tests: its upper confidence limit where there is one."""
+        return self.error if self.upper is None or math.isnan(self.upper) else self.upper
 
 
 @dataclass(frozen=True)
 class Recommendation:
-    """The cheapest value of `knob` whose error ≤ tolerance (the reference always qualifies).
+    """The cheapest value of `knob` whose error (its upper confidence limit, where known) ≤ tolerance (the
+    reference always qualifies); `upper`: the chosen value's upper limit (None where unknown).
 
     speedup = reference cost / chosen cost (> 1 means cheaper than the reference)."""
 
@@ -72,11 +117,13 @@ class Recommendation:
     reference_cost: float
     speedup: float
     tolerance: float
+    upper: float | None = None
 
 
 def recommend(knob: str, points: list[Point], reference, tolerance: float) -> Recommendation:
-    """The cheapest point within tolerance; on equal cost the one listed first. `reference` is the value
-    of the highest-fidelity point, which must be among `points`."""
+    """The cheapest point within tolerance (`Point.decisive` ≤ tolerance: resolved within it where the
+    point has confidence limits); on equal cost the one listed first. `reference` is the value of the
+    highest-fidelity point, which must be among `points`."""
     tol = check_tolerance(tolerance)
     if not points:
         raise ValueError(f"knob {knob!r}: no points")
@@ -88,7 +135,7 @@ def recommend(knob: str, points: list[Point], reference, tolerance: float) -> Re
     ref = [p for p in points if p.value == reference]
     if not ref:
         raise ValueError(f"knob {knob!r}: reference {reference!r} is not among the points {[p.value for p in points]}")
-    ok = [p for p in points if p.error <= tol or p.value == reference]
+    ok = [p for p in points if p.decisive <= tol or p.value == reference]
     best = min(ok, key=lambda p: p.cost)
     return Recommendation(
         knob=knob,
@@ -99,6 +146,7 @@ def recommend(knob: str, points: list[Point], reference, tolerance: float) -> Re
         reference_cost=ref[0].cost,
         speedup=ref[0].cost / best.cost,
         tolerance=tol,
+        upper=best.upper,
     )
 
 

@@ -87,3 +87,20 @@ def test_the_quoted_end_is_the_lower_end_and_unresolved_offsets_are_listed():
     iv = nb.bounds.hcr_interval(lam, np.array([-0.2, -0.1, 0.1, 0.2]), F)
     assert iv.upper == float("inf") and "upper-unbounded" in iv.flags and len(iv.unresolved) == 4
     assert np.isfinite(iv.lower)
+
+
+def test_leave_one_out_points_are_the_bounds_without_that_replicate_set():
+    """The bank's replicate sets are nested (set r has the same seeds whatever R), so the curve from sets
+    0–2 is the curve from sets 0–3 without set 3: its point estimates must equal the R = 4 bounds'
+    leave-one-out values at k = 3 (blob2d with synthetic rendering noise, AWGN σ = 0.3, 5 grid points)."""
+    noisy = nb.scenes.get("blob2d", width=0.15, render_noise=0.3).restrict(["x"])
+    thetas = np.linspace(0.4, 0.6, 5)
+    four, three = (BoundService(RenderBank(noisy, seed=4), [nb.noise.AWGN(0.3)]).curve(thetas, 16, "common", R,
+                                                                                       zzb=False)
+                   for R in (4, 3))
+    for p4, p3 in zip(four.points, three.points, strict=True):
+        for kind in ("hcr", "crlb"):
+            assert p4.bounds[kind].loo.shape == (4,)
+            assert p4.bounds[kind].loo[3] == pytest.approx(p3.bounds[kind].point, rel=1e-9, abs=1e-12)
+    assert not np.allclose([p.bounds["crlb"].loo[3] for p in four.points],
+                           [p.bounds["crlb"].loo[0] for p in four.points])  # the sets differ: a real check

@@ -17,7 +17,9 @@ Bonferroni over the K tested Δ and the Δ → 0 term (each at α/(K+1)):
   upper end: the same with the lower limits λ_L, F_L over the *resolved* Δ (λ_L > 0; the others are listed)
       and the Δ → 0 term (+inf when F_L ≤ 0: no resolved information); it bounds, at the same level, the
       HCR over the resolved Δ and Δ → 0;
-  point: the same with the estimates themselves.
+  point: the same with the estimates themselves;
+  point_loo: the point without each replicate (from the U-statistics' leave-one-outs), for jackknifes of
+      functions of several bounds over the same replicate sets (e.g. a ratio of two models' bounds).
 With R < 3 there is no standard error: both ends are the point estimate, flagged `estimate_only`.
 """
 from __future__ import annotations
@@ -38,7 +40,8 @@ class HCRInterval:
     point/lower/upper: log10 of the point estimate, the lower end (quote it) and the upper end (+inf:
     no resolved information); level: the confidence level of each end; replicates: R; estimate_only: R < 3;
     unresolved: the Δ (rows of `deltas`) whose λ_L ≤ 0, left out of the upper end; crlb: log10 of the
-    CRLB term alone (1/F̂ or 1/λ_min(F̂)) with its ends (crlb_lower from F_U, crlb_upper from F_L)."""
+    CRLB term alone (1/F̂ or 1/λ_min(F̂)) with its ends (crlb_lower from F_U, crlb_upper from F_L);
+    point_loo: (R,) log10 point estimate without replicate k (empty when R < 3)."""
 
     point: float
     lower: float
@@ -53,6 +56,7 @@ class HCRInterval:
     crlb_lower: float
     crlb_upper: float
     unresolved: list = field(default_factory=list)
+    point_loo: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     @property
     def flags(self) -> tuple[str, ...]:
@@ -122,10 +126,23 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat, level: float = 0.95, lower=N
     low, low_term = _pick(np.append(_log10_f(norm2, lam_hi), crlb_term(f_hi) if f_hi > 0 else -np.inf), names)
     up_f = np.where(unresolved, -np.inf, _log10_f(norm2, lam_lo))
     up, up_term = _pick(np.append(up_f, crlb_term(f_lo)), names)
+    point_loo = np.empty(0)
+    if not estimate_only and lam.loo.size and fisher.loo.size:
+        info_loo = _info_loo(fisher)
+        point_loo = np.array([_pick(np.append(_log10_f(norm2, np.where(valid, lam.loo[k], -np.inf)),
+                                              crlb_term(info_loo[k])), names)[0] for k in range(R)])
     return HCRInterval(point=point, lower=low, upper=up, point_term=point_term, lower_term=low_term,
                        upper_term=up_term, level=level, replicates=R, estimate_only=estimate_only,
                        crlb=crlb_term(f_est), crlb_lower=crlb_term(f_hi), crlb_upper=crlb_term(f_lo),
-                       unresolved=[D[k].tolist() if P > 1 else float(D[k, 0]) for k in np.flatnonzero(unresolved)])
+                       unresolved=[D[k].tolist() if P > 1 else float(D[k, 0]) for k in np.flatnonzero(unresolved)],
+                       point_loo=point_loo)
+
+
+def _info_loo(fisher: UStat) -> np.ndarray:
+    """The Δ → 0 information without each replicate (R,): F̂_(−k) (scalar θ) or λ_min(F̂_(−k))."""
+    if fisher.loo.shape[1:] == (1, 1):
+        return fisher.loo[:, 0, 0].astype(np.float64)
+    return np.array([np.linalg.eigvalsh(0.5 * (Fk + Fk.T))[0] for Fk in fisher.loo])
 
 
 def _info(fisher: UStat) -> tuple[float, float, float]:
@@ -138,5 +155,5 @@ def _info(fisher: UStat) -> tuple[float, float, float]:
     if fisher.loo.size == 0:
         return est, math.nan, math.nan
     R = fisher.loo.shape[0]
-    loo = np.array([np.linalg.eigvalsh(0.5 * (Fk + Fk.T))[0] for Fk in fisher.loo])
+    loo = _info_loo(fisher)
     return est, float(np.sqrt((R - 1) / R * ((loo - loo.mean()) ** 2).sum())), R - 1.0

@@ -66,7 +66,9 @@ class Bound:
     estimate of an interval bound (None where the kind has none); level: the one-sided confidence of each
     end; terms: which term set each end; delta: the Δ at the sup (HCR family); flags: short tags
     (sup-at-smallest-delta, sup-at-largest-delta, unresolved, unresolved-delta, no-bound, estimate-only,
-    upper-unbounded, singular, fd-step-sensitive, zero-pixels=N, grid-limited, plug-in); extra: details."""
+    upper-unbounded, singular, fd-step-sensitive, zero-pixels=N, grid-limited, plug-in); extra: details;
+    loo: (R,) log10 point estimate without each replicate set (hcr, crlb with R ≥ 3; else empty), for
+    jackknifes of quantities that pair two bounds from the same replicate sets."""
 
     kind: str
     log10: float
@@ -79,6 +81,7 @@ class Bound:
     level: float | None = None
     terms: str = ""
     extra: dict = field(default_factory=dict)
+    loo: np.ndarray = field(default_factory=lambda: np.empty(0))
 
     @property
     def value(self) -> float:
@@ -167,7 +170,7 @@ def interval_bound(iv: HCRInterval, extra_flags: tuple = ()) -> Bound:
     if iv.unresolved:
         reason += f"; unresolved Δ (λ_L ≤ 0, left out of the upper end): {iv.unresolved}"
     return Bound("hcr", iv.lower, None, iv.flags + tuple(extra_flags), reason, lower=iv.lower, upper=iv.upper,
-                 point=iv.point, level=iv.level, terms=terms)
+                 point=iv.point, level=iv.level, terms=terms, loo=iv.point_loo)
 
 
 def crlb_bound(F: UStat, level: float, extra_flags: tuple = (), step_note: str = "") -> Bound:
@@ -196,8 +199,9 @@ def crlb_bound(F: UStat, level: float, extra_flags: tuple = (), step_note: str =
               f"CRLB from an unbiased FI (U-statistic over {R} FD rounds; the FI of the FD-smoothed derivative)")
     if step_note:
         reason += f"; {step_note}"
+    loo = np.array([log(_trace_inv(Fk)) for Fk in F.loo]) if F.loo.size else np.empty(0)
     return Bound("crlb", log(value), flags=tuple(flags), reason=reason, lower=log(lo), upper=log(hi),
-                 point=log(value), level=level if R >= 3 else None)
+                 point=log(value), level=level if R >= 3 else None, loo=loo)
 
 
 def fisher_ustat(J: torch.Tensor, w) -> UStat:

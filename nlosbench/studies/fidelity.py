@@ -16,15 +16,20 @@ Error of a point: |b/b_ref − 1| of its bounds' point estimates against the ref
 (`aggregate`: max or median) over θ, noise models and bound kinds (HCR, CRLB). The point estimates come
 from unbiased estimates of λ (HCR) and of the Fisher information (CRLB), U-statistics over `replicates`
 independent render sets, so they carry no 1/spp bias (the plug-in λ̂'s, which made a 512-spp reference
-look unconverged), only Monte Carlo noise: a bound's noise is the relative half-width of its confidence
-interval (one-sided limits at `level`), a point's noise √(noise² + reference noise²) aggregated like
-the error. The reference counts as converged when its own noise is ≤ tolerance / 2, so that an error
-at the tolerance is resolved; the report says when it is not and how many replicates would make it so.
-Recommendation per knob: the cheapest value within `tolerance` (`nlosbench.tradeoff.recommend`);
-overall: the per-knob choices together, computed once more (`verify`) for their actual error and
-speed-up. Depth sufficiency: the max_depth points over the NLOS grid points (θ > `los_until`) and the
-depth from which the bound stops changing. Pruning: the reference with each element of `prune` removed
-from the scene (one at a time) against the full scene.
+look unconverged), only Monte Carlo noise. Each error has joint confidence limits at `level`
+(`nlosbench.tradeoff.error_limits`): a delete-one jackknife of the log ratio over the replicate sets,
+paired by index (set k of a setting and of the reference share their seeds where the spp does, so a
+change of depth, pruning or gradient is compared on the same samples and their common noise cancels),
+Bonferroni over every value in the aggregate. A value is within tolerance when its upper limit is
+(resolved), outside when its lower limit exceeds it. The reference's own noise, the relative half-width
+of its bounds' confidence intervals, says how well the reference itself is known: converged when
+≤ tolerance / 2; the report says when it is not and how many replicates would make it so.
+Recommendation per knob: the cheapest value resolved within `tolerance` (`nlosbench.tradeoff.recommend`);
+overall: the per-knob choices together, without every element whose removal is within tolerance, computed
+once more (`verify`) for their actual error and speed-up. Depth sufficiency: the max_depth points over the
+NLOS grid points (θ > `los_until`) and the depth from which the bound stops changing (upper limits within
+tolerance). Pruning: the reference with each element of `prune` removed from the scene (one at a time)
+against the full scene.
 
 Every point is computed from scratch by the bound service (`curve`) on its own render bank of the
 model (or of its b×b-binned sensor, `forward.Binned`), serially in this process and without the render
@@ -53,7 +58,16 @@ from ..forward.model import Binned, RenderStats
 from ..io import write_csv
 from ..scenes import build
 from ..schema import GRID, ConfigError, Field, grid_values, smoke_grid
-from ..tradeoff import AGGREGATES, Point, aggregate, check_tolerance, recommend, relative_error, settled
+from ..tradeoff import (
+    AGGREGATES,
+    Point,
+    aggregate,
+    check_tolerance,
+    error_limits,
+    recommend,
+    relative_error,
+    settled,
+)
 from .context import RunContext
 from .estimate import AD_PASS_RENDERS, Estimate, image_hw
 from .plots import fidelity_plots
@@ -74,7 +88,8 @@ SCHEMA = {
                      nullable=True),
     "replicates": Field(int, 3, "independent replicate render sets per setting (unbiased U-statistics need 2, "
                                 "their confidence limits 3)"),
-    "level": Field(float, 0.95, "one-sided confidence level of each bound's limits (its noise)"),
+    "level": Field(float, 0.95, "confidence level: one-sided for each bound's limits (its noise), joint for the "
+                                "limits of a setting's errors"),
     "ad": Field(dict, {}, "AD integrator options, e.g. {sppc: 4, sppp: 4, sppi: 0} for prb_projective on CPU"),
     "seeds": Field(str, "independent", "render seeds across the θ grid: independent or common (as in `bounds`)",
                    choices=("independent", "common")),
@@ -93,13 +108,13 @@ SCHEMA = {
 @dataclass(frozen=True)
 class Setting:
     """One point: samples per sensor pixel, binning b, path depth (None: the scene's own), Jacobian
-    method and the removed element (None: the full scene)."""
+    method and the removed scene elements (none: the full scene)."""
 
     spp: int
     bin: int
     max_depth: int | None
     gradient: str
-    prune: str | None = None
+    prune: tuple[str, ...] = ()
 
     @property
     def render_spp(self) -> int:
@@ -110,11 +125,14 @@ class Setting:
 @dataclass
 class _Bounds:
     """One noise model's bounds at one setting over the θ grid: log10 point estimates of the HCR and CRLB
-    (G,), their noise (relative confidence half-widths, (G,); NaN where fewer than 3 replicates give no
-    interval), CRLB flags, and how many HCR sups sit at the smallest grid Δ (grid-limited)."""
+    (G,), the same without each replicate set (G, R; R = 0 below 3 replicates), their noise (relative
+    confidence half-widths, (G,); NaN where fewer than 3 replicates give no interval), CRLB flags, and how
+    many HCR sups sit at the smallest grid Δ (grid-limited)."""
 
     hcr: np.ndarray
     crlb: np.ndarray
+    hcr_loo: np.ndarray
+    crlb_loo: np.ndarray
     hcr_noise: np.ndarray
     crlb_noise: np.ndarray
     flags: list[str]
@@ -150,19 +168,19 @@ class _Sweep:
         self.warm: set = set()
         self.done: dict[Setting, tuple[dict, RenderStats]] = {}
 
-    def model(self, depth: int | None, prune: str | None):
+    def model(self, depth: int | None, prune: tuple[str, ...]):
         key = (depth, prune)
         if key not in self.models:
             ctx = self.ctx
             same_depth = depth is None or _integrator_depth(ctx.model) == depth
-            if same_depth and prune is None and not ctx.model_spec.get("cache"):
+            if same_depth and not prune and not ctx.model_spec.get("cache"):
                 self.models[key] = ctx.model
             else:
                 opts = dict(ctx.model_spec.get("options") or {})
                 if depth is not None:
                     opts["defines"] = {**(opts.get("defines") or {}), "max_depth": depth}
-                if prune is not None:
-                    opts["remove"] = [*(opts.get("remove") or []), prune]
+                if prune:
+                    opts["remove"] = [*(opts.get("remove") or []), *prune]
                 m = build({**ctx.model_spec, "options": opts, "cache": None})
                 if depth is not None and _integrator_depth(m) != depth:
                     raise ValueError(f"max_depth: scene {m.name!r} does not take its integrator's max_depth from "
@@ -200,6 +218,7 @@ class _Sweep:
             pts = [pt for pt in points if pt.noise_index == j]
             hcr, crlb = [pt.bounds["hcr"] for pt in pts], [pt.bounds["crlb"] for pt in pts]
             out[str(noise)] = _Bounds(np.array([b.point for b in hcr]), np.array([b.point for b in crlb]),
+                                      np.stack([b.loo for b in hcr]), np.stack([b.loo for b in crlb]),
                                       np.array([bound_noise(b) for b in hcr]), np.array([bound_noise(b) for b in crlb]),
                                       [b.reason for b in crlb],
                                       sum("sup-at-smallest-delta" in pt.bounds["hcr"].flags for pt in pts))
@@ -210,7 +229,7 @@ class _Sweep:
         for s in dict.fromkeys(settings):
             if s not in self.done:
                 self.done[s] = self.bounds_of(s)
-                if s.prune is not None and all(t.prune != s.prune for t in settings if t not in self.done):
+                if s.prune and all(t.prune != s.prune for t in settings if t not in self.done):
                     self.models.pop((s.max_depth, s.prune), None)  # used up: free its scene
 
 
@@ -305,7 +324,7 @@ def _knob_settings(cfg: dict, ref: Setting) -> dict[str, list[tuple[object, Sett
               "gradient": [m for m in GRADIENTS if m in set(cfg["gradient"]) | {"fd"}]}
     out = {k: [(v, replace(ref, **{k: v})) for v in vals] for k, vals in values.items() if len(vals) > 1}
     if cfg["prune"]:
-        out["prune"] = [("none", ref)] + [(e, replace(ref, prune=e)) for e in cfg["prune"]]
+        out["prune"] = [("none", ref)] + [(e, replace(ref, prune=(e,))) for e in cfg["prune"]]
     return out
 
 
@@ -316,26 +335,30 @@ def _errors(res: dict, ref: dict, mask: np.ndarray | None = None) -> dict[str, n
             for kind in ("hcr", "crlb")}
 
 
-def _noise(res: dict, ref: dict, mask: np.ndarray | None = None) -> np.ndarray:
-    """Noise of the errors against the reference, over noise models, θ (masked) and both bound kinds:
-    √(noise² + reference noise²); the reference's own noise where `res` is the reference."""
+def _limits(res: dict, ref: dict, cfg: dict, mask: np.ndarray | None = None) -> tuple[float, float]:
+    """Aggregated joint confidence limits (lower, upper) of the errors against the reference over noise
+    models, θ (masked) and both bound kinds (`error_limits`, one Bonferroni family; an aggregate of values
+    that all lie in their intervals lies in the aggregate of the limits); NaN below 3 replicates."""
     m = slice(None) if mask is None else mask
-    out = []
-    for n in ref:
-        for kind in ("hcr_noise", "crlb_noise"):
-            a, r = getattr(res[n], kind)[m], getattr(ref[n], kind)[m]
-            out.append(r if res is ref else np.hypot(a, r))
-    return np.concatenate(out)
+    if cfg["replicates"] < 3:
+        return math.nan, math.nan
+    cols = [(getattr(res[n], k)[m], getattr(ref[n], k)[m], getattr(res[n], f"{k}_loo")[m],
+             getattr(ref[n], f"{k}_loo")[m]) for n in ref for k in ("hcr", "crlb")]
+    lo, hi = error_limits(*(np.concatenate(c) for c in zip(*cols, strict=True)), level=cfg["level"])
+    return aggregate(lo, cfg["aggregate"]), aggregate(hi, cfg["aggregate"])
 
 
-def _aggregate_noise(noise: np.ndarray, how: str) -> float:
-    """Aggregated noise; NaN when any bound has no interval (fewer than 3 replicates)."""
+def _reference_noise(ref: dict, how: str) -> float:
+    """The reference's own noise (relative confidence half-widths of its bounds, aggregated); NaN when a
+    bound has no interval (fewer than 3 replicates)."""
+    noise = np.concatenate([getattr(ref[n], k) for n in ref for k in ("hcr_noise", "crlb_noise")])
     return math.nan if np.isnan(noise).any() else aggregate(noise, how)
 
 
 def _point(value, setting: Setting, res: dict, cost: RenderStats, ref: dict, cfg: dict) -> dict:
     e = _errors(res, ref)
     how = cfg["aggregate"]
+    lower, upper = _limits(res, ref, cfg)
     return {
         "value": value,
         "setting": vars(setting).copy(),
@@ -347,7 +370,8 @@ def _point(value, setting: Setting, res: dict, cost: RenderStats, ref: dict, cfg
         "error": aggregate(np.concatenate([e["hcr"], e["crlb"]]), how),
         "error_hcr": aggregate(e["hcr"], how),
         "error_crlb": aggregate(e["crlb"], how),
-        "noise": _aggregate_noise(_noise(res, ref), how),
+        "lower": lower,
+        "upper": upper,
     }
 
 
@@ -366,10 +390,12 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         ref_value = next(v for v, s in pts if s == ref)
         summary[knob] = {"reference": ref_value, "points": points}
         if knob != "prune":
-            rec = recommend(knob, [Point(p["value"], p["cost"], p["error"]) for p in points], ref_value, tol)
+            rec = recommend(knob, [Point(p["value"], p["cost"], p["error"], p["upper"]) for p in points], ref_value,
+                            tol)
             summary[knob]["recommendation"] = {
                 "value": rec.value,
                 "error": rec.error,
+                "upper": rec.upper,
                 "cost": rec.cost,
                 "speedup": rec.speedup,
             }
@@ -401,7 +427,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     overall = _overall(sweep, summary, ref, cfg)
     depth = _depth_sufficiency(sweep, summary, ref, thetas, cfg) if "max_depth" in summary else None
     ref_cost = sweep.done[ref][1]
-    ref_noise = _aggregate_noise(_noise(ref_res, ref_res), how)
+    ref_noise = _reference_noise(ref_res, how)
     results = {
         "parameter": ctx.model.params.names[0],
         "grid_points": len(thetas),
@@ -428,10 +454,16 @@ def run(ctx: RunContext, cfg: dict) -> dict:
 
 
 def _overall(sweep: _Sweep, summary: dict, ref: Setting, cfg: dict) -> dict:
-    """The per-knob recommendations together; with `verify`, computed for their actual error and speed-up."""
+    """The per-knob recommendations together, without every element whose removal is resolved within
+    tolerance; with `verify`, computed for their actual error and speed-up."""
     chosen = {k: summary[k]["recommendation"]["value"] for k in KNOBS if k in summary}
-    combo = replace(ref, **chosen)
+    pts = summary.get("prune", {}).get("points", [])
+    full = next((p for p in pts if p["value"] == "none"), None)
+    removable = [p for p in pts if p["value"] != "none" and Point(0, 1.0, p["error"], p["upper"]).decisive
+                 <= cfg["tolerance"]]
+    combo = replace(ref, **chosen, prune=tuple(p["value"] for p in removable))
     predicted = math.prod(summary[k]["recommendation"]["speedup"] for k in chosen)
+    predicted *= math.prod(full["cost"] / p["cost"] for p in removable)
     out = {"setting": vars(combo).copy(), "predicted_speedup": predicted, "verified": False, "reason": ""}
     if not cfg["verify"] or combo == ref:
         out["reason"] = "not requested" if not cfg["verify"] else "the reference itself"
@@ -447,17 +479,18 @@ def _overall(sweep: _Sweep, summary: dict, ref: Setting, cfg: dict) -> dict:
     out.update(
         verified=True,
         error=p["error"],
-        noise=p["noise"],
+        lower=p["lower"],
+        upper=p["upper"],
         cost=p["cost"],
         speedup=r["cost"] / p["cost"],
-        within=p["error"] <= cfg["tolerance"],
+        within=Point(0, 1.0, p["error"], p["upper"]).decisive <= cfg["tolerance"],
     )
     return out
 
 
 def _depth_sufficiency(sweep: _Sweep, summary: dict, ref: Setting, thetas: list[float], cfg: dict) -> dict:
-    """Bound change against the deepest path over the NLOS grid points (all when none is NLOS), and the
-    depth from which it stays within tolerance."""
+    """Bound change against the deepest path over the NLOS grid points (all when none is NLOS), with its
+    limits, and the depth from which it stays within tolerance (upper limits, where there are any)."""
     lu = cfg["los_until"]
     mask = np.array([lu is None or t > lu for t in thetas])
     if not mask.any():
@@ -465,12 +498,16 @@ def _depth_sufficiency(sweep: _Sweep, summary: dict, ref: Setting, thetas: list[
     ref_res = sweep.done[ref][0]
     rows = []
     for p in summary["max_depth"]["points"]:
-        res = sweep.done[Setting(**p["setting"])][0]
+        res = sweep.done[Setting(**{**p["setting"], "prune": tuple(p["setting"]["prune"])})][0]
         e = _errors(res, ref_res, mask)
+        error = aggregate(np.concatenate([e["hcr"], e["crlb"]]), cfg["aggregate"])
+        lower, upper = _limits(res, ref_res, cfg, mask)
         rows.append(
             {
                 "max_depth": p["value"],
-                "error": aggregate(np.concatenate([e["hcr"], e["crlb"]]), cfg["aggregate"]),
+                "error": error,
+                "lower": lower,
+                "upper": upper,
                 "median_log10_hcr": {n: float(np.median(res[n].hcr[mask])) for n in res},
                 "median_log10_crlb": {n: float(np.median(res[n].crlb[mask])) for n in res},
             }
@@ -479,7 +516,8 @@ def _depth_sufficiency(sweep: _Sweep, summary: dict, ref: Setting, thetas: list[
         "nlos_points": int(mask.sum()),
         "all_points": bool(mask.all()),
         "rows": rows,
-        "settled": settled([r["max_depth"] for r in rows], [r["error"] for r in rows], cfg["tolerance"]),
+        "settled": settled([r["max_depth"] for r in rows],
+                           [Point(0, 1.0, r["error"], r["upper"]).decisive for r in rows], cfg["tolerance"]),
     }
 
 
@@ -500,14 +538,16 @@ def _pct(e: float) -> str:
     return "∞" if math.isinf(e) else f"{100 * e:.3g} %"
 
 
-def _noise_cell(p: dict) -> str:
-    return "n/a" if math.isnan(p["noise"]) else f"±{_pct(p['noise'])}"
+def _limits_cell(p: dict) -> str:
+    return "n/a" if math.isnan(p["upper"]) else f"[{_pct(p['lower'])}, {_pct(p['upper'])}]"
 
 
 def _within(p: dict, tol: float) -> str:
-    """yes / no, and "(not resolved)" where the error is within its noise of the tolerance."""
-    verdict = "yes" if p["error"] <= tol else "no"
-    return verdict + (" (not resolved)" if math.isnan(p["noise"]) or abs(p["error"] - tol) <= p["noise"] else "")
+    """yes (upper limit within tolerance) / no (lower limit beyond it) / not resolved; without limits (fewer
+    than 3 replicates) the point error decides, marked "(no limits)"."""
+    if math.isnan(p["upper"]):
+        return ("yes" if p["error"] <= tol else "no") + " (no limits)"
+    return "yes" if p["upper"] <= tol else "no" if p["lower"] > tol else "not resolved"
 
 
 def _convergence(results: dict) -> str:
@@ -523,7 +563,9 @@ def _convergence(results: dict) -> str:
     need = math.ceil(R * (noise / (tol / 2)) ** 2) if math.isfinite(noise) else None
     more = f"about {need} replicates (or that many times the spp)" if need else "resolved bounds (an open end)"
     return head + (f"is ±{_pct(noise)} ({level}), more than tolerance / 2 = {_pct(tol / 2)}. **Caution:** the "
-                   f"reference is not converged: errors near the tolerance are noise; {more} would converge it.")
+                   "reference is not converged: the errors' limits below still compare each setting with the "
+                   f"reference on the same render sets, but the reference bound itself is that uncertain; {more} "
+                   "would converge it.")
 
 
 def report(study_dir: Path, results: dict) -> str:
@@ -548,7 +590,11 @@ def report(study_dir: Path, results: dict) -> str:
         "",
         _convergence(results),
         "",
-        f"| knob | value | cost [{unit}] | renders | error HCR | error CRLB | error | noise | within |",
+        f"Limits: joint {results['level']:.0%} confidence limits of the error (paired jackknife over the "
+        f"{results['replicates']} replicate sets, Bonferroni over θ, noise models and bounds); within: yes when "
+        "the upper limit is within tolerance, no when the lower limit is beyond it.",
+        "",
+        f"| knob | value | cost [{unit}] | renders | error HCR | error CRLB | error | limits | within |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for knob, s in results["knobs"].items():
@@ -559,24 +605,25 @@ def report(study_dir: Path, results: dict) -> str:
             work = f"{p['renders']}" + (f" + {p['grad_passes']} AD passes" if p["grad_passes"] else "")
             lines.append(
                 f"| {knob} | {p['value']}{mark} | {p['cost']:.4g} | {work} | {_pct(p['error_hcr'])} | "
-                f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {_noise_cell(p)} | {_within(p, tol)} |"
+                f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {_limits_cell(p)} | {_within(p, tol)} |"
             )
-    lines += ["", "| knob | recommended | reference | error | noise | speed-up |", "|---|---|---|---|---|---|"]
+    lines += ["", "| knob | recommended | reference | error | limits | speed-up |", "|---|---|---|---|---|---|"]
     for knob, s in results["knobs"].items():
         if "recommendation" in s:
             r = s["recommendation"]
             chosen = next(p for p in s["points"] if p["value"] == r["value"])
-            lines.append(f"| {knob} | {r['value']} | {s['reference']} | {_pct(r['error'])} | {_noise_cell(chosen)} | "
+            lines.append(f"| {knob} | {r['value']} | {s['reference']} | {_pct(r['error'])} | {_limits_cell(chosen)} | "
                          f"{r['speedup']:.3g}× |")
     o = results["overall"]
     combo = ", ".join(
         f"{k} {o['setting'][k]}" for k in ("spp", "bin", "max_depth", "gradient") if o["setting"][k] is not None
-    )
+    ) + (f", without {', '.join(o['setting']['prune'])}" if o["setting"]["prune"] else "")
     lines += [
         "",
-        f"**Overall:** {combo}; predicted speed-up {o['predicted_speedup']:.3g}× (product of the knobs'). "
+        f"**Overall:** {combo}; predicted speed-up {o['predicted_speedup']:.3g}× (product of the knobs' and "
+        "removals'). "
         + (
-            f"Computed: error {_pct(o['error'])}, noise {_noise_cell(o)} "
+            f"Computed: error {_pct(o['error'])}, limits {_limits_cell(o)} "
             f"({'within' if o['within'] else 'NOT within'} tolerance: "
             + ("the errors do not compound here" if o["within"]
                else "the errors compound: keep one knob at its reference")
@@ -598,14 +645,14 @@ def report(study_dir: Path, results: dict) -> str:
             f"**Depth sufficiency** over {where}: the bound stops changing (within {_pct(tol)}) from "
             f"max_depth {d['settled']} on.",
             "",
-            "| max_depth | change vs deepest | "
+            "| max_depth | change vs deepest | limits | "
             + " | ".join(f"median log10 HCR, {n}" for n in results["noises"])
             + " |",
-            "|---|---|" + "---|" * len(results["noises"]),
+            "|---|---|---|" + "---|" * len(results["noises"]),
         ]
         for r in d["rows"]:
             lines.append(
-                f"| {r['max_depth']} | {_pct(r['error'])} | "
+                f"| {r['max_depth']} | {_pct(r['error'])} | {_limits_cell(r)} | "
                 + " | ".join(f"{r['median_log10_hcr'][n]:.4g}" for n in results["noises"])
                 + " |"
             )
@@ -623,13 +670,15 @@ def report(study_dir: Path, results: dict) -> str:
             "",
             "**Scene pruning:** the reference bound with one element removed.",
             "",
-            "| element removed | error HCR | error CRLB | bound depends on it | cost vs full scene |",
-            "|---|---|---|---|---|",
+            "| element removed | error HCR | error CRLB | limits | bound depends on it | cost vs full scene |",
+            "|---|---|---|---|---|---|",
         ]
+        verdict = {"yes": "no", "no": "yes"}
         for p in s["points"]:
             if p["value"] != "none":
+                within = _within(p, tol)
                 lines.append(
-                    f"| {p['value']} | {_pct(p['error_hcr'])} | {_pct(p['error_crlb'])} | "
-                    f"{'yes' if p['error'] > tol else 'no'} | {p['cost'] / base['cost']:.3g}× |"
+                    f"| {p['value']} | {_pct(p['error_hcr'])} | {_pct(p['error_crlb'])} | {_limits_cell(p)} | "
+                    f"{verdict.get(within.split(' (')[0], within)} | {p['cost'] / base['cost']:.3g}× |"
                 )
     return "\n".join(lines)

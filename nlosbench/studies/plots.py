@@ -348,8 +348,9 @@ def fidelity_plots(study_dir: Path, results: dict) -> None:
 
 
 def _knob_plot(knobs: dict, results: dict, path: Path) -> Path:
-    """Per knob: relative bound error against cost (log-log); errors of 0 drawn at the bottom edge (▼),
-    errors ≥ 100 (10⁴ %) or ∞ at the top edge (▲)."""
+    """Per knob: relative bound error against cost (log-log), with its joint confidence limits as a bar
+    (clipped to the panel); errors of 0 drawn at the bottom edge (▼), errors ≥ 100 (10⁴ %) or ∞ at the top
+    edge (▲)."""
     plt = _plt()
     from matplotlib.ticker import FuncFormatter, LogLocator
 
@@ -361,6 +362,9 @@ def _knob_plot(knobs: dict, results: dict, path: Path) -> Path:
         for p in s["points"]:
             e = p["error"]
             y, marker = (floor, "v") if e == 0 else ((top, "^") if e >= 100 else (e, "o"))
+            lo, hi = p.get("lower", math.nan), p.get("upper", math.nan)
+            if not math.isnan(hi) and hi > 0:
+                ax.plot([p["cost"]] * 2, [min(max(lo, floor), top), min(hi, top)], "-", lw=1, color="0.6")
             ax.loglog(p["cost"], y, marker, color="C3" if p["value"] == s["reference"] else "C0")
             ax.annotate(str(p["value"]), (p["cost"], y), textcoords="offset points", xytext=(4, 4), fontsize=8)
         ax.axhline(tol, ls="--", color="gray", lw=0.8)
