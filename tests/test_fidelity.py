@@ -311,6 +311,11 @@ def test_cornell_study_runs_end_to_end_and_its_report_reproduces(tmp_path):
     # three replicate render sets: the 4 grid points and, with independent seeds, an FD pair (θ ± 0.02, one seed
     # per stencil: common random numbers inside it) at each of them — no render shared with the grid
     assert all(p["renders"] == 3 * (4 + 2 * 4) and p["cost"] > 0 for s in k.values() for p in s["points"])
+    # the run's count is every setting's (each pruned or deeper scene is a model of its own), as the report says
+    settings = {json.dumps(p["setting"], sort_keys=True) for s in k.values() for p in s["points"]}
+    settings |= {json.dumps(res["overall"]["setting"], sort_keys=True)} if res["overall"]["verified"] else set()
+    assert res["renders"] == 3 * (4 + 2 * 4) * len(settings)
+    assert f"; {res['renders']} renders (" in (out / "report.md").read_text()
     spp4, bin2 = k["spp"]["points"][0], next(p for p in k["bin"]["points"] if p["value"] == 2)
     # bin 2 at 16 spp renders 16/4 per fine pixel: the pixel-samples of the spp-4 setting (each from its own set)
     assert bin2["samples"] == spp4["samples"] and bin2["renders"] == spp4["renders"]
@@ -320,6 +325,7 @@ def test_cornell_study_runs_end_to_end_and_its_report_reproduces(tmp_path):
     assert next(p for p in k["prune"]["points"] if p["value"] == "green_wall")["error"] > 0
     report = (out / "report.md").read_text()
     assert "**Depth sufficiency**" in report and "| green_wall |" in report and "**Overall:**" in report
+    assert ("still changes up to the deepest path tried" in report) == (res["depth"]["settled"] == 3)
     # 3 replicate sets give confidence limits: every other setting's error has a spread (real renders), the
     # reference's against itself none; the report cautions exactly when the reference's own noise exceeds
     # tolerance / 2

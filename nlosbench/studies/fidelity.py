@@ -434,6 +434,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         "noises": [str(n) for n in ctx.noises],
         "reference": vars(ref).copy(),
         "reference_cost": {"seconds": ref_cost.seconds, "renders": ref_cost.renders},
+        # every setting's renders, each model's own (the run's count sees only the scene it loaded); warm-ups excluded
+        "renders": sum(c.renders for _, c in sweep.done.values()),
         "reference_sup_at_smallest_delta": sum(r.sup_at_smallest for r in ref_res.values()),
         # the reference's own Monte Carlo noise (relative confidence half-width, aggregated): converged when
         # an error at the tolerance is resolved
@@ -642,8 +644,11 @@ def report(study_dir: Path, results: dict) -> str:
         )
         lines += [
             "",
-            f"**Depth sufficiency** over {where}: the bound stops changing (within {_pct(tol)}) from "
-            f"max_depth {d['settled']} on.",
+            f"**Depth sufficiency** over {where}: "
+            + (f"the bound stops changing (within {_pct(tol)}) from max_depth {d['settled']} on."
+               if d["settled"] != d["rows"][-1]["max_depth"] else
+               f"the bound still changes up to the deepest path tried (max_depth {d['settled']}): no shorter "
+               f"path is within {_pct(tol)} of it, and deeper paths may still move it."),
             "",
             "| max_depth | change vs deepest | limits | "
             + " | ".join(f"median log10 HCR, {n}" for n in results["noises"])
