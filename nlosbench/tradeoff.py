@@ -55,8 +55,8 @@ def error_limits(log10_b, log10_ref, loo_b, loo_ref, level: float = 0.95) -> tup
     (0, +inf) there: nothing is resolved."""
     if not 0 < level < 1:
         raise ValueError(f"confidence level must lie in (0, 1), got {level}")
-    d = np.asarray(log10_b, dtype=np.float64) - np.asarray(log10_ref, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore"):  # ∞ − ∞ (both unresolved) is NaN: left unresolved below
+        d = np.asarray(log10_b, dtype=np.float64) - np.asarray(log10_ref, dtype=np.float64)
         dk = np.asarray(loo_b, dtype=np.float64) - np.asarray(loo_ref, dtype=np.float64)
     M = d.size
     if dk.shape[:1] != (M,) or dk.ndim != 2:
