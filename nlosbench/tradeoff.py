@@ -50,7 +50,9 @@ def error_limits(log10_b, log10_ref, loo_b, loo_ref, level: float = 0.95) -> tup
     cancels their common rendering noise; independent sets are paired by index, which is as valid).
     The log ratio d = log10 b − log10 b_ref gets the delete-one jackknife SE over the R pairs,
     √((R−1)/R Σ_k (d_k − d̄)²), and a two-sided Student-t interval (R − 1 degrees of freedom), each at
-    1 − (1 − level)/M (Bonferroni), so with probability ≥ `level` every d lies in its interval; the error's
+    1 − (1 − level)/M' (Bonferroni over the M' distinct finite comparisons: a value repeated exactly, with
+    its leave-one-outs, as an HCR set by its Δ → 0 term repeats the CRLB, is one event and counts once), so
+    with probability ≥ `level` every d lies in its interval; the error's
     limits are |10^d − 1| over it (lower 0 where it holds d = 0). Non-finite inputs, or R < 3, give
     (0, +inf) there: nothing is resolved."""
     if not 0 < level < 1:
@@ -69,7 +71,8 @@ def error_limits(log10_b, log10_ref, loo_b, loo_ref, level: float = 0.95) -> tup
     from scipy import stats
 
     se = np.sqrt((R - 1) / R * ((dk[ok] - dk[ok].mean(axis=1, keepdims=True)) ** 2).sum(axis=1))
-    t = float(stats.t.ppf(1.0 - (1.0 - level) / (2 * M), R - 1))
+    distinct = np.unique(np.column_stack([d[ok], dk[ok]]), axis=0).shape[0]
+    t = float(stats.t.ppf(1.0 - (1.0 - level) / (2 * distinct), R - 1))
     lo, hi = d[ok] - t * se, d[ok] + t * se
     err = lambda x: np.abs(np.expm1(x * math.log(10.0)))  # noqa: E731
     upper[ok] = np.maximum(err(lo), err(hi))

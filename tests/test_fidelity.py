@@ -104,6 +104,13 @@ def test_error_limits_cover_every_true_error_jointly_at_their_level(rng):
     assert hi[1] == math.inf and 0 < lo[0] == hi[0] == pytest.approx(1 - 10 ** -0.01)  # exact pairs: no spread
     with pytest.raises(ValueError, match="leave-one-outs"):
         error_limits([0.0], [0.0], np.zeros((2, 3)), np.zeros((2, 3)))
+    # an exact repeat (an HCR set by its Δ → 0 term is the CRLB) is one event: it does not widen the family,
+    # a distinct comparison does
+    b, ref, lb, lr = (x[0] for x in _paired_bounds(rng, 1, 8, ratios, 0.5))
+    one = error_limits(b[:1], ref[:1], lb[:1], lr[:1])
+    twice = error_limits(np.repeat(b[:1], 2), np.repeat(ref[:1], 2), np.repeat(lb[:1], 2, 0), np.repeat(lr[:1], 2, 0))
+    two = error_limits(b[:2], ref[:2], lb[:2], lr[:2])
+    assert np.allclose(twice[1], one[1][0]) and two[1][0] > one[1][0]
 
 
 def test_pareto_front_keeps_exactly_the_undominated_points(rng):
