@@ -401,3 +401,14 @@ def test_the_overall_model_drops_every_element_resolved_as_unneeded():
     o = study._overall(None, summary, ref, {"tolerance": 0.1, "verify": False})
     assert o["setting"] == {"spp": 256, "bin": 1, "max_depth": 8, "gradient": "fd", "prune": ("lamp",)}
     assert o["predicted_speedup"] == pytest.approx(2.0 * 10 / 8) and not o["verified"]
+
+
+def test_a_pruning_only_study_reports_no_empty_knob_tables(tmp_path):
+    """With no knob swept (one spp, no binning, the scene's own depth) the report has the pruning table and
+    the overall model, and no knob table left with a header and no rows."""
+    study_cfg = {**CORNELL["studies"][0], "spp": [16], "bins": [1], "max_depth": [], "los_until": None}
+    out, res = _run(tmp_path, {**CORNELL, "noise": CORNELL["noise"][:1], "studies": [study_cfg]})
+    report = (out / "report.md").read_text()
+    assert set(res["knobs"]) == {"prune"} and res["depth"] is None
+    assert "| knob | value" not in report and "| knob | recommended" not in report
+    assert "**Scene pruning:**" in report and "**Overall:**" in report

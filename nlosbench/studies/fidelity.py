@@ -593,15 +593,14 @@ def report(study_dir: Path, results: dict) -> str:
         _convergence(results),
         "",
         f"Limits: joint {results['level']:.0%} confidence limits of the error (paired jackknife over the "
-        f"{results['replicates']} replicate sets, Bonferroni over θ, noise models and bounds); within: yes when "
-        "the upper limit is within tolerance, no when the lower limit is beyond it.",
-        "",
-        f"| knob | value | cost [{unit}] | renders | error HCR | error CRLB | error | limits | within |",
-        "|---|---|---|---|---|---|---|---|---|",
+        f"{results['replicates']} replicate sets, Bonferroni over the distinct comparisons of θ, noise models and "
+        "bounds); within: yes when the upper limit is within tolerance, no when the lower limit is beyond it.",
     ]
-    for knob, s in results["knobs"].items():
-        if knob == "prune":
-            continue
+    swept = {k: s for k, s in results["knobs"].items() if k != "prune"}
+    if swept:
+        lines += ["", f"| knob | value | cost [{unit}] | renders | error HCR | error CRLB | error | limits | within |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+    for knob, s in swept.items():
         for p in s["points"]:
             mark = " (ref)" if p["value"] == s["reference"] else ""
             work = f"{p['renders']}" + (f" + {p['grad_passes']} AD passes" if p["grad_passes"] else "")
@@ -609,8 +608,9 @@ def report(study_dir: Path, results: dict) -> str:
                 f"| {knob} | {p['value']}{mark} | {p['cost']:.4g} | {work} | {_pct(p['error_hcr'])} | "
                 f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {_limits_cell(p)} | {_within(p, tol)} |"
             )
-    lines += ["", "| knob | recommended | reference | error | limits | speed-up |", "|---|---|---|---|---|---|"]
-    for knob, s in results["knobs"].items():
+    if swept:
+        lines += ["", "| knob | recommended | reference | error | limits | speed-up |", "|---|---|---|---|---|---|"]
+    for knob, s in swept.items():
         if "recommendation" in s:
             r = s["recommendation"]
             chosen = next(p for p in s["points"] if p["value"] == r["value"])
