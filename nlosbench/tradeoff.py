@@ -101,8 +101,14 @@ class Point:
 
     @property
     def decisive(self) -> float:
-        """The error a recommendation tests: its upper confidence limit where there is one."""
-        return self.error if self.upper is None or math.isnan(self.upper) else self.upper
+        """The error a recommendation tests (`decisive`)."""
+        return decisive(self.error, self.upper)
+
+
+def decisive(error: float, upper: float | None) -> float:
+    """The error that decides "within tolerance": its upper confidence limit where there is one (not None or
+    NaN), else the error itself."""
+    return error if upper is None or math.isnan(upper) else upper
 
 
 @dataclass(frozen=True)

@@ -63,6 +63,7 @@ from ..tradeoff import (
     Point,
     aggregate,
     check_tolerance,
+    decisive,
     error_limits,
     recommend,
     relative_error,
@@ -461,7 +462,7 @@ def _overall(sweep: _Sweep, summary: dict, ref: Setting, cfg: dict) -> dict:
     chosen = {k: summary[k]["recommendation"]["value"] for k in KNOBS if k in summary}
     pts = summary.get("prune", {}).get("points", [])
     full = next((p for p in pts if p["value"] == "none"), None)
-    removable = [p for p in pts if p["value"] != "none" and Point(0, 1.0, p["error"], p["upper"]).decisive
+    removable = [p for p in pts if p["value"] != "none" and decisive(p["error"], p["upper"])
                  <= cfg["tolerance"]]
     combo = replace(ref, **chosen, prune=tuple(p["value"] for p in removable))
     predicted = math.prod(summary[k]["recommendation"]["speedup"] for k in chosen)
@@ -485,7 +486,7 @@ def _overall(sweep: _Sweep, summary: dict, ref: Setting, cfg: dict) -> dict:
         upper=p["upper"],
         cost=p["cost"],
         speedup=r["cost"] / p["cost"],
-        within=Point(0, 1.0, p["error"], p["upper"]).decisive <= cfg["tolerance"],
+        within=decisive(p["error"], p["upper"]) <= cfg["tolerance"],
     )
     return out
 
@@ -519,7 +520,7 @@ def _depth_sufficiency(sweep: _Sweep, summary: dict, ref: Setting, thetas: list[
         "all_points": bool(mask.all()),
         "rows": rows,
         "settled": settled([r["max_depth"] for r in rows],
-                           [Point(0, 1.0, r["error"], r["upper"]).decisive for r in rows], cfg["tolerance"]),
+                           [decisive(r["error"], r["upper"]) for r in rows], cfg["tolerance"]),
     }
 
 
