@@ -462,8 +462,7 @@ def _overall(sweep: _Sweep, summary: dict, ref: Setting, cfg: dict) -> dict:
     chosen = {k: summary[k]["recommendation"]["value"] for k in KNOBS if k in summary}
     pts = summary.get("prune", {}).get("points", [])
     full = next((p for p in pts if p["value"] == "none"), None)
-    removable = [p for p in pts if p["value"] != "none" and decisive(p["error"], p["upper"])
-                 <= cfg["tolerance"]]
+    removable = [p for p in pts if p["value"] != "none" and decisive(p["error"], p["upper"]) <= cfg["tolerance"]]
     combo = replace(ref, **chosen, prune=tuple(p["value"] for p in removable))
     predicted = math.prod(summary[k]["recommendation"]["speedup"] for k in chosen)
     predicted *= math.prod(full["cost"] / p["cost"] for p in removable)
