@@ -56,10 +56,12 @@ has_nvidia_gpu() {
 }
 
 install_torch() {
-    local pip=("$VENV/bin/pip" --disable-pip-version-check) probe
+    local pip=("$VENV/bin/pip" --disable-pip-version-check) probe on_disk=0
     probe=$(mktemp -d)
     # a wheel of $TORCH on this disk (pip's find-links)? `download --no-deps` looks without fetching anything
-    if "${pip[@]}" download -q --no-index --no-deps -d "$probe" "$TORCH" >/dev/null 2>&1; then
+    if "${pip[@]}" download -q --no-index --no-deps -d "$probe" "$TORCH" >/dev/null 2>&1; then on_disk=1; fi
+    rm -rf "$probe"
+    if ((on_disk)); then
         echo "setup: $TORCH from a wheel on this disk"
         "${pip[@]}" install -q "$TORCH"        # pip takes the local build (e.g. 2.13.0+cpu sorts above 2.13.0)
     elif has_nvidia_gpu; then
@@ -69,9 +71,6 @@ install_torch() {
         echo "setup: no NVIDIA GPU: $TORCH's CPU build from $TORCH_CPU_INDEX"
         "${pip[@]}" install -q --extra-index-url "$TORCH_CPU_INDEX" "$TORCH"   # +cpu sorts above PyPI's build
     fi
-    local rc=$?
-    rm -rf "$probe"
-    return $rc
 }
 
 # --- virtual environment and packages; the stamp holds a hash of pyproject.toml.

@@ -56,7 +56,7 @@ class HCRInterval:
     crlb_lower: float
     crlb_upper: float
     unresolved: list = field(default_factory=list)
-    point_loo: np.ndarray = field(default_factory=lambda: np.empty(0))
+    point_loo: np.ndarray = field(default_factory=lambda: np.empty(0), compare=False)
 
     @property
     def flags(self) -> tuple[str, ...]:

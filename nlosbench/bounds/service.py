@@ -81,7 +81,7 @@ class Bound:
     level: float | None = None
     terms: str = ""
     extra: dict = field(default_factory=dict)
-    loo: np.ndarray = field(default_factory=lambda: np.empty(0))
+    loo: np.ndarray = field(default_factory=lambda: np.empty(0), compare=False)
 
     @property
     def value(self) -> float:

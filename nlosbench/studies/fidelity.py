@@ -500,7 +500,7 @@ def _depth_sufficiency(sweep: _Sweep, summary: dict, ref: Setting, thetas: list[
     ref_res = sweep.done[ref][0]
     rows = []
     for p in summary["max_depth"]["points"]:
-        res = sweep.done[Setting(**{**p["setting"], "prune": tuple(p["setting"]["prune"])})][0]
+        res = sweep.done[replace(ref, max_depth=p["value"])][0]
         e = _errors(res, ref_res, mask)
         error = aggregate(np.concatenate([e["hcr"], e["crlb"]]), cfg["aggregate"])
         lower, upper = _limits(res, ref_res, cfg, mask)
@@ -544,12 +544,17 @@ def _limits_cell(p: dict) -> str:
     return "n/a" if math.isnan(p["upper"]) else f"[{_pct(p['lower'])}, {_pct(p['upper'])}]"
 
 
-def _within(p: dict, tol: float) -> str:
-    """yes (upper limit within tolerance) / no (lower limit beyond it) / not resolved; without limits (fewer
-    than 3 replicates) the point error decides, marked "(no limits)"."""
+def _verdict(p: dict, tol: float) -> str:
+    """Is the error within tolerance? yes (upper limit within it) / no (lower limit beyond it) / not
+    resolved; without limits (fewer than 3 replicates) the point error decides."""
     if math.isnan(p["upper"]):
-        return ("yes" if p["error"] <= tol else "no") + " (no limits)"
+        return "yes" if p["error"] <= tol else "no"
     return "yes" if p["upper"] <= tol else "no" if p["lower"] > tol else "not resolved"
+
+
+def _marked(verdict: str, p: dict) -> str:
+    """A verdict cell, marked "(no limits)" where the point error alone decided it."""
+    return verdict + (" (no limits)" if math.isnan(p["upper"]) else "")
 
 
 def _convergence(results: dict) -> str:
@@ -563,7 +568,7 @@ def _convergence(results: dict) -> str:
     if results["reference_converged"]:
         return head + f"is ±{_pct(noise)} ({level}): converged (≤ tolerance / 2 = {_pct(tol / 2)})."
     need = math.ceil(R * (noise / (tol / 2)) ** 2) if math.isfinite(noise) else None
-    more = f"about {need} replicates (or that many times the spp)" if need else "resolved bounds (an open end)"
+    more = f"about {need} replicates (or {need / R:.3g}× the spp)" if need else "resolved bounds (an open end)"
     return head + (f"is ±{_pct(noise)} ({level}), more than tolerance / 2 = {_pct(tol / 2)}. **Caution:** the "
                    "reference is not converged: the errors' limits below still compare each setting with the "
                    f"reference on the same render sets, but the reference bound itself is that uncertain; {more} "
@@ -606,7 +611,7 @@ def report(study_dir: Path, results: dict) -> str:
             work = f"{p['renders']}" + (f" + {p['grad_passes']} AD passes" if p["grad_passes"] else "")
             lines.append(
                 f"| {knob} | {p['value']}{mark} | {p['cost']:.4g} | {work} | {_pct(p['error_hcr'])} | "
-                f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {_limits_cell(p)} | {_within(p, tol)} |"
+                f"{_pct(p['error_crlb'])} | {_pct(p['error'])} | {_limits_cell(p)} | {_marked(_verdict(p, tol), p)} |"
             )
     if swept:
         lines += ["", "| knob | recommended | reference | error | limits | speed-up |", "|---|---|---|---|---|---|"]
@@ -678,12 +683,11 @@ def report(study_dir: Path, results: dict) -> str:
             "| element removed | error HCR | error CRLB | limits | bound depends on it | cost vs full scene |",
             "|---|---|---|---|---|---|",
         ]
-        verdict = {"yes": "no", "no": "yes"}
+        depends = {"yes": "no", "no": "yes", "not resolved": "not resolved"}  # depends = not within
         for p in s["points"]:
             if p["value"] != "none":
-                within = _within(p, tol)
                 lines.append(
                     f"| {p['value']} | {_pct(p['error_hcr'])} | {_pct(p['error_crlb'])} | {_limits_cell(p)} | "
-                    f"{verdict.get(within.split(' (')[0], within)} | {p['cost'] / base['cost']:.3g}× |"
+                    f"{_marked(depends[_verdict(p, tol)], p)} | {p['cost'] / base['cost']:.3g}× |"
                 )
     return "\n".join(lines)
