@@ -23,6 +23,7 @@ import signal
 import sys
 import threading
 import time
+import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -38,8 +39,10 @@ _LOCK = threading.Lock()  # Dask runs tasks in threads; a scene holds one θ at 
 builds = 0
 
 
-def worker_model(spec: dict, threads: int | None = None) -> ForwardModel:
-    """The model for `spec` in this process, built on first use (and its CPU threads limited)."""
+def worker_model(spec: dict, threads: int | None = None, load_warnings: bool = True) -> ForwardModel:
+    """The model for `spec` in this process, built on first use (and its CPU threads limited). Without
+    `load_warnings`, the warnings of building it are not shown: a pool or Dask worker builds the scene the
+    run's process has already loaded and warned about, so a warning is shown once per run, not per worker."""
     global builds
     key = json.dumps(spec, sort_keys=True, default=repr)
     if key not in _MODELS:
@@ -47,7 +50,10 @@ def worker_model(spec: dict, threads: int | None = None) -> ForwardModel:
             import torch
 
             torch.set_num_threads(threads)
-        _MODELS[key] = scenes.build(spec)
+        with warnings.catch_warnings():
+            if not load_warnings:
+                warnings.simplefilter("ignore")
+            _MODELS[key] = scenes.build(spec)
         builds += 1
         if threads and "drjit" in sys.modules:
             import drjit
@@ -90,7 +96,7 @@ def _sigint_ignored() -> Iterator[None]:
 
 def _call(spec: dict, threads: int | None, fn: Callable, item):
     with _LOCK:
-        return fn(worker_model(spec, threads), item)
+        return fn(worker_model(spec, threads, load_warnings=False), item)
 
 
 # -- executors ---------------------------------------------------------------------------------

@@ -17,6 +17,7 @@ from ..forward.cache import RenderCache
 from ..forward.model import ForwardModel
 from ..schema import ConfigError
 from ..seeds import derive
+from .progress import Progress
 
 
 def load_model(spec: dict) -> ForwardModel:
@@ -46,8 +47,10 @@ class RunContext:
     bounds: BoundService | None = None
     quiet: bool = False
     started: float = field(default_factory=time.perf_counter)
+    bars: Progress = field(init=False, repr=False)
 
     def __post_init__(self):
+        self.bars = Progress(self.quiet)
         if self.bank is None:  # until `start`: renders run serially in this process
             self.bank = RenderBank(self.model, self.executor, self.progress, seed=self.seed)
         self.bounds = BoundService(self.bank, self.noises)
@@ -77,7 +80,8 @@ class RunContext:
         self.bounds = BoundService(self.bank, self.noises)
 
     def close(self) -> None:
-        """Release the executor's workers."""
+        """Close the progress bar and release the executor's workers."""
+        self.bars.close()
         if self.executor is not None:
             self.executor.close()
 
@@ -106,11 +110,11 @@ class RunContext:
         return derive(self.seed, purpose, *indices)
 
     def progress(self, iterable, total: int | None = None, desc: str = ""):
-        """A tqdm progress bar with ETA on stderr (silent when quiet)."""
-        from tqdm import tqdm
-
-        return tqdm(iterable, total=total, desc=desc, disable=self.quiet, file=sys.stderr, dynamic_ncols=True)
+        """`iterable` counted on its stage's progress bar with ETA on stderr (none when quiet or empty: `Progress`)."""
+        return self.bars(iterable, total, desc)
 
     def log(self, msg: str) -> None:
+        """A line on stderr (after closing the open progress bar; silent when quiet)."""
+        self.bars.close()
         if not self.quiet:
             print(msg, file=sys.stderr, flush=True)
