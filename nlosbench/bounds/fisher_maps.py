@@ -30,10 +30,11 @@ def fisher_maps(L, J, noise: NoiseModel, reduce: str = "sum") -> np.ndarray:
     return maps.sum(axis=-1) if reduce == "sum" else maps.mean(axis=-1)
 
 
-def save_fisher_maps(maps: np.ndarray, names: Sequence[str], outdir: str | Path,
-                     prefix: str = "fisher") -> list[Path]:
-    """Write each map (P, H, W) as `{prefix}_{name}.exr` (float32 data) and a log-scale PNG;
-    returns the written paths."""
+def save_fisher_maps(maps: np.ndarray, names: Sequence[str], outdir: str | Path, prefix: str = "fisher",
+                     units: Sequence[str] | None = None, where: str = "") -> list[Path]:
+    """Write each map (P, H, W) as `{prefix}_{name}.exr` (float32 data) and a log-scale PNG titled with
+    the parameter and `where` (e.g. "θ = 0.79 m, AWGN(sigma=0.025)"), its colour bar in 1/units² of the
+    parameter (`units`, one per name); returns the written paths."""
     from nlosbench import io
 
     maps = as_numpy(maps)
@@ -41,9 +42,10 @@ def save_fisher_maps(maps: np.ndarray, names: Sequence[str], outdir: str | Path,
         raise ValueError(f"need maps (P, H, W) and P names, got {maps.shape} and {len(names)} names")
     outdir = Path(outdir)
     paths = []
-    for m, name in zip(maps, names, strict=True):
+    for m, name, unit in zip(maps, names, units or [f"({n} unit)" for n in names], strict=True):
         paths.append(io.write_exr(outdir / f"{prefix}_{name}.exr", m))
         paths.append(io.write_png(outdir / f"{prefix}_{name}.png", m, log=bool(np.all(m >= 0)),
-                                  symmetric=bool(np.any(m < 0)), title=f"Fisher information per pixel: {name}",
-                                  cbar_label=f"FI [1/({name} unit)²]"))
+                                  symmetric=bool(np.any(m < 0)),
+                                  title=f"Fisher information per pixel: {name}" + (f"\n{where}" if where else ""),
+                                  cbar_label=f"FI per pixel [1/{unit}²]"))
     return paths

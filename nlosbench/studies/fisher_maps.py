@@ -13,6 +13,7 @@ from ..schema import ConfigError, Field, point_spec
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import fisher_figure
+from .plotstyle import theta_text
 
 NAME = "fisher-maps"
 SCHEMA = {
@@ -69,19 +70,23 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     p, out, m = plan(ctx, cfg), ctx.study_dir(cfg), ctx.model
     before = ctx.bank.renders
     rows = []
+    names, units = list(m.params.names), list(m.params.units)
+    where = {}
     for label, fp in zip(p.labels, ctx.bounds.fisher(p.thetas, p.spp, p.fd_step, p.fd_rounds, p.reduce), strict=True):
+        where[label] = theta_text(names, fp.theta, units)
         write_exr(out / f"{label}_rgb.exr", fp.L)
         for j, name in enumerate(m.params.names):
             write_exr(out / f"{label}_dL_d{name}.exr", fp.J[j])
         for k, noise in enumerate(ctx.noises):
-            save_fisher_maps(fp.maps[k], list(m.params.names), out, prefix=f"{label}_noise{k}_fisher")
+            save_fisher_maps(fp.maps[k], names, out, prefix=f"{label}_noise{k}_fisher", units=units,
+                             where=f"{label}, {where[label]}, {noise}")
             for j, name in enumerate(m.params.names):
                 b = fp.crlb[k][j]
                 rows.append({"label": label, "theta": fp.theta.tolist(), "noise": str(noise), "param": name,
                              "fisher_total": float(fp.maps[k][j].sum()), "log10_crlb": b.log10, "flag": b.reason})
     write_csv(out / "fisher.csv", rows)  # the figure: report() draws it from the saved EXRs
-    return {"points": p.labels, "params": list(m.params.names), "noises": [str(n) for n in ctx.noises],
-            "renders": ctx.bank.renders - before, "spp": p.spp}
+    return {"points": p.labels, "params": names, "units": units, "where": where,
+            "noises": [str(n) for n in ctx.noises], "renders": ctx.bank.renders - before, "spp": p.spp}
 
 
 def smoke(block: dict) -> dict:
@@ -92,7 +97,8 @@ def smoke(block: dict) -> dict:
 
 def report(study_dir: Path, results: dict) -> str:
     rows = read_csv(study_dir / "fisher.csv")
-    fisher_figure(study_dir, results["points"], results["params"])
+    fisher_figure(study_dir, results["points"], results["params"], results.get("where"), results["noises"][0],
+                  results.get("units"))
     lines = [f"Per-pixel Fisher information from central FD (common random numbers) at {results['spp']} spp; "
              f"{results['renders']} renders.", "", f"![Fisher maps]({study_dir.name}/fisher_maps.png)", "",
              "| point | θ | noise | parameter | total FI | log10 CRLB | flag |", "|---|---|---|---|---|---|---|"]

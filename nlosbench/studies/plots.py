@@ -10,6 +10,7 @@ import numpy as np
 
 from ..io import read_csv, read_exr, save_figure
 from ..tradeoff import pareto_front
+from .plotstyle import NOT_LIMIT, OPEN, legend_below, note, off_scale, rms_axis, symlog_ticks, view
 from .tables import cell, mse_units
 
 
@@ -24,24 +25,38 @@ def _plt():
 
 def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = None, parameter: str = "θ",
                       units: str = "units", zzb: dict | None = None) -> Path:
-    """log10 bound vs θ from bound-service rows (theta_<parameter>, log10_<kind>, <kind>_upper per noise):
-    per noise model the HCR's lower end (solid) with a band to its upper end (open ends drawn to the top),
-    the CRLB (dashed), the paper's HCR_Neff (dotted, thin) and Barankin (dash-dot) where present; `zzb`
-    {noise: log10} adds the ZZB over Θ as a level line. The y-range follows the HCR and CRLB (a paper
-    HCR_Neff decades below is cut at the bottom, and said so in the legend)."""
+    """bounds.png: `draw_bound_curves` on one panel with an RMS-error axis and the legend below it."""
     plt = _plt()
+    fig, ax = plt.subplots(figsize=(9, 5.4))
+    draw_bound_curves(ax, rows, los_until, parameter, units, zzb)
+    rms_axis(ax, units, log10_axis=True)
+    ax.grid(alpha=0.3)
+    legend_below(ax)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=120, bbox_inches="tight")
+    return path
+
+
+def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, parameter: str = "θ",
+                      units: str = "units", zzb: dict | None = None) -> None:
+    """log10 bound vs θ from bound-service rows (theta_<parameter>, log10_<kind>, <kind>_upper, optional
+    <kind>_<end>_note per noise): per noise model the HCR's lower end (solid) with a band to its finite upper
+    end, an open upper end (∞) as ▲ on the lower end, an end that is not a confidence limit as a hollow
+    marker (○ lower, ▽ upper); the CRLB (dashed), the paper's HCR_Neff (dotted) and Barankin (dash-dot)
+    where present; `zzb` {noise: log10} adds the ZZB over Θ as a level line. The y-range follows the HCR,
+    its finite upper ends, the CRLB and the ZZB; values more than `plotstyle.REACH` decades beyond are
+    marked by an arrow at the frame's edge. Every drawn element has its legend label, nothing else has."""
     series = defaultdict(list)
     for r in rows:
         series[r["noise"]].append(r)
-    fig, ax = plt.subplots(figsize=(7.5, 4.2))
-    lows, highs = [], []
+    zzb = {k: v for k, v in (zzb or {}).items() if np.isfinite(v)}
+    core = list(zzb.values())
+    others = []
     for rs in series.values():
-        for key in ("log10_hcr", "hcr_upper", "log10_crlb"):
-            vals = [cell(r.get(key)) for r in rs]
-            lows += [v for v in vals if np.isfinite(v)]
-        highs += [cell(r.get("hcr_upper")) for r in rs if np.isfinite(cell(r.get("hcr_upper")))]
-    bottom = (min(lows) - 1.0) if lows else -10.0
-    top = (max(lows + highs) + 0.5) if lows else 0.0
+        core += [cell(r.get(k)) for r in rs for k in ("log10_hcr", "hcr_upper", "log10_crlb")]
+        others += [cell(r.get(k)) for r in rs for k in ("log10_hcr_neff", "log10_barankin")]
+    bottom, top = view(core, others)
+    slot = 0
     for i, (noise, rs) in enumerate(series.items()):
         x = np.array([float(r[f"theta_{parameter}"]) for r in rs])
         color = f"C{i}"
@@ -49,15 +64,28 @@ def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = No
         ax.plot(x, low, "-", color=color, label=f"HCR lower end, {noise}")
         if "hcr_upper" in rs[0]:
             up = np.array([cell(r["hcr_upper"]) for r in rs])
-            ax.fill_between(x, low, np.where(np.isfinite(up), up, top), color=color, alpha=0.15, lw=0)
+            band = np.isfinite(up) & np.isfinite(low)
+            if band.any():
+                ax.fill_between(x, low, np.where(band, up, np.nan), where=band, step="mid", color=color, alpha=0.15,
+                                lw=0, label=f"HCR interval (lower to upper end), {noise}")
+            opened = np.isposinf(up) & np.isfinite(low)
+            if opened.any():
+                ax.plot(x[opened], low[opened], "^", ms=5, color=color, label=f"HCR {OPEN}, {noise}")
+            for end, y, marker in (("lower", low, "o"), ("upper", up, "v")):
+                bad = np.array([bool(note(r, "hcr", end)) for r in rs]) & np.isfinite(y)
+                if bad.any():
+                    ax.plot(x[bad], y[bad], marker, ms=6, mfc="none", color=color,
+                            label=f"HCR {end} end {NOT_LIMIT}, {noise}")
         for key, style, name, lw in (("log10_crlb", "--", "CRLB", 1.2),
                                      ("log10_hcr_neff", ":", "HCR_Neff (paper)", 0.9),
                                      ("log10_barankin", "-.", "Barankin", 1.0)):
             if rs and rs[0].get(key) not in ("", None):
                 y = np.array([cell(r[key]) for r in rs])
-                cut = " (cut below)" if np.any(y < bottom) else ""
-                ax.plot(x, np.clip(y, bottom, None), style, color=color, lw=lw, label=f"{name}, {noise}{cut}")
-        if zzb and np.isfinite(zzb.get(noise, np.nan)):
+                inside = off_scale(ax, x, y, bottom, top, f"{name}, {noise}", units, color, slot)
+                slot += int(not inside.all())
+                if (inside & np.isfinite(y)).any():
+                    ax.plot(x, np.where(inside, y, np.nan), style, color=color, lw=lw, label=f"{name}, {noise}")
+        if noise in zzb:
             ax.axhline(zzb[noise], color=color, lw=0.8, ls=(0, (6, 2, 1, 2)),
                        label=f"ZZB over Θ (Bayesian MSE), {noise}")
     ax.set_ylim(bottom, top)
@@ -67,7 +95,6 @@ def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = No
         ax.text(float(los_until), top, "← LOS ", va="top", ha="right", fontsize=8, color="gray")
     ax.set_xlabel(f"θ = {parameter} [{units}]")
     ax.set_ylabel(f"log10 bound [{units}²]")
-    return finish(fig, ax, path)
 
 
 def finish(fig, ax, path: Path, dpi: int = 120) -> Path:
@@ -79,26 +106,35 @@ def finish(fig, ax, path: Path, dpi: int = 120) -> Path:
     return path
 
 
-def fisher_figure(out: Path, labels: list[str], names: list[str]) -> Path:
+def fisher_figure(out: Path, labels: list[str], names: list[str], where: dict[str, str] | None = None,
+                  noise: str = "", units: list[str] | None = None) -> Path:
     """fisher_maps.png: one row per point: the RGB render, then the unbiased per-pixel FI map of each
-    parameter (first noise model; it is negative where rendering noise outweighs the signal) on a
-    symmetric log scale (linear within the 90th percentile of |FI| / 100), from the saved EXRs."""
+    parameter under `noise` (the first noise model; negative where rendering noise outweighs the signal) on a
+    symmetric log scale (linear within the 90th percentile of |FI| / 100), from the saved EXRs; each panel is
+    titled with the point's label, θ (`where`: label → "θ = …") and the noise model, each colour bar in
+    1/units² of its parameter."""
     from matplotlib.colors import SymLogNorm
+    from matplotlib.ticker import FixedLocator
 
     plt = _plt()
     cols = 1 + len(names)
-    fig, axes = plt.subplots(len(labels), cols, figsize=(3.2 * cols, 3 * len(labels)), squeeze=False)
+    units = units or [f"({n} unit)" for n in names]
+    fig, axes = plt.subplots(len(labels), cols, figsize=(4.2 * cols, 3.3 * len(labels)), squeeze=False)
     for r, label in enumerate(labels):
+        at = f"{label}, {(where or {}).get(label, 'θ not recorded')}"
         rgb = read_exr(out / f"{label}_rgb.exr")
         axes[r, 0].imshow(np.clip(rgb / max(np.percentile(rgb, 99), 1e-12), 0, 1) ** (1 / 2.2))
-        axes[r, 0].set_title(f"{label}: render")
+        axes[r, 0].set_title(f"{at}\nrender (tone-mapped)", fontsize=8)
         for c, name in enumerate(names, start=1):
             fi = read_exr(out / f"{label}_noise0_fisher_{name}.exr")[..., 0].astype(np.float64)
             top = float(np.abs(fi).max()) or 1.0
             lin = max(float(np.percentile(np.abs(fi), 90)) / 100, top * 1e-8)
             im = axes[r, c].imshow(fi, cmap="RdBu_r", norm=SymLogNorm(lin, vmin=-top, vmax=top, base=10))
-            axes[r, c].set_title(f"unbiased FI per pixel, {name}", fontsize=8)
-            fig.colorbar(im, ax=axes[r, c], fraction=0.046, pad=0.04)
+            axes[r, c].set_title(f"{at}\nunbiased FI per pixel for {name}, {noise}", fontsize=8)
+            bar = fig.colorbar(im, ax=axes[r, c], fraction=0.046, pad=0.04)
+            bar.ax.yaxis.set_major_locator(FixedLocator(symlog_ticks(lin, top)))
+            bar.ax.yaxis.set_minor_locator(FixedLocator([]))
+            bar.set_label(f"FI per pixel [1/{units[c - 1]}²]", fontsize=8)
     for a in axes.ravel():
         a.set_axis_off()
     fig.tight_layout()

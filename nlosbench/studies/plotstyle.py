@@ -1,0 +1,115 @@
+"""The common style of the studies' figures: an RMS-error axis in the parameter's units beside a bound or
+MSE axis, interval ends that are open or not confidence limits drawn as such, values decades away from
+the data marked at the frame's edge instead of stretching the axis, and the legend outside the data."""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+OPEN = "upper end open (∞)"
+NOT_LIMIT = "not a confidence limit"
+#: how far (decades) a secondary series may lie beyond the main data before it is drawn off scale
+REACH = 1.0
+
+
+def note(row: dict, kind: str, end: str) -> str:
+    """Why the `end` ("lower" / "upper") of bound `kind` in a CSV row is not a confidence limit; "" when it
+    is one (also for tables written before the `<kind>_<end>_note` columns existed)."""
+    return (row.get(f"{kind}_{end}_note") or "").strip()
+
+
+def length(v: float, units: str) -> str:
+    """A tick label for an RMS error `v` in `units` (metres with a metric prefix: 10 µm, 3 mm, 2 cm)."""
+    if units == "m":
+        for scale, name in ((1.0, "m"), (1e-2, "cm"), (1e-3, "mm"), (1e-6, "µm"), (1e-9, "nm")):
+            if v >= scale * 0.999:
+                return f"{v / scale:.3g} {name}"
+    return f"{v:.3g}"
+
+
+def _nice(lo: float, hi: float) -> list[float]:
+    """log10 of 1·10^k (and 2, 5·10^k when fewer than 3 decades fall in [lo, hi])."""
+    for mant in ((1,), (1, 2, 5), (1, 1.5, 2, 3, 5, 7)):
+        ticks = [math.log10(m) + k for k in range(math.floor(lo) - 1, math.ceil(hi) + 1) for m in mant]
+        ticks = [t for t in ticks if lo <= t <= hi]
+        if len(ticks) >= 3:
+            return ticks
+    return ticks
+
+
+def rms_axis(ax, units: str, log10_axis: bool, of: str = "bound"):
+    """A right-hand axis with the RMS error √(`of`: bound or MSE) in `units` beside `ax`'s y-axis, which
+    shows log10 of units² (`log10_axis`) or units² on a log scale (call it after the y-limits are set)."""
+    from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
+
+    if log10_axis:
+        sec = ax.secondary_yaxis("right", functions=(lambda y: np.asarray(y) / 2, lambda r: 2 * np.asarray(r)))
+        lo, hi = (v / 2 for v in ax.get_ylim())
+        sec.yaxis.set_major_locator(FixedLocator(_nice(lo, hi)))
+        sec.yaxis.set_major_formatter(FuncFormatter(lambda r, _: length(10.0 ** r, units)))
+    else:
+        sec = ax.secondary_yaxis("right", functions=(lambda y: np.sqrt(np.maximum(y, 0)), np.square))
+        lo, hi = (math.log10(v) / 2 for v in ax.get_ylim())
+        sec.yaxis.set_major_locator(FixedLocator([10.0 ** t for t in _nice(lo, hi)]))
+        sec.yaxis.set_major_formatter(FuncFormatter(lambda r, _: length(r, units)))
+    sec.yaxis.set_minor_locator(NullLocator())
+    sec.set_ylabel(f"RMS error = √{of}" + ("" if units in ("m", "1", "") else f" [{units}]"))
+    return sec
+
+
+def view(core: Sequence[float], others: Sequence[float] = (), pad: float = 0.4) -> tuple[float, float]:
+    """(bottom, top) of a log10 axis: the finite `core` values (the data and the bounds to quote) and the
+    `others` within REACH decades of them, with `pad` decades of margin."""
+    core = np.asarray([v for v in core if np.isfinite(v)], dtype=float)
+    if not core.size:
+        return -10.0, 0.0
+    lo, hi = core.min(), core.max()
+    near = np.asarray([v for v in others if np.isfinite(v) and lo - REACH <= v <= hi + REACH], dtype=float)
+    if near.size:
+        lo, hi = min(lo, near.min()), max(hi, near.max())
+    return lo - pad, hi + pad
+
+
+def off_scale(ax, x: np.ndarray, y: np.ndarray, bottom: float, top: float, name: str, units: str, color,
+              slot: int = 0, log10_axis: bool = True) -> np.ndarray:
+    """Mark the values of a series beyond [bottom, top] (log10 values when `log10_axis`, else values on a log
+    axis) by arrowheads (▾ / ▴) just inside the frame's edge, labelled with the extreme value; `slot` stacks
+    the marks of several series. Returns the in-range mask (draw the series there only)."""
+    lg = y if log10_axis else np.log10(np.where(y > 0, y, np.nan))
+    fin = np.isfinite(lg)
+    below, above = fin & (lg < bottom), fin & (lg > top)
+    inset = 0.025 * (top - bottom) * (1 + 1.5 * slot)
+    for mask, edge, extreme, marker, where in ((below, bottom + inset, np.min, 7, "below"),
+                                               (above, top - inset, np.max, 6, "above")):
+        if mask.any():
+            v = float(extreme(lg[mask]))
+            value = f"10^{v:.0f}" if abs(v) >= 3 else f"{10.0 ** v:.2g}"
+            yy = np.full(int(mask.sum()), edge if log10_axis else 10.0 ** edge)
+            ax.plot(x[mask], yy, marker=marker, ls="none", ms=6, color=color,
+                    label=f"{name}: off scale, {'down' if where == 'below' else 'up'} to {value} {units}²")
+    return ~(below | above)
+
+
+def legend_below(ax, ncol: int = 2) -> None:
+    """The legend under the axes (off the data), when anything is labelled."""
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7, ncol=ncol, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
+
+
+def theta_text(names: Sequence[str], values: Sequence[float], units: Sequence[str]) -> str:
+    """θ for a title: "θ = 0.79 m" for one parameter, else "θ = (x 0.3 m, y 0.5 m)" (units '1': none)."""
+    parts = [f"{float(v):.4g}" + ("" if u in ("1", "") else f" {u}") for v, u in zip(values, units, strict=True)]
+    if len(parts) == 1:
+        return f"θ = {parts[0]}"
+    return "θ = (" + ", ".join(f"{n} {p}" for n, p in zip(names, parts, strict=True)) + ")"
+
+
+def symlog_ticks(linthresh: float, top: float, per_side: int = 3) -> list[float]:
+    """Colour-bar ticks for a SymLogNorm(linthresh) over [−top, top]: 0 and ±10^k from one decade above the
+    linear range up to `top`, at most `per_side` on each side (so no two labels overlap)."""
+    k0, k1 = math.ceil(math.log10(linthresh)) + 1, math.floor(math.log10(top)) if top > 0 else 0
+    ks = list(range(k0, k1 + 1))
+    ks = ks[::-1][::max(1, math.ceil(len(ks) / per_side))][::-1]
+    return sorted([-(10.0 ** k) for k in ks] + [0.0] + [10.0 ** k for k in ks])
