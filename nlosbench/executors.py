@@ -8,7 +8,8 @@ model — built once per worker process from a picklable model spec (`scenes.bui
 * `DaskExecutor`: `dask.distributed` (the optional `dask` extra) on a scheduler address, or on a
   LocalCluster of worker processes; each worker loads the scene once.
 
-`fn` must be a module-level function (it is pickled by reference) and `item` picklable.
+`fn` must be a module-level function (it is pickled by reference) and `item` picklable. Warnings raised in
+a worker come back with its result and are shown by the run's process, each once per run (`_replay`).
 
 Stopping: pool workers ignore Ctrl-C (the parent decides: `abort` terminates them at once, `close`
 lets running tasks finish), and each runs a watchdog thread that exits the worker as soon as its parent
@@ -94,9 +95,31 @@ def _sigint_ignored() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
-def _call(spec: dict, threads: int | None, fn: Callable, item):
-    with _LOCK:
-        return fn(worker_model(spec, threads, load_warnings=False), item)
+def _call(spec: dict, threads: int | None, fn: Callable, item) -> tuple[object, list[tuple]]:
+    """In a worker: fn(model, item) and the warnings it raised as (message, category, file, line), for the
+    run's process to show (`_replay`): a warning raised in every worker is then shown once, not once each."""
+    with _LOCK, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        value = fn(worker_model(spec, threads, load_warnings=False), item)
+    return value, [(str(w.message), _picklable(w.category), w.filename, w.lineno) for w in caught]
+
+
+def _picklable(category: type[Warning]) -> type[Warning]:
+    return UserWarning if "<locals>" in category.__qualname__ else category
+
+
+#: (category, message) of the worker warnings shown in this process
+_SHOWN: set[tuple[type, str]] = set()
+
+
+def _replay(result: tuple[object, list[tuple]]):
+    """The value of a `_call`, its warnings shown here, each (category, message) once per process (run)."""
+    value, caught = result
+    for message, category, filename, lineno in caught:
+        if (category, message) not in _SHOWN:
+            _SHOWN.add((category, message))
+            warnings.warn_explicit(message, category, filename, lineno)
+    return value
 
 
 # -- executors ---------------------------------------------------------------------------------
@@ -177,7 +200,7 @@ class LocalPoolExecutor(Executor):
                     return
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for f in done:
-                    yield f.result()
+                    yield _replay(f.result())
         finally:
             for f in pending:
                 f.cancel()
@@ -242,7 +265,7 @@ class DaskExecutor(Executor):
         futures = [client.submit(_call, self.spec, self.threads, fn, item, pure=False) for item in items]
         try:
             for fut in as_completed(futures):
-                yield fut.result()
+                yield _replay(fut.result())
         finally:
             client.cancel([f for f in futures if not f.done()])
 

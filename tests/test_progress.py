@@ -1,7 +1,9 @@
 """Console output of a run: one progress bar per stage (replicate sets of a stage extend one bar), no bar
-for work the render bank already has, and a scene's warning shown once per run, not once per worker."""
+for work the render bank already has, and a warning shown once per run by the run's process, not once per
+worker (a scene's load warning, a warning raised in every task)."""
 import io
 import os
+import warnings
 
 import pytest
 
@@ -65,6 +67,7 @@ def test_no_bar_for_renders_the_bank_already_has():
 
 
 def probe(model, x):
+    warnings.warn("probe: raised by every task in every worker", UserWarning, stacklevel=1)
     return x, os.getpid()
 
 
@@ -76,8 +79,10 @@ def test_a_scene_warning_is_shown_once_per_run_not_once_per_worker(tmp_path, cap
     spec = {"name": str(tmp_path / "g.yaml"), "options": {"defines": {"res": 8}}}
     with pytest.warns(UserWarning, match="GaussianFilter is not a box filter"):
         scenes.build(spec)  # the run's own process loads the scene and warns
-    with LocalPoolExecutor(spec, workers=2) as pool:
+    with warnings.catch_warnings(record=True) as seen, LocalPoolExecutor(spec, workers=2) as pool:
+        warnings.simplefilter("always")
         pids = {pid for _, pid in pool.imap_unordered(probe, range(6))}
     assert pids and os.getpid() not in pids
     err = capfd.readouterr().err
-    assert "box filter" not in err, err  # the workers loaded the same scene without repeating its warning
+    assert "box filter" not in err and "probe" not in err, err  # workers print nothing themselves
+    assert [str(w.message) for w in seen] == ["probe: raised by every task in every worker"]  # shown here, once

@@ -19,7 +19,8 @@ from ..schema import GRID, ConfigError, Field, grid_values, smoke_grid
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import bound_curves_plot
-from .tables import fmt_log10
+from .plotstyle import note
+from .tables import fmt_end, fmt_log10
 
 NAME = "bounds"
 SCHEMA = {
@@ -138,8 +139,10 @@ def report(study_dir: Path, results: dict) -> str:
     rows = read_csv(study_dir / "bounds.csv")
     units = results.get("units", "units")
     zzb = {n: s["zzb"]["log10_zzb"] for n, s in results["noise"].items() if s.get("zzb")}
+    zrows = read_csv(study_dir / "zzb.csv") if (study_dir / "zzb.csv").exists() else []
     bound_curves_plot(rows, study_dir / "bounds.png", los_until=results.get("los_until"), units=units,
-                      parameter=results.get("parameter", "θ"), zzb=zzb)
+                      parameter=results.get("parameter", "θ"), zzb=zzb,
+                      zzb_notes={z["noise"]: note(z, "zzb", "lower") for z in zrows})
     lvl = f"{results['level']:.0%}"
     lines = [f"Bounds over a {results['grid_points']}-point grid at {results['spp']} spp × {results['replicates']} "
              f"replicate sets, {results['seeds']} seeds ({results['renders']} renders). log10 of {units}².", "",
@@ -161,7 +164,7 @@ def report(study_dir: Path, results: dict) -> str:
         z = s.get("zzb")
         zz = "–"
         if z is not None:
-            zz = f"{fmt_log10(z['log10_zzb'])} [{fmt_log10(z['log10_zzb'])}, {fmt_log10(z['zzb_upper'])}]"
+            zz = f"{fmt_log10(z['log10_zzb'])} [{fmt_end(z['log10_zzb'])}, {fmt_end(z['zzb_upper'])}]"
             if z["flags"]:
                 zz += f" ({z['flags']}; grid halving: {z['halved']:+.2g} decades)"
         lines.append(f"| {noise} | {s['min_log10_hcr']:.3g} – {s['max_log10_hcr']:.3g} | {s['set_by_limit']} of "

@@ -10,8 +10,8 @@ import numpy as np
 
 from ..io import read_csv, read_exr, save_figure
 from ..tradeoff import pareto_front
-from .plotstyle import NOT_LIMIT, OPEN, legend_below, note, off_scale, rms_axis, symlog_ticks, view
-from .tables import cell, mse_units
+from .plotstyle import NOT_LIMIT, OPEN, legend_below, note, off_scale, rms_axis, symlog_ticks, theta_text, view
+from .tables import BOUND_TITLES, cell, mse_units
 
 
 def _plt():
@@ -24,34 +24,40 @@ def _plt():
 
 
 def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = None, parameter: str = "θ",
-                      units: str = "units", zzb: dict | None = None) -> Path:
-    """bounds.png: `draw_bound_curves` on one panel with an RMS-error axis and the legend below it."""
+                      units: str = "units", zzb: dict | None = None, zzb_notes: dict | None = None) -> Path:
+    """bounds.png: `bounds_figure` saved as PNG."""
+    fig = bounds_figure(rows, los_until, parameter, units, zzb, zzb_notes)
+    return save_figure(fig, path, dpi=120, bbox_inches="tight")
+
+
+def bounds_figure(rows: list[dict], los_until: float | None = None, parameter: str = "θ", units: str = "units",
+                  zzb: dict | None = None, zzb_notes: dict | None = None):
+    """A figure: `draw_bound_curves` on one panel with an RMS-error axis and the legend below it."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(9, 5.4))
-    draw_bound_curves(ax, rows, los_until, parameter, units, zzb)
+    draw_bound_curves(ax, rows, los_until, parameter, units, zzb, zzb_notes)
     rms_axis(ax, units, log10_axis=True)
     ax.grid(alpha=0.3)
     legend_below(ax)
     fig.tight_layout()
-    save_figure(fig, path, dpi=120, bbox_inches="tight")
-    return path
+    return fig
 
 
 def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, parameter: str = "θ",
-                      units: str = "units", zzb: dict | None = None) -> None:
+                      units: str = "units", zzb: dict | None = None, zzb_notes: dict | None = None) -> None:
     """log10 bound vs θ from bound-service rows (theta_<parameter>, log10_<kind>, <kind>_upper, optional
     <kind>_<end>_note per noise): per noise model the HCR's lower end (solid) with a band to its finite upper
     end, an open upper end (∞) as ▲ on the lower end, an end that is not a confidence limit as a hollow
     marker (○ lower, ▽ upper); the CRLB (dashed), the paper's HCR_Neff (dotted) and Barankin (dash-dot)
-    where present; `zzb` {noise: log10} adds the ZZB over Θ as a level line. The y-range follows the HCR,
+    where present; `zzb` {noise: log10} adds the ZZB over Θ as a level line (dotted where `zzb_notes`
+    {noise: reason} says its lower end is not a confidence limit). The y-range follows the HCR,
     its finite upper ends, the CRLB and the ZZB; values more than `plotstyle.REACH` decades beyond are
     marked by an arrow at the frame's edge. Every drawn element has its legend label, nothing else has."""
     series = defaultdict(list)
     for r in rows:
         series[r["noise"]].append(r)
     zzb = {k: v for k, v in (zzb or {}).items() if np.isfinite(v)}
-    core = list(zzb.values())
-    others = []
+    core, others = [], list(zzb.values())
     for rs in series.values():
         core += [cell(r.get(k)) for r in rs for k in ("log10_hcr", "hcr_upper", "log10_crlb")]
         others += [cell(r.get(k)) for r in rs for k in ("log10_hcr_neff", "log10_barankin")]
@@ -85,9 +91,12 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
                 slot += int(not inside.all())
                 if (inside & np.isfinite(y)).any():
                     ax.plot(x, np.where(inside, y, np.nan), style, color=color, lw=lw, label=f"{name}, {noise}")
-        if noise in zzb:
-            ax.axhline(zzb[noise], color=color, lw=0.8, ls=(0, (6, 2, 1, 2)),
-                       label=f"ZZB over Θ (Bayesian MSE), {noise}")
+        name = f"ZZB over Θ (Bayesian MSE), {noise}"
+        if noise in zzb and off_scale(ax, x[len(x) // 2:][:1], np.array([zzb[noise]]), bottom, top, name, units, color,
+                                      slot).all():
+            bad = (zzb_notes or {}).get(noise, "")
+            ax.axhline(zzb[noise], color=color, lw=0.8, ls=(0, (1, 3)) if bad else (0, (6, 2, 1, 2)),
+                       label=f"{name}: lower end {NOT_LIMIT}" if bad else name)
     ax.set_ylim(bottom, top)
     if los_until is not None:
         ax.axvline(float(los_until), color="gray", lw=0.8)
@@ -145,35 +154,82 @@ def fisher_figure(out: Path, labels: list[str], names: list[str], where: dict[st
 def plot_mse(
     rows: list[dict], bound_rows: list[dict], bounds, names: list[str], units: list[str], noise_names: dict, path: Path
 ) -> Path:
-    """MSE (± SE) of every estimator and the bounds against θ*, log scale; one panel per noise model
-    (trials summary rows and bound-service rows; parameter names and units)."""
+    """mse_vs_theta.png: `mse_figure` saved as PNG."""
+    fig = mse_figure(rows, bound_rows, bounds, names, units, noise_names)
+    return save_figure(fig, path, dpi=110, bbox_inches="tight")
+
+
+def mse_figure(rows: list[dict], bound_rows: list[dict], bounds, names: list[str], units: list[str],
+               noise_names: dict):
+    """A figure of the MSE (± SE) of every estimator and the bounds at each θ*, log scale, one panel per noise
+    model (trials summary rows and bound-service rows; parameter names and units). Points only: θ* are separate
+    experiments (e.g. one LOS, one NLOS), so nothing joins them. A bound is its quoted value (—) with its
+    interval as a bar, an open upper end (∞) as ▲, an end that is not a confidence limit as a hollow marker;
+    the y-range follows the MSEs and the bounds within 3 decades of them (others marked off scale)."""
     plt = _plt()
     noises = sorted({r["noise"] for r in rows})
-    fig, axes = plt.subplots(1, len(noises), figsize=(6 * len(noises), 4.2), squeeze=False)
+    fig, axes = plt.subplots(1, len(noises), figsize=(6.4 * len(noises), 5.2), squeeze=False)
     xname = names[0] if len(names) == 1 else "θ* index"
     xkey = f"theta_{names[0]}" if len(names) == 1 else "theta_index"
+    labels = list(dict.fromkeys(r["estimator"] for r in rows))
+    thetas = sorted({float(r[xkey]) for r in rows})
+    dx = 0.025 * ((thetas[-1] - thetas[0]) if len(thetas) > 1 else (abs(thetas[0]) or 1.0))
+    shift = {k: (i - (len(labels) + len(bounds) - 1) / 2) * dx for i, k in enumerate(labels + list(bounds))}
     for ax, j in zip(axes[0], noises, strict=True):
-        for label in dict.fromkeys(r["estimator"] for r in rows):
-            rs = [r for r in rows if r["noise"] == j and r["estimator"] == label and r["mse"] > 0]
-            ax.errorbar(
-                [r[xkey] for r in rs],
-                [r["mse"] for r in rs],
-                yerr=[r["mse_se"] for r in rs],
-                marker="o",
-                capsize=3,
-                label=f"MSE {label}",
-            )
-        for b in bounds:
-            bs = [r for r in bound_rows if r["noise_index"] == j and math.isfinite(r[f"log10_{b}"])]
-            ax.plot([r[xkey] for r in bs], [10.0 ** r[f"log10_{b}"] for r in bs], "--", marker=".", label=b.upper())
+        mine = [r for r in rows if r["noise"] == j and r["mse"] > 0]
+        brs = [r for r in bound_rows if r["noise_index"] == j]
+        core = [math.log10(v) for r in mine for v in (r["mse"], r["mse"] + r["mse_se"], r["mse"] - r["mse_se"])
+                if v > 0]
+        others = [cell(r.get(k)) for r in brs for b in bounds for k in (f"log10_{b}", f"{b}_lower", f"{b}_upper")]
+        bottom, top = view(core, others, reach=3.0)
+        for i, label in enumerate(labels):
+            rs = [r for r in mine if r["estimator"] == label]
+            ax.errorbar([float(r[xkey]) + shift[label] for r in rs], [r["mse"] for r in rs],
+                        yerr=[[min(r["mse_se"], 0.999 * r["mse"]) for r in rs], [r["mse_se"] for r in rs]],
+                        fmt="o", ls="none", color=f"C{i}", capsize=3, label=f"MSE ± SE, {label}")
+        for m, b in enumerate(bounds, start=len(labels)):
+            _draw_bound(ax, brs, b, xkey, shift[b], f"C{m}", bottom, top, mse_units(units)[:-1])
         ax.set_yscale("log")
+        ax.set_ylim(10.0 ** bottom, 10.0 ** top)
+        ax.set_xticks(thetas)
         ax.set_xlabel(f"θ* ({xname}{', ' + units[0] if len(names) == 1 else ''})")
         ax.set_ylabel(f"MSE, bound [{mse_units(units)}]")
-        ax.set_title(f"noise {j}: {noise_names[j]}")
-        ax.legend(fontsize=8)
+        ax.set_title(f"noise {j}: {noise_names[j]}", fontsize=9)
+        if len(set(units)) == 1:
+            rms_axis(ax, units[0], log10_axis=False, of="(MSE, bound)")
+        ax.grid(alpha=0.3)
+        legend_below(ax, ncol=1)
     fig.tight_layout()
-    save_figure(fig, path, dpi=110)
-    return path
+    return fig
+
+
+def _draw_bound(ax, rows: list[dict], b: str, xkey: str, shift: float, color, bottom: float, top: float,
+                units: str) -> None:
+    """One bound kind at each θ*: its quoted value (—), its interval (bar, clipped to the view), ▲ for an open
+    upper end, hollow ○ / ▽ for a lower / upper end that is not a confidence limit; values beyond
+    [bottom, top] (log10) marked off scale."""
+    name = BOUND_TITLES.get(b, b.upper())
+    short = name.split(" (")[0]
+    rs = [r for r in rows if np.isfinite(cell(r.get(f"log10_{b}")))]
+    if not rs:
+        return
+    x = np.array([float(r[xkey]) + shift for r in rs])
+    val, lo, up = (np.array([cell(r.get(k)) for r in rs]) for k in (f"log10_{b}", f"{b}_lower", f"{b}_upper"))
+    inside = off_scale(ax, x, val, bottom, top, name, units, color, log10_axis=False)
+    if inside.any():
+        ax.plot(x[inside], 10.0 ** val[inside], "_", ms=14, mew=2, color=color, label=name)
+    bar = np.isfinite(lo) & np.isfinite(up) & (up > lo)
+    if bar.any():
+        ax.vlines(x[bar], 10.0 ** np.clip(lo[bar], bottom, top), 10.0 ** np.clip(up[bar], bottom, top), color=color,
+                  lw=1.5, alpha=0.6, label=f"{short}: interval (lower to upper end)")
+    opened = np.isposinf(up) & inside
+    if opened.any():
+        ax.plot(x[opened], 10.0 ** val[opened], "^", ms=7, color=color, label=f"{short}: {OPEN}")
+    for end, y, marker in (("lower", lo, "o"), ("upper", up, "v")):
+        bad = np.array([bool(note(r, b, end)) for r in rs]) & np.isfinite(y) & (y >= bottom) & (y <= top)
+        if bad.any():
+            ax.plot(x[bad], 10.0 ** y[bad], marker, ms=8, mfc="none", color=color,
+                    label=f"{short}: {end} end {NOT_LIMIT}")
 
 
 def plot_speed(rows: list[dict], units: str, path: Path, bayes: bool = False) -> Path:
@@ -216,6 +272,8 @@ def plot_speed(rows: list[dict], units: str, path: Path, bayes: bool = False) ->
         ax.set_xlabel(xl)
         ax.set_ylabel(f"{'Bayesian MSE' if bayes else 'MSE'} averaged over θ* ± SE [{units}]")
         ax.xaxis.set_minor_formatter(NullFormatter())
+        if seen and min(seen) > 0 and units.endswith("²") and not units.startswith("mixed"):
+            rms_axis(ax, units[:-1], log10_axis=False, of="MSE")
         ax.grid(True, which="both", alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8)
@@ -467,7 +525,8 @@ def heat_maps(rows: list[dict], out: Path, summary: dict) -> list[Path]:
                 if r["noise"] == noise and r["param"] == name and math.isfinite(v) and v > 0:
                     grid[int(r["i"]), int(r["j"])] = math.log10(v)
             im = axes[0, p].imshow(grid.T, origin="lower", extent=ext, cmap="viridis", interpolation="nearest")
-            axes[0, p].set_title(f"{name}, {noise}", fontsize=9)
+            at = f", {theta_text(names, summary['theta'], summary['units'])}" if "theta" in summary else ""
+            axes[0, p].set_title(f"FI for {name}{at}, {noise}", fontsize=9)
             axes[0, p].set_xlabel(f"camera offset along {_vec_label(summary['axes'][0])} [cm]")
             axes[0, p].set_ylabel(f"camera offset along {_vec_label(summary['axes'][1])} [cm]")
             fig.colorbar(

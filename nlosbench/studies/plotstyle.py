@@ -30,13 +30,17 @@ def length(v: float, units: str) -> str:
 
 
 def _nice(lo: float, hi: float) -> list[float]:
-    """log10 of 1·10^k (and 2, 5·10^k when fewer than 3 decades fall in [lo, hi])."""
-    for mant in ((1,), (1, 2, 5), (1, 1.5, 2, 3, 5, 7)):
+    """Tick positions (log10) in [lo, hi]: 1·10^k, else also 2 and 5·10^k, else round linear steps, whichever
+    first gives 3 ticks or more."""
+    from matplotlib.ticker import MaxNLocator
+
+    for mant in ((1,), (1, 2, 5)):
         ticks = [math.log10(m) + k for k in range(math.floor(lo) - 1, math.ceil(hi) + 1) for m in mant]
         ticks = [t for t in ticks if lo <= t <= hi]
         if len(ticks) >= 3:
             return ticks
-    return ticks
+    steps = MaxNLocator(4).tick_values(10.0 ** lo, 10.0 ** hi)
+    return [math.log10(v) for v in steps if v > 0 and lo <= math.log10(v) <= hi]
 
 
 def rms_axis(ax, units: str, log10_axis: bool, of: str = "bound"):
@@ -59,25 +63,25 @@ def rms_axis(ax, units: str, log10_axis: bool, of: str = "bound"):
     return sec
 
 
-def view(core: Sequence[float], others: Sequence[float] = (), pad: float = 0.4) -> tuple[float, float]:
+def view(core: Sequence[float], others: Sequence[float] = (), pad: float = 0.4, reach: float = REACH
+         ) -> tuple[float, float]:
     """(bottom, top) of a log10 axis: the finite `core` values (the data and the bounds to quote) and the
-    `others` within REACH decades of them, with `pad` decades of margin."""
+    `others` within `reach` decades of them, with `pad` decades of margin."""
     core = np.asarray([v for v in core if np.isfinite(v)], dtype=float)
     if not core.size:
         return -10.0, 0.0
     lo, hi = core.min(), core.max()
-    near = np.asarray([v for v in others if np.isfinite(v) and lo - REACH <= v <= hi + REACH], dtype=float)
+    near = np.asarray([v for v in others if np.isfinite(v) and lo - reach <= v <= hi + reach], dtype=float)
     if near.size:
         lo, hi = min(lo, near.min()), max(hi, near.max())
     return lo - pad, hi + pad
 
 
-def off_scale(ax, x: np.ndarray, y: np.ndarray, bottom: float, top: float, name: str, units: str, color,
+def off_scale(ax, x: np.ndarray, lg: np.ndarray, bottom: float, top: float, name: str, units: str, color,
               slot: int = 0, log10_axis: bool = True) -> np.ndarray:
-    """Mark the values of a series beyond [bottom, top] (log10 values when `log10_axis`, else values on a log
-    axis) by arrowheads (▾ / ▴) just inside the frame's edge, labelled with the extreme value; `slot` stacks
-    the marks of several series. Returns the in-range mask (draw the series there only)."""
-    lg = y if log10_axis else np.log10(np.where(y > 0, y, np.nan))
+    """Mark the values of a series (log10 values `lg`) beyond [bottom, top] (log10) by arrowheads (▾ / ▴) just
+    inside the frame's edge, labelled with the extreme value; `slot` stacks the marks of several series; the
+    axis shows log10 values (`log10_axis`) or values on a log scale. Returns the in-range mask (draw there)."""
     fin = np.isfinite(lg)
     below, above = fin & (lg < bottom), fin & (lg > top)
     inset = 0.025 * (top - bottom) * (1 + 1.5 * slot)

@@ -40,6 +40,17 @@ def fmt_log10(lg: float) -> str:
     return f"{10.0 ** (lg - e):.4g}e{e:+d}"
 
 
+def fmt_end(lg) -> str:
+    """An interval end given as log10 (a float or a CSV cell): "∞" for an open end (+inf), "0" for an end at 0
+    (−inf), "–" when it was not computed (NaN, empty or None), else as `fmt_log10`."""
+    v = cell(lg) if isinstance(lg, str) or lg is None else float(lg)
+    if math.isnan(v):
+        return "–"
+    if math.isinf(v):
+        return "∞" if v > 0 else "0"
+    return fmt_log10(v)
+
+
 def paper_table(rows: list[dict], bound_rows: list[dict], bounds, params: list[str], units: list[str],
                 noise: int) -> list[str]:
     """The paper's MLE-vs-HCR table for one noise model (index): θ*, the bounds, then MSE and Var of every

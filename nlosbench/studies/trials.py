@@ -45,7 +45,7 @@ from ..montecarlo import LOG_NAME, Setting, make_bayes_trials, make_trials, run_
 from ..schema import ConfigError, Field, grid_values, noise_spec, points_spec, smoke_grid
 from .estimate import AD_PASS_RENDERS, Estimate, pixels
 from .plots import plot_mse, plot_speed
-from .tables import fmt, fmt_log10, mse_units, paper_table
+from .tables import fmt, fmt_end, fmt_log10, mse_units, paper_table
 
 NAME = "trials"
 BOUNDS = ("hcr", "crlb", "hcr_neff", "hcr_hat", "barankin")
@@ -491,8 +491,8 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
             cells = [theta, r["estimator"], r["n"], f"{fmt(r['mse'])} ± {fmt(r['mse_se'], 2)}", fmt(r["var"]),
                      f"{bias} ({fmt(r['bias_t_stat'], 2)}, {fmt(float(r.get('bias_p', 'nan')), 2)})"]
             for k in (k for k in bounds if k in ("hcr", "crlb")):
-                cells.append(f"{fmt_log10(float(b[f'log10_{k}']))} [{fmt_log10(float(b.get(f'{k}_lower', 'nan')))}, "
-                             f"{fmt_log10(float(b.get(f'{k}_upper', 'nan')))}]" if b else "–")
+                cells.append(f"{fmt_log10(float(b[f'log10_{k}']))} [{fmt_end(b.get(f'{k}_lower'))}, "
+                             f"{fmt_end(b.get(f'{k}_upper'))}]" if b else "–")
             cells += [_verdict(r, bounds), r.get("status", ""), fmt(r["mean_seconds"]),
                       fmt(r["mean_renders"] + r["mean_grad_passes"])]
             lines.append("| " + " | ".join(str(c) for c in cells) + " |")
@@ -530,7 +530,7 @@ def _bayes_section(rows: list[dict], results: dict, units: str) -> list[str]:
              "fit status | s / trial | renders / trial |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         z = results["zzb"].get(str(r["noise"]))
-        zz = "–" if z is None else f"{fmt_log10(z['log10'])} [{fmt_log10(z['upper'])}]" + \
+        zz = "–" if z is None else f"{fmt_log10(z['log10'])} [{fmt_end(z['upper'])}]" + \
             (f" ({', '.join(z['flags'])})" if z["flags"] else "")
         lines.append(f"| {r['noise']} | {r['estimator']} | {r['n']} | {fmt(r['bayes_mse'])} ± "
                      f"{fmt(r['bayes_mse_se'], 2)} | {fmt(r['bayes_mse'] + 2 * r['bayes_mse_se'])} | {zz} | "
