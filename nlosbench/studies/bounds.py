@@ -150,7 +150,8 @@ def report(study_dir: Path, results: dict) -> str:
              f"whose limit is the CRLB term; λ(Δ) and the Fisher information are U-statistics over the replicates "
              f"(unbiased: rendering noise does not inflate them). The line is the lower end, a one-sided {lvl} "
              f"confidence limit (Bonferroni over the tested Δ and Δ → 0) — the bound to quote; the band reaches "
-             f"the upper end, which bounds the HCR over the resolved Δ and Δ → 0 (open where λ or F is not resolved).",
+             f"the upper end, which bounds the HCR over the resolved Δ and Δ → 0 (open where λ or F is not resolved: "
+             f"▲ on the plot, ∞ in tables; an end that is not a confidence limit is a hollow marker).",
              f"- **CRLB**: 1/F̂ from the unbiased Fisher information of the FD-smoothed derivative (grid-neighbour "
              f"FD), with its {lvl} ends; checked against twice the FD step.",
              "- **HCR_Neff (paper)**: the paper's direct bound from the replicate means, sup over the grid's Δ "

@@ -431,6 +431,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     ref_noise = _reference_noise(ref_res, how)
     results = {
         "parameter": ctx.model.params.names[0],
+        "units": ctx.model.params.units[0],
         "grid_points": len(thetas),
         "noises": [str(n) for n in ctx.noises],
         "reference": vars(ref).copy(),

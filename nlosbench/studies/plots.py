@@ -476,7 +476,8 @@ def _knob_plot(knobs: dict, results: dict, path: Path) -> Path:
 
 
 def _depth_plot(rows: list[dict], results: dict, path: Path) -> Path:
-    """Median log10 HCR (solid, min–max band) and CRLB (dashed) over the NLOS θ against path depth."""
+    """Median log10 HCR (solid, min–max band) and CRLB (dashed) over the NLOS θ against path depth, with an
+    RMS-error axis."""
     plt = _plt()
     lu = results["los_until"]
     depth_rows = [
@@ -494,12 +495,15 @@ def _depth_plot(rows: list[dict], results: dict, path: Path) -> Path:
         d = sorted(by)
         fin = [np.array([v for v in by[k][0] if math.isfinite(v)] or [np.nan]) for k in d]
         ax.plot(d, [np.median(f) for f in fin], "o-", color=f"C{i}", label=f"HCR, {noise}")
-        ax.fill_between(d, [f.min() for f in fin], [f.max() for f in fin], color=f"C{i}", alpha=0.15)
+        ax.fill_between(d, [f.min() for f in fin], [f.max() for f in fin], color=f"C{i}", alpha=0.15,
+                        label=f"HCR min – max over the θ, {noise}")
         crlb = [np.median([v for v in by[k][1] if math.isfinite(v)] or [np.nan]) for k in d]
         ax.plot(d, crlb, "s--", color=f"C{i}", label=f"CRLB, {noise}")
     ax.set_xticks(d)
     ax.set_xlabel("max_depth (1: emitters seen directly, 2: direct light, ...)")
-    ax.set_ylabel("log10 bound, NLOS θ [units²]")
+    units = results.get("units", "units")
+    ax.set_ylabel(f"log10 bound, NLOS θ [{units}²]")
+    rms_axis(ax, units, log10_axis=True)
     return finish(fig, ax, path)
 
 
