@@ -21,6 +21,8 @@ The rule (`converge`, used by the bound service):
 * ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage and variant, upper ends
   from the *smallest* lower limit, the point from the finest stage's central F. For a vector θ the same with
   the jackknife limits of trace(F⁻¹);
+* one FD step only (no check asked for): the lower end is labelled "not a confidence limit: FD step not
+  checked"; AD gradients (step NaN) and an F given directly are taken as they are;
 * not converged: the lower end is labelled "not a confidence limit: FD step not converged (F ×r ± se from ξ
   to ξ/2)", and `settle` says which step or spp would settle it. The upper end stays a limit: a rising F
   only lowers the true bound below it, and the smallest lower limit over the stages covers a falling one;
@@ -192,6 +194,8 @@ class CRLBTerm:
 
     @property
     def flags(self) -> tuple[str, ...]:
+        if "not checked" in self.lower_note:
+            return ("fd-step-not-checked",)
         return (("fd-step-diverging",) if self.zero_note else ()) + (
             ("fd-step-not-converged",) if self.lower_note or self.zero_note else ())
 
@@ -213,6 +217,8 @@ def crlb_term(sf: StepFisher, level: float, tests: int = 1) -> CRLBTerm:
         zero = ("FD step not converged: F rises with every halving of the step (" +
                 ", ".join(f"×{h.ratio:.3g}" for h in sf.halvings) + "): the derivative may diverge, so the lower end "
                 "is 0")
+    elif not sf.checked and math.isfinite(sf.steps[-1]):
+        note = f"not a confidence limit: FD step not checked (one step, ξ = {sf.steps[-1]:.3g})"
     elif not sf.converged:
         h = sf.halvings[-1]
         note = (f"not a confidence limit: FD step not converged (F ×{h.ratio:.3g} ± {h.se:.2g} from ξ = {h.step:.3g} "

@@ -172,12 +172,12 @@ def report(study_dir: Path, results: dict) -> str:
              "for every estimator, biased or not (one number per noise model).", "",
              f"![bounds]({study_dir.name}/bounds.png)", "",
              "| noise | log10 HCR lower end, min – max | θ where Δ → 0 sets it | θ with open upper end | "
-             f"θ whose lower end is not a confidence limit | ZZB [{lvl} ends] |", "|---|---|---|---|---|---|"]
+             f"θ whose lower end is not a confidence limit | ZZB point [{lvl} ends] |", "|---|---|---|---|---|---|"]
     for noise, s in results["noise"].items():
         z = s.get("zzb")
         zz = "–"
         if z is not None:
-            zz = f"{fmt_log10(z['log10_zzb'])} [{fmt_log10(z['log10_zzb'])}, {fmt_log10(z['zzb_upper'])}]"
+            zz = f"{fmt_log10(z['zzb_point'])} [{fmt_log10(z['log10_zzb'])}, {fmt_log10(z['zzb_upper'])}]"
             if z["flags"]:
                 zz += f" ({z['flags']}; grid halving: {z['halved']:+.2g} decades)"
         lines.append(f"| {noise} | {s['min_log10_hcr']:.3g} – {s['max_log10_hcr']:.3g} | {s['set_by_limit']} of "
