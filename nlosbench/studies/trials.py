@@ -5,10 +5,11 @@ Two protocols (`mode`):
   starts near θ*, is confined to Θ or uses a prior is biased there, so its MSE is set beside the HCR
   interval and the CRLB *with its measured bias* (a bias test whose standard error includes the clean
   image's own Monte Carlo error: the clean image is `truth_replicates` independent renders, trial k uses
-  replicate k mod C); a row "below" the interval is explained by that bias, or flagged as unexplained.
+  replicate k mod C); a row "below" the interval (a one-sided test at `level`, `nlosbench.verdicts`) is
+  explained by that bias, or flagged as unexplained.
 * bayesian: every trial draws its own θ* from the prior (uniform over Θ) and starts uniformly over Θ (the
-  paper's protocol); the Bayesian MSE with its SE is held against the Ziv–Zakai bound, which holds for
-  every estimator, biased or not.
+  paper's protocol); the Bayesian MSE with its one-sided limits is held against the Ziv–Zakai bound, which
+  holds for every estimator, biased or not.
 
 Per θ* the bound service gives the HCR interval (with its Δ → 0 term), the CRLB from an unbiased Fisher
 information, and the paper's HCR_Neff / HCR-hat; in bayesian mode its curve over a uniform `hcr_grid` on
@@ -80,10 +81,12 @@ SCHEMA = {
                                       "else a list of lists", nullable=True),
     "prior": Field(str, "uniform", "prior of θ* in bayesian mode (and of the ZZB)", choices=("uniform",)),
     "n": Field(int, 30, "trials per θ* (local) or in all (bayesian), each with fresh noise and a fresh start"),
-    "n_eff": Field(int, 4096, "spp of each clean image (the observation's mean); local: split over "
-                              "`truth_replicates` independent renders"),
-    "truth_replicates": Field(int, 4, "local mode: independent renders making the clean image, whose spread "
-                                      "enters the bias test's SE (n_eff divisible by it)"),
+    "n_eff": Field(int, 4096, "spp of the clean image (the observation's mean) per θ*; local: split over "
+                              "`truth_replicates` independent renders, so each trial's observation has the mean "
+                              "of n_eff / truth_replicates spp"),
+    "truth_replicates": Field(int, 4, "local mode: independent renders making the clean image (trial k uses render "
+                                      "k mod truth_replicates), whose spread enters the bias test's SE and the "
+                                      "MSE's limits (n_eff divisible by it)"),
     "estimators": Field(list, help="estimator settings {name, options, label, gradient}", items=ESTIMATOR),
     "noise": Field(noise_spec, "all", "index (or list of indices) into the run's noise models, or 'all'"),
     "bounds": Field(list, ["hcr", "crlb", "hcr_neff"], "bounds at each θ* (local mode)",
@@ -92,7 +95,8 @@ SCHEMA = {
     "replicates": Field(int, 3, "independent replicate render sets of the bounds (>= 3 for confidence limits)"),
     "seeds": Field(str, "common", "seeds across θ within a bound replicate: common (common random numbers) or "
                                   "independent", choices=("independent", "common")),
-    "level": Field(float, 0.95, "one-sided confidence level of every bound's ends"),
+    "level": Field(float, 0.95, "one-sided confidence level of every bound's ends, and of the verdicts of a "
+                                "table (Bonferroni over its tests)"),
     "hcr_grid": Field(int, 21, "HCR test points (and the bank grid, and the ZZB grid) per parameter over Θ"),
     "hcr_offsets": Field(int, 4, "HCR test offsets ±ξ·2^k, k < hcr_offsets, along each parameter"),
     "fd_step": Field(float, 0.01, "ξ: FD step of the Δ → 0 term and the CRLB, and the smallest HCR offset"),
@@ -103,7 +107,7 @@ SCHEMA = {
     "start_width": Field(float, None, "local mode: starts uniform in θ* ± width·|Θ|/2 (null: uniform in Θ, the "
                                       "paper's protocol)", nullable=True),
     "far_above": Field(float, 3.0, "flag MSE / bound above this factor"),
-    "bootstrap": Field(int, 1000, "bootstrap resamples for standard errors"),
+    "bootstrap": Field(int, 1000, "bootstrap resamples for the variance's standard error"),
     "traces": Field(bool, False, "store each fit's loss/θ trace in trials.jsonl"),
 }
 
@@ -536,7 +540,8 @@ def _verdict(r: dict, bounds: list) -> str:
         if v.startswith("below"):
             v += ("; biased, bias = " if r["biased"] else "; no significant bias, bias = ") + \
                 f"{fmt(r['bias'], 3)} ± {fmt(r['bias_se'], 2)}"
-        parts.append(f"{b} {v}")
+        if v:
+            parts.append(f"{b} {v}")
     return "; ".join(parts) or "–"
 
 
