@@ -293,15 +293,16 @@ def summarize(
     "upper", "flags", "lower_note", "upper_note"}} (log10: the value to quote; the ends where b is an interval;
     flags and notes optional) the ratio mse_over_b and `vs_<b>` = `verdicts.verdict` (below / inside / above /
     undetermined / not tested: why), each a one-sided test at (1 − level)/m, m the (row, bound) pairs of that
-    noise model's table (Bonferroni), failed fits named after it. `far_above` lists the bounds with MSE / bound
-    > far_above. Variance is never flagged against a bound (that needs the bias gradient). Rows follow `labels`."""
+    noise model's table that can be tested (`_testable`; Bonferroni), failed fits named after it. `far_above`
+    lists the bounds with MSE / bound > far_above. Variance is never flagged against a bound (that needs the
+    bias gradient). Rows follow `labels`."""
     groups: dict[tuple, list[dict]] = {}
     for r in sorted(records, key=record_key):
         groups.setdefault((r["noise"], r["theta_index"], r["estimator"]), []).append(r)
     labels = list(labels or sorted({k[2] for k in groups}))
     tests: dict[int, int] = {}
     for j, i, _ in groups:
-        tests[j] = tests.get(j, 0) + len((bounds or {}).get((j, i), {}))
+        tests[j] = tests.get(j, 0) + sum(map(_testable, (bounds or {}).get((j, i), {}).values()))
     rows = []
     for (j, i, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], labels.index(kv[0][2]))):
         truth = np.array(rs[0]["theta_true"])
@@ -379,13 +380,13 @@ def summarize_bayes(records: Sequence[dict], zzb: dict | None = None,
     (sum over components) over the successful fits with its SE and one-sided limits (`verdicts.mse_limits`),
     and against the ZZB (zzb[noise] = {"log10", "lower", "upper", "flags", "lower_note", "upper_note"} on the
     MSE averaged over the prior, for any estimator; flags and notes optional): `vs_zzb` = `verdicts.verdict`
-    at (1 − level)/m each, m the rows with a ZZB (Bonferroni); "below" at that level means a bug, or a ZZB
-    grid too coarse (see its flags)."""
+    at (1 − level)/m each, m the rows with a testable ZZB (Bonferroni); "below" at that level means a bug, or
+    a ZZB grid too coarse (see its flags)."""
     groups: dict[tuple, list[dict]] = {}
     for r in sorted(records, key=record_key):
         groups.setdefault((r["noise"], r["estimator"]), []).append(r)
     labels = list(labels or sorted({k[1] for k in groups}))
-    alpha = (1 - level) / max(sum(1 for j, _ in groups if (zzb or {}).get(j) is not None), 1)
+    alpha = (1 - level) / max(sum(1 for j, _ in groups if _testable((zzb or {}).get(j))), 1)
     rows = []
     for (j, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], labels.index(kv[0][1]))):
         ok = [r for r in rs if r["error"] is None]
@@ -403,6 +404,13 @@ def summarize_bayes(records: Sequence[dict], zzb: dict | None = None,
                        mse_over_zzb=_ratio(lim.mse, z["log10"]), vs_zzb=_verdict(lim, z, row["n_failed"], row["n"]))
         rows.append(row)
     return rows
+
+
+def _testable(bound: dict | None) -> bool:
+    """Whether a verdict against `bound` can be a test (it counts in the Bonferroni correction): its ends are
+    not crossed and at least one is a confidence limit (no note)."""
+    return bound is not None and "ends-crossed" not in bound.get("flags", ()) and not (
+        bound.get("lower_note") and bound.get("upper_note"))
 
 
 def _verdict(lim: MSELimits, bound: dict, failed: int, n: int) -> str:

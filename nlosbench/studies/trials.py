@@ -293,13 +293,20 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
     return iterations * per, iterations * (spp + grad * (gradient.spp or spp))
 
 
+POINT_NOTE = "a plug-in point estimate"
+
+
 def bound_entry(row: dict, kind: str) -> dict:
     """One bound's cells of a CSV row (`Bound.columns`) as `montecarlo.summarize` takes them: {log10, lower,
-    upper, flags (a tuple), lower_note, upper_note} (ends and notes where present)."""
-    return {"log10": float(row[f"log10_{kind}"]),
-            **{e: float(row[f"{kind}_{e}"]) for e in ("lower", "upper") if row.get(f"{kind}_{e}") not in (None, "")},
-            "flags": tuple(f for f in str(row.get(f"{kind}_flags") or "").split(",") if f),
-            **{e: str(row[f"{kind}_{e}"]) for e in ("lower_note", "upper_note") if row.get(f"{kind}_{e}")}}
+    upper, flags (a tuple), lower_note, upper_note} (ends and notes where present). A bound without ends
+    (hcr_neff, hcr_hat, barankin: plug-in point estimates) gets `POINT_NOTE` on both, so no verdict is a test
+    against it."""
+    ends = {e: float(row[f"{kind}_{e}"]) for e in ("lower", "upper") if row.get(f"{kind}_{e}") not in (None, "")}
+    notes = {e: str(row[f"{kind}_{e}"]) for e in ("lower_note", "upper_note") if row.get(f"{kind}_{e}")}
+    if not ends:
+        notes = {"lower_note": POINT_NOTE, "upper_note": POINT_NOTE}
+    return {"log10": float(row[f"log10_{kind}"]), **ends,
+            "flags": tuple(f for f in str(row.get(f"{kind}_flags") or "").split(",") if f), **notes}
 
 
 def bounds_map(rows: list[dict], want) -> dict:
@@ -483,7 +490,7 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
              "named in the verdict), with its one-sided limits. Bounds:", ""]
     lines += [f"- **{b}**: {results['bound_notes'][b]}" for b in bounds]
     lines += ["", f"Verdicts against a bound are one-sided tests at {lvl} for the table ({tests} tests, Bonferroni: "
-              f"each at {each:.4g}): **below** = the MSE's upper limit under the bound's lower end; **above** = "
+              f"each at {each:.2%}): **below** = the MSE's upper limit under the bound's lower end; **above** = "
               "its lower limit over the upper end (a better estimator may exist; never against an open end); "
               "**inside** = neither; **undetermined** = the bound's ends are crossed; **not tested** = no valid "
               "test (fewer than 3 successful fits, one fit holding more of the squared errors than Gaussian errors "
@@ -560,7 +567,7 @@ def _bayes_section(rows: list[dict], results: dict, units: str) -> list[str]:
              "a lower sum over a uniform grid; its lower end is a one-sided confidence limit from the replicate "
              "render sets). The Bayesian MSE over the successful fits (n stated, failures counted) with its "
              f"one-sided limits (independent trials: a scaled χ²); the verdicts are one-sided tests at {lvl} for the "
-             f"table (Bonferroni: each at {each:.4g}), the same vocabulary as the local table. **below** at {lvl}: "
+             f"table (Bonferroni: each at {each:.2%}), the same vocabulary as the local table. **below** at {lvl}: "
              "a bug, or a ZZB grid too coarse (see its flags); any estimator is below by chance at most at that "
              "rate.", "",
              "| noise | estimator | n (failed) | Bayesian MSE [lower, upper limit] | ZZB lower end [upper end] | "
