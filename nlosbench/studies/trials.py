@@ -86,7 +86,8 @@ SCHEMA = {
                               "of n_eff / truth_replicates spp"),
     "truth_replicates": Field(int, 4, "local mode: independent renders making the clean image (trial k uses render "
                                       "k mod truth_replicates), whose spread enters the bias test's SE and the "
-                                      "MSE's limits (n_eff divisible by it)"),
+                                      "MSE's limits (n_eff divisible by it); = n makes the trials independent, "
+                                      "which gives the sharpest verdicts"),
     "estimators": Field(list, help="estimator settings {name, options, label, gradient}", items=ESTIMATOR),
     "noise": Field(noise_spec, "all", "index (or list of indices) into the run's noise models, or 'all'"),
     "bounds": Field(list, ["hcr", "crlb", "hcr_neff"], "bounds at each θ* (local mode)",
