@@ -177,13 +177,16 @@ def derive_seed(*key) -> int:
 
 
 def test_point_bounds_are_not_tested_nor_counted():
-    """Through the trials study's bound rows: a bound without ends (hcr_neff, a plug-in point estimate) gets no
-    test and no share of the Bonferroni correction; the CRLB with its ends does."""
-    from nlosbench.studies.trials import POINT_NOTE, bounds_map
+    """Through the trials study's bound rows: a bound without ends (hcr_neff, a plug-in point estimate) or whose
+    ends are its estimate (flag estimate-only: R < 3) gets no test and no share of the Bonferroni correction; the
+    CRLB with its ends does."""
+    from nlosbench.studies.trials import ESTIMATE_NOTE, POINT_NOTE, bounds_map
 
     row = {"noise_index": 0, "theta_index": 0, "log10_hcr_neff": -3.0, "hcr_neff_flags": "", "log10_crlb": -2.0,
-           "crlb_lower": -2.2, "crlb_upper": -1.8, "crlb_flags": ""}
-    E = np.random.default_rng(19).standard_normal((30, 1)) * 1e-3  # MSE ≈ 1e-6: far below both
-    (r,) = summarize(records(E, np.array([0.5])), ["x"], bounds_map([row], ["crlb", "hcr_neff"]), bootstrap=2)
+           "crlb_lower": -2.2, "crlb_upper": -1.8, "crlb_flags": "", "log10_hcr": -2.0, "hcr_lower": -2.0,
+           "hcr_upper": -2.0, "hcr_flags": "estimate-only"}
+    E = np.random.default_rng(19).standard_normal((30, 1)) * 1e-3  # MSE ≈ 1e-6: far below all three
+    (r,) = summarize(records(E, np.array([0.5])), ["x"], bounds_map([row], ["crlb", "hcr_neff", "hcr"]), bootstrap=2)
     assert r["verdict_tests"] == 1 and r["vs_crlb"] == "below" and r["below"] == "crlb"
     assert r["vs_hcr_neff"] == f"not tested: neither end is a confidence limit ({POINT_NOTE})"
+    assert r["vs_hcr"] == f"not tested: neither end is a confidence limit ({ESTIMATE_NOTE})"

@@ -295,19 +295,21 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
 
 
 POINT_NOTE = "a plug-in point estimate"
+ESTIMATE_NOTE = "a point estimate: fewer than 3 replicate sets"
 
 
 def bound_entry(row: dict, kind: str) -> dict:
     """One bound's cells of a CSV row (`Bound.columns`) as `montecarlo.summarize` takes them: {log10, lower,
     upper, flags (a tuple), lower_note, upper_note} (ends and notes where present). A bound without ends
-    (hcr_neff, hcr_hat, barankin: plug-in point estimates) gets `POINT_NOTE` on both, so no verdict is a test
-    against it."""
+    (hcr_neff, hcr_hat, barankin: plug-in point estimates) gets `POINT_NOTE` on both ends, one flagged
+    `estimate-only` (its ends are its point estimate) `ESTIMATE_NOTE`: no verdict is a test against them."""
     ends = {e: float(row[f"{kind}_{e}"]) for e in ("lower", "upper") if row.get(f"{kind}_{e}") not in (None, "")}
     notes = {e: str(row[f"{kind}_{e}"]) for e in ("lower_note", "upper_note") if row.get(f"{kind}_{e}")}
-    if not ends:
-        notes = {"lower_note": POINT_NOTE, "upper_note": POINT_NOTE}
-    return {"log10": float(row[f"log10_{kind}"]), **ends,
-            "flags": tuple(f for f in str(row.get(f"{kind}_flags") or "").split(",") if f), **notes}
+    flags = tuple(f for f in str(row.get(f"{kind}_flags") or "").split(",") if f)
+    if not ends or "estimate-only" in flags:
+        note = ESTIMATE_NOTE if ends else POINT_NOTE
+        notes = {"lower_note": note, "upper_note": note}
+    return {"log10": float(row[f"log10_{kind}"]), **ends, "flags": flags, **notes}
 
 
 def bounds_map(rows: list[dict], want) -> dict:
