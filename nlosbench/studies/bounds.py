@@ -16,7 +16,7 @@ import numpy as np
 from ..bounds import BoundService
 from ..io import read_csv, write_csv, write_exr
 from ..noise import Poisson
-from ..schema import GRID, ConfigError, Field, grid_values, smoke_grid
+from ..schema import GRID, STEP_TOL, ConfigError, Field, grid_values, smoke_grid
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import bound_curves_plot
@@ -34,9 +34,7 @@ SCHEMA = {
     "crlb": Field(bool, True, "also report the CRLB (its Δ → 0 term enters the HCR either way)"),
     "fd_step": Field(float, None, "FD step ξ of the Δ → 0 term and the CRLB (parameter units); null: the grid "
                                   "neighbours (no extra render)", nullable=True),
-    "step_tol": Field(float, 0.1, "the FD step counts as converged when the paired upper limit of F(ξ/2)/F(ξ) "
-                                  "(F(h)/F(2h) on the grid) is <= 1 + step_tol; elsewhere the Δ → 0 lower ends are "
-                                  "labelled 'not a confidence limit'"),
+    "step_tol": STEP_TOL,
     "barankin": Field(bool, False, "also compute the multi-point Barankin bound at each grid point (plug-in)"),
     "zzb": Field(bool, True, "the Ziv–Zakai bound on the Bayesian MSE over a uniform prior on the grid's range "
                              "(needs a uniform grid)"),
@@ -84,8 +82,6 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.fd_step", f"expected a step > 0 or null, got {cfg['fd_step']}")
     if not 0 < cfg["level"] < 1:
         raise ConfigError(f"{sid}.level", f"expected a confidence level in (0, 1), got {cfg['level']}")
-    if not (np.isfinite(cfg["step_tol"]) and cfg["step_tol"] > 0):
-        raise ConfigError(f"{sid}.step_tol", f"expected a tolerance > 0 (e.g. 0.1), got {cfg['step_tol']}")
     return Plan(np.unique(thetas), cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
                 cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"])
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..bounds import save_fisher_maps
 from ..io import read_csv, write_csv, write_exr
-from ..schema import ConfigError, Field, point_spec
+from ..schema import MAX_HALVINGS, STEP_TOL, ConfigError, Field, point_spec
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import fisher_figure
@@ -24,10 +24,8 @@ SCHEMA = {
     "fd_rounds": Field(int, 3, "independent FD rounds: the unbiased Fisher information is a U-statistic over them "
                                "(>= 2; >= 3 for the CRLB's interval)"),
     "reduce": Field(str, "sum", "combine channels by", choices=("sum", "mean")),
-    "step_tol": Field(float, 0.1, "the FD step is halved (same seeds) until the paired upper limit of F(ξ/2)/F(ξ) "
-                                  "is <= 1 + step_tol"),
-    "max_halvings": Field(int, 3, "at most this many halvings of the FD step; an unconverged step labels the "
-                                  "CRLB's lower end 'not a confidence limit'"),
+    "step_tol": STEP_TOL,
+    "max_halvings": MAX_HALVINGS,
 }
 
 
@@ -63,10 +61,6 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     if cfg["fd_rounds"] < 2:
         raise ConfigError(f"{sid}.fd_rounds", f"the unbiased Fisher information needs >= 2 rounds, got "
                                               f"{cfg['fd_rounds']}")
-    if not (np.isfinite(cfg["step_tol"]) and cfg["step_tol"] > 0):
-        raise ConfigError(f"{sid}.step_tol", f"expected a tolerance > 0 (e.g. 0.1), got {cfg['step_tol']}")
-    if not 0 <= cfg["max_halvings"] <= 12:
-        raise ConfigError(f"{sid}.max_halvings", f"expected an integer in [0, 12], got {cfg['max_halvings']}")
     return Plan(np.array(thetas), labels, cfg["spp"], cfg["fd_step"], cfg["fd_rounds"], cfg["reduce"],
                 cfg["step_tol"], cfg["max_halvings"])
 

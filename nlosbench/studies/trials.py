@@ -44,7 +44,17 @@ from ..estimators import BankGrid, Budget
 from ..forward.gradients import GradientSettings
 from ..io import write_csv
 from ..montecarlo import LOG_NAME, Setting, make_bayes_trials, make_trials, run_trials, summarize, summarize_bayes
-from ..schema import ConfigError, Field, grid_values, noise_spec, points_spec, smoke_grid
+from ..schema import (
+    MAX_HALVINGS,
+    STEP_TOL,
+    ConfigError,
+    Field,
+    grid_values,
+    noise_spec,
+    points_spec,
+    positive_number,
+    smoke_grid,
+)
 from .estimate import AD_PASS_RENDERS, Estimate, pixels
 from .plots import plot_mse, plot_speed
 from .tables import fmt, fmt_log10, mse_units, paper_table
@@ -55,13 +65,15 @@ BOUND_NOTES = {
     "hcr": "HCR interval on the MSE of an unbiased estimator, with its Δ → 0 (CRLB) term: λ(Δ) and the Fisher "
            "information are U-statistics over independent replicate render sets (unbiased: rendering noise does "
            "not inflate them); the value shown is the lower end, a one-sided confidence limit (Bonferroni over "
-           "the tested Δ and Δ → 0); the upper end bounds the HCR over the resolved Δ and Δ → 0",
-    "crlb": "CRLB (trace of F̂⁻¹) from an unbiased Fisher information (U-statistic over independent FD rounds at "
-            "step ξ: the FI of the FD-smoothed derivative), with its one-sided ends",
+           "the tested Δ and Δ → 0); the upper end bounds the HCR over the tested Δ and Δ → 0 (open when any "
+           "tested Δ is unresolved)",
+    "crlb": "CRLB (trace of F̂⁻¹) from an unbiased Fisher information (U-statistic over independent FD rounds: the "
+            "FI of the FD-smoothed derivative, its step ξ halved until F is shown to have stopped rising), with "
+            "its one-sided ends; a lower end whose step did not converge is marked as not a confidence limit",
     "hcr_neff": "HCR_Neff (the paper's direct bound): plug-in λ̃ of the replicate means, sup over the tested Δ "
                 "only; no Δ → 0 term, so it can fall decades below the CRLB (the paper's 80 cm row)",
     "hcr_hat": "HCR-hat (the paper's): HCR from the bias-corrected λ̂ (fit of λ̃ = λ + C/N over the spp levels), "
-               "a point estimate that is an upper bound on the true HCR in expectation",
+               "a point estimate, an upper bound in expectation on the HCR over the tested Δ only",
     "barankin": "Barankin (McAulay–Seidman) on Var of the scalar θ, plug-in from the replicate means",
 }
 
@@ -100,7 +112,9 @@ SCHEMA = {
                                 "table (Bonferroni over its tests)"),
     "hcr_grid": Field(int, 21, "HCR test points (and the bank grid, and the ZZB grid) per parameter over Θ"),
     "hcr_offsets": Field(int, 4, "HCR test offsets ±ξ·2^k, k < hcr_offsets, along each parameter"),
-    "fd_step": Field(float, 0.01, "ξ: FD step of the Δ → 0 term and the CRLB, and the smallest HCR offset"),
+    "fd_step": Field(positive_number, 0.01, "ξ: FD step of the Δ → 0 term and the CRLB, and the smallest HCR offset"),
+    "step_tol": STEP_TOL,
+    "max_halvings": MAX_HALVINGS,
     "levels": Field(list, [1024, 2048], "spp levels of the λ̂ fit for hcr_hat", items=int),
     "budget": Field({"iterations": Field(int, None, "iterations per fit", nullable=True),
                      "renders": Field(int, None, "renders + AD passes per fit", nullable=True),
@@ -238,8 +252,9 @@ def plan(ctx, cfg: dict) -> Plan:
 
 def cost(ctx, cfg: dict, p: Plan) -> Estimate:
     """Renders and pixel-samples: counted for the clean images and the bound renders (the bank grid, θ*, FD
-    stencils at ξ and ξ/2, the axis offsets, the spp levels of hcr_hat), estimated for the fits (`_fit_cost`:
-    each setting's iterations × spp, an upper bound for fits that stop early)."""
+    stencils at ξ and ξ/2 — further halvings, up to max_halvings, where the step has not converged, are not
+    counted —, the axis offsets, the spp levels of hcr_hat, Poisson weight renders), estimated for the fits
+    (`_fit_cost`: each setting's iterations × spp, an upper bound for fits that stop early)."""
     P, R, bspp, px = ctx.model.params.dim, p.replicates, p.bound_spp, pixels(ctx.model)
     G, T = cfg["hcr_grid"] ** P, len(p.thetas)
     renders, samples = R * G, R * G * bspp  # the bank grid (the bayesian ZZB curve uses the same renders)
@@ -360,7 +375,8 @@ def run(ctx, cfg: dict) -> dict:
             io.write_exr(folder / "images" / f"clean_{i:03d}.exr", mean)
         want = cfg["bounds"]
         points = svc.at(p.thetas, p.bound_spp, want, cfg["seeds"], p.replicates, cfg["hcr_grid"], cfg["hcr_offsets"],
-                        cfg["fd_step"], cfg["levels"], noises=list(p.noises)) if want else []
+                        cfg["fd_step"], cfg["levels"], noises=list(p.noises), step_tol=cfg["step_tol"],
+                        max_halvings=cfg["max_halvings"]) if want else []
         bound_rows = [{"theta_index": i % len(p.thetas), **pt.row(params.names)} for i, pt in enumerate(points)]
         write_csv(folder / "bounds.csv", bound_rows)
         trials = make_trials(p.thetas, p.n, p.settings, p.noises, cleans, tseed, p.budget, cfg["start_width"],
