@@ -4,12 +4,14 @@ For each noise model j, θ* (index i) and trial k: a fresh noisy image y = noise
 clean image (the observation's mean, from the bank's TRUTH set), a fresh start, and one fit per
 estimator setting — every setting sees the same y and start (paired comparison). At a fixed θ* the
 clean image comes in C independent replicates and trial k uses replicate k mod C (its `cluster`), so
-the clean image's own Monte Carlo error enters the bias test's standard error (`summarize`). In the
+the clean image's own Monte Carlo error enters the bias test's standard error and the MSE's limits
+(`summarize`; the verdicts against the bounds are one-sided tests, `verdicts`). In the
 Bayesian protocol every trial has its own θ* drawn from the prior (`summarize_bayes`). Seeds derive
-from the experiment seed, the purpose and the indices: the noise of y from (j, i, k); the start and the
-fit's generator (its render seeds) from (i, k), so the noise models are compared from the same starts
-too. Each finished trial is appended to `trials.jsonl` (a `records.RecordLog`: flush + fsync per record,
-a torn last line cut on resume), so a killed run resumes without losing or repeating a trial; the summary
+from the study's seed (each study of a run has its own, so two studies never share a noise, start or fit
+stream), the purpose and the indices: the noise of y from (j, i, k); the start and the fit's generator (its
+render seeds) from (i, k), so the noise models are compared from the same starts too. Each finished trial
+is appended to `trials.jsonl` (a `records.RecordLog`: flush + fsync per record, a torn last line cut on
+resume), so a killed run resumes without losing or repeating a trial; the summary
 sorts records first, so it does not depend on the order in which trials finished.
 """
 from __future__ import annotations
@@ -33,6 +35,7 @@ from .noise import NoiseModel
 from .params import ParamSpace
 from .records import RecordLog
 from .seeds import derive
+from .verdicts import MSELimits, mse_limits, verdict
 
 LOG_NAME = "trials.jsonl"
 
@@ -272,21 +275,6 @@ def bias_test(E: np.ndarray, clusters: np.ndarray, level: float = 0.95) -> dict:
             "biased": bool(math.isfinite(tmax) and tmax > q), "clusters": int(len(ids)), "truth_in_se": in_se}
 
 
-def compare(mse: float, mse_se: float, bound: dict) -> str:
-    """Where the MSE sits against a bound's interval (log10 ends `lower` ≤ `upper`, or just `log10`):
-    "below" when MSE + 2 SE < the lower end (an unbiased estimator cannot: bias, or too few trials),
-    "above" when MSE − 2 SE > the upper end (room left: a better estimator may exist), else "inside"."""
-    if math.isnan(mse):
-        return ""
-    lo = bound.get("lower", bound["log10"])
-    up = bound.get("upper", bound["log10"])
-    if math.isfinite(lo) and mse + 2 * mse_se < 10.0 ** min(lo, 300):
-        return "below"
-    if math.isfinite(up) and mse - 2 * mse_se > 10.0 ** min(up, 300):
-        return "above"
-    return "inside"
-
-
 def summarize(
     records: Sequence[dict],
     names: Sequence[str],
@@ -298,16 +286,23 @@ def summarize(
     level: float = 0.95,
 ) -> list[dict]:
     """One row per (noise, θ*, estimator label): counts (failed shown and excluded from the statistics;
-    each fit's stopping status counted), MSE, variance and bias with bootstrap standard errors
-    (`bootstrap` resamples of the trials), the bias test (`bias_test`, its SE over clean-image replicates),
-    time and renders, and for every bound b in bounds[(noise, θ index)] = {b: {"log10", "lower", "upper"}}
-    (log10: the value to quote; the ends where b is an interval) the ratio mse_over_b and `vs_<b>` =
-    `compare` (below / inside / above). `far_above` lists the bounds with MSE / bound > far_above. Variance
-    is never flagged against a bound (that needs the bias gradient). Rows follow `labels`."""
+    each fit's stopping status counted), MSE over the successful fits with its SE and one-sided limits
+    (`verdicts.mse_limits`: the clean-image replicates are its clusters), variance with a bootstrap SE
+    (`bootstrap` resamples of the trials), bias and the bias test (`bias_test`, its SE over clean-image
+    replicates), time and renders, and for every bound b in bounds[(noise, θ index)] = {b: {"log10", "lower",
+    "upper", "flags", "lower_note", "upper_note"}} (log10: the value to quote; the ends where b is an interval;
+    flags and notes optional) the ratio mse_over_b and `vs_<b>` = `verdicts.verdict` (below / inside / above /
+    undetermined / not tested: why), each a one-sided test at (1 − level)/m, m the (row, bound) pairs of that
+    noise model's table that can be tested (`_testable`; Bonferroni), failed fits named after it. `far_above`
+    lists the bounds with MSE / bound > far_above. Variance is never flagged against a bound (that needs the
+    bias gradient). Rows follow `labels`."""
     groups: dict[tuple, list[dict]] = {}
     for r in sorted(records, key=record_key):
         groups.setdefault((r["noise"], r["theta_index"], r["estimator"]), []).append(r)
     labels = list(labels or sorted({k[2] for k in groups}))
+    tests: dict[int, int] = {}
+    for j, i, _ in groups:
+        tests[j] = tests.get(j, 0) + sum(map(_testable, (bounds or {}).get((j, i), {}).values()))
     rows = []
     for (j, i, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], labels.index(kv[0][2]))):
         truth = np.array(rs[0]["theta_true"])
@@ -324,14 +319,18 @@ def summarize(
             "status": status_counts(rs),
         }
         E = np.array([r["theta_hat"] for r in ok], dtype=np.float64).reshape(len(ok), len(truth)) - truth
+        clusters = np.array([r.get("cluster", 0) for r in ok])
+        alpha = (1 - level) / max(tests.get(j, 0), 1)
+        lim = mse_limits(E, clusters, alpha)
+        row.update(mse=lim.mse, mse_se=lim.se, mse_lower=lim.lower, mse_upper=lim.upper, mse_dof=lim.dof,
+                   mse_clusters=lim.clusters, mse_untested=lim.reason, verdict_level=1 - alpha,
+                   verdict_tests=tests.get(j, 0))
         if len(ok):
-            mse, var, bias = _stats(E)
+            _, var, bias = _stats(E)
             rng = np.random.default_rng(derive(seed, "bootstrap", j, i, labels.index(label)))
             boot = [_stats(E[rng.integers(0, len(E), len(E))]) for _ in range(bootstrap)]
-            bt = bias_test(E, np.array([r.get("cluster", 0) for r in ok]), level)
+            bt = bias_test(E, clusters, level)
             row.update(
-                mse=mse,
-                mse_se=_se([b[0] for b in boot]),
                 var=var,
                 var_se=_se([b[1] for b in boot]),
                 bias=float(np.linalg.norm(bias)),
@@ -346,7 +345,7 @@ def summarize(
                 **{f"bias_se_{n}": float(b) for n, b in zip(names, bt["se"], strict=True)},
             )
         else:
-            row.update(mse=math.nan, mse_se=math.nan, var=math.nan, var_se=math.nan, bias=math.nan, bias_se=math.nan,
+            row.update(var=math.nan, var_se=math.nan, bias=math.nan, bias_se=math.nan,
                        bias_t_stat=math.nan,
                        bias_p=math.nan, bias_dof=0, biased=False, bias_clusters=0, bias_se_has_truth_error=False,
                        **{f"bias_{n}": math.nan for n in names}, **{f"bias_se_{n}": math.nan for n in names})
@@ -364,43 +363,62 @@ def summarize(
         for b, v in (bounds or {}).get((j, i), {}).items():
             row[b] = _exp10(v["log10"])
             row[f"mse_over_{b}"] = ratio = _ratio(row["mse"], v["log10"])
-            row[f"vs_{b}"] = compare(row["mse"], row["mse_se"], v)
+            row[f"vs_{b}"] = _verdict(lim, v, row["n_failed"], row["n"])
             if ratio > far_above:
                 far.append(b)
         row["far_above"] = ",".join(far)
-        row["below"] = ",".join(b for b in (bounds or {}).get((j, i), {}) if row.get(f"vs_{b}") == "below")
+        row["below"] = ",".join(b for b in (bounds or {}).get((j, i), {})
+                                if row.get(f"vs_{b}", "").startswith("below"))
         rows.append(row)
     return rows
 
 
 def summarize_bayes(records: Sequence[dict], zzb: dict | None = None,
-                    labels: Sequence[str] | None = None) -> list[dict]:
+                    labels: Sequence[str] | None = None, level: float = 0.95) -> list[dict]:
     """The Bayesian protocol: one row per (noise, estimator label) over all trials (each its own θ* drawn
-    from the prior): the Bayesian MSE E[(θ̂ − θ)²] (sum over components) with its SE (standard deviation
-    over trials / √n), and against the ZZB (zzb[noise] = {"log10", "lower", "upper"} on the MSE averaged
-    over the prior, for any estimator): `vs_zzb` "below" would contradict the bound (a bug, or a ZZB
-    grid too coarse: see its flags), else "inside"/"above"."""
+    from the prior and its own clean image, so the trials are independent): the Bayesian MSE E[(θ̂ − θ)²]
+    (sum over components) over the successful fits with its SE and one-sided limits (`verdicts.mse_limits`),
+    and against the ZZB (zzb[noise] = {"log10", "lower", "upper", "flags", "lower_note", "upper_note"} on the
+    MSE averaged over the prior, for any estimator; flags and notes optional): `vs_zzb` = `verdicts.verdict`
+    at (1 − level)/m each, m the rows with a testable ZZB (Bonferroni); "below" at that level means a bug, or
+    a ZZB grid too coarse (see its flags)."""
     groups: dict[tuple, list[dict]] = {}
     for r in sorted(records, key=record_key):
         groups.setdefault((r["noise"], r["estimator"]), []).append(r)
     labels = list(labels or sorted({k[1] for k in groups}))
+    alpha = (1 - level) / max(sum(1 for j, _ in groups if _testable((zzb or {}).get(j))), 1)
     rows = []
     for (j, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], labels.index(kv[0][1]))):
         ok = [r for r in rs if r["error"] is None]
-        sq = np.array([float(((np.array(r["theta_hat"]) - np.array(r["theta_true"])) ** 2).sum()) for r in ok])
-        mse = float(sq.mean()) if len(sq) else math.nan
-        se = float(sq.std(ddof=1) / math.sqrt(len(sq))) if len(sq) > 1 else math.nan
+        E = np.array([np.array(r["theta_hat"]) - np.array(r["theta_true"]) for r in ok], dtype=np.float64)
+        lim = mse_limits(E.reshape(len(ok), len(rs[0]["theta_true"])), None, alpha)
         row = {"noise": j, "estimator": label, "name": rs[0]["name"], "n": len(rs), "n_failed": len(rs) - len(ok),
                "n_nonconverged": sum(1 for r in ok if not r["converged"]), "status": status_counts(rs),
-               "bayes_mse": mse, "bayes_mse_se": se,
+               "bayes_mse": lim.mse, "bayes_mse_se": lim.se, "bayes_mse_lower": lim.lower,
+               "bayes_mse_upper": lim.upper, "bayes_mse_untested": lim.reason, "verdict_level": 1 - alpha,
                "mean_seconds": float(np.mean([r["seconds"] for r in rs])),
                "mean_renders": float(np.mean([r["renders"] + r["grad_passes"] for r in rs]))}
         z = (zzb or {}).get(j)
         if z is not None:
             row.update(zzb=_exp10(z["log10"]), zzb_upper=_exp10(z.get("upper", z["log10"])),
-                       mse_over_zzb=_ratio(mse, z["log10"]), vs_zzb=compare(mse, se, z))
+                       mse_over_zzb=_ratio(lim.mse, z["log10"]), vs_zzb=_verdict(lim, z, row["n_failed"], row["n"]))
         rows.append(row)
     return rows
+
+
+def _testable(bound: dict | None) -> bool:
+    """Whether a verdict against `bound` can be a test (it counts in the Bonferroni correction): its ends are
+    not crossed and at least one is a confidence limit (no note)."""
+    return bound is not None and "ends-crossed" not in bound.get("flags", ()) and not (
+        bound.get("lower_note") and bound.get("upper_note"))
+
+
+def _verdict(lim: MSELimits, bound: dict, failed: int, n: int) -> str:
+    """`verdicts.verdict` against a bound {log10, lower?, upper?, flags?, lower_note?, upper_note?} (a point
+    bound: both ends at log10), the failed fits named after it."""
+    v = verdict(lim, bound.get("lower", bound["log10"]), bound.get("upper", bound["log10"]), bound.get("flags", ()),
+                bound.get("lower_note", ""), bound.get("upper_note", ""))
+    return f"{v} ({failed} of {n} fits failed, not in the MSE)" if v and failed else v
 
 
 def _exp10(lg: float) -> float:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import copy
 import difflib
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,6 +33,29 @@ class Field:
     items: Any = None
     nullable: bool = False
 
+
+def positive_number(value, path: str) -> float:
+    """A finite number > 0 (a Field type)."""
+    v = _check_type(value, float, path)
+    if not (math.isfinite(v) and v > 0):
+        raise ConfigError(path, f"expected a finite number > 0, got {value!r}")
+    return v
+
+
+def halvings(value, path: str) -> int:
+    """An integer in [0, 12] (a Field type: how often an FD step may be halved)."""
+    v = _check_type(value, int, path)
+    if not 0 <= v <= 12:
+        raise ConfigError(path, f"expected an integer in [0, 12], got {value!r}")
+    return v
+
+
+#: the FD-step rule of the Δ → 0 term and the CRLB at a quoted θ (bounds.fd_step), shared by the studies
+STEP_TOL = Field(positive_number, 0.1, "the FD step of the Δ → 0 term and the CRLB counts as converged when the "
+                 "paired upper limit of F(ξ/2)/F(ξ) is <= 1 + step_tol; else their lower ends are labelled 'not a "
+                 "confidence limit'")
+MAX_HALVINGS = Field(halvings, 3, "at most this many halvings of the FD step (same seeds) while F is not shown to "
+                     "have stopped rising")
 
 _NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true/false", list: "a list", dict: "a mapping"}
 

@@ -316,12 +316,13 @@ def test_cornell_study_runs_end_to_end_and_its_report_reproduces(tmp_path):
     assert all(float(r["err_hcr"]) == float(r["err_crlb"]) == 0.0 for r in rows if r["reference"] == "True")
     k = res["knobs"]
     # three replicate render sets: the 4 grid points and, with independent seeds, an FD pair (θ ± 0.02, one seed
-    # per stencil: common random numbers inside it) at each of them — no render shared with the grid
-    assert all(p["renders"] == 3 * (4 + 2 * 4) and p["cost"] > 0 for s in k.values() for p in s["points"])
+    # per stencil: common random numbers inside it) at each of them — no render shared with the grid; and, for the
+    # Poisson model, one weight render per grid point, independent of the replicates
+    assert all(p["renders"] == 3 * (4 + 2 * 4) + 4 and p["cost"] > 0 for s in k.values() for p in s["points"])
     # the run's count is every setting's (each pruned or deeper scene is a model of its own), as the report says
     settings = {json.dumps(p["setting"], sort_keys=True) for s in k.values() for p in s["points"]}
     settings |= {json.dumps(res["overall"]["setting"], sort_keys=True)} if res["overall"]["verified"] else set()
-    assert res["renders"] == 3 * (4 + 2 * 4) * len(settings)
+    assert res["renders"] == (3 * (4 + 2 * 4) + 4) * len(settings)
     assert f"; {res['renders']} renders (" in (out / "report.md").read_text()
     spp4, bin2 = k["spp"]["points"][0], next(p for p in k["bin"]["points"] if p["value"] == 2)
     # bin 2 at 16 spp renders 16/4 per fine pixel: the pixel-samples of the spp-4 setting (each from its own set)

@@ -13,8 +13,8 @@ import nlosbench as nb
 from nlosbench.bank import RenderBank
 from nlosbench.bounds import BoundService
 from nlosbench.studies.plots import _plt, bounds_figure, mse_figure
-from nlosbench.studies.plotstyle import NOT_LIMIT, OPEN, symlog_ticks
-from nlosbench.studies.tables import fmt_end
+from nlosbench.studies.plotstyle import NOT_LIMIT, OPEN, note, symlog_ticks
+from nlosbench.studies.tables import fmt, fmt_end
 
 NOISE = "AWGN(sigma=0.05)"
 
@@ -49,7 +49,9 @@ def test_the_legend_names_every_drawn_element_and_nothing_else(rows):
     assert set(labels) == {a.get_label() for a in drawn(ax)}
     assert all(not a.get_label().startswith("_") for a in drawn(ax))
     assert f"HCR interval (lower to upper end), {NOISE}" in labels  # the band has its entry
-    assert not any(OPEN in t or NOT_LIMIT in t for t in labels)  # nothing open or noted here: no such entry
+    noted = any(note(r, "hcr", e) for r in rs for e in ("lower", "upper"))  # the service's own notes (FD step)
+    assert any(NOT_LIMIT in t for t in labels) == noted
+    assert any(OPEN in t for t in labels) == any(math.isinf(r["hcr_upper"]) for r in rs)
     legend = ax.get_legend().get_window_extent(fig.canvas.get_renderer())
     assert legend.y1 < ax.get_window_extent(fig.canvas.get_renderer()).y0  # below the data, not over it
     _plt().close(fig)
@@ -71,7 +73,10 @@ def test_an_open_upper_end_is_a_marker_and_no_band_reaches_the_frame(rows):
 
 
 def test_an_end_that_is_not_a_confidence_limit_is_drawn_apart_and_old_tables_read_as_valid(rows):
-    rs = [dict(r) for r in rows[0]]
+    rs = [{k: v for k, v in r.items() if not k.endswith("_note")} for r in rows[0]]  # a table without notes: valid
+    fig = bounds_figure(rs, parameter="edge", units="m")
+    assert not any(NOT_LIMIT in a.get_label() for a in fig.axes[0].lines)
+    _plt().close(fig)
     rs[2]["hcr_lower_note"] = "not a confidence limit: FD step not converged (F ×1.46 from ξ to ξ/2)"
     rs[3]["hcr_lower_note"] = ""
     fig = bounds_figure(rs, parameter="edge", units="m")
@@ -154,3 +159,4 @@ def test_an_open_end_prints_as_infinity_and_a_missing_one_as_a_dash():
     assert fmt_end(-math.inf) == "0"
     assert fmt_end(None) == fmt_end("") == fmt_end(math.nan) == "–"
     assert fmt_end(-3.0) == "0.001"
+    assert fmt(math.inf) == "∞" and fmt(math.nan) == "–" and fmt(0.5) == "0.5"  # e.g. an MSE's open upper limit

@@ -119,7 +119,7 @@ def test_cornell_study_produces_a_complete_summary(tmp_path):
     md = study.report(folder, res)
     for f in ("plots/mse_vs_theta.png", "plots/speed_vs_error.png"):  # drawn by the report, from saved data
         assert (folder / f).is_file(), f
-    assert "| -0.1 | adam-auto | 2 |" in md and "CRLB (trace of F̂⁻¹) from an unbiased Fisher information" in md
+    assert "| -0.1 | adam-auto | 2 (0) |" in md and "CRLB (trace of F̂⁻¹) from an unbiased Fisher information" in md
     assert f"gradient of **adam-auto**: {chosen}" in md
 
 
@@ -215,7 +215,21 @@ def test_failed_fits_are_counted_shown_and_not_silently_dropped(tmp_path):
     bad = next(r for r in res["summary"] if r["estimator"] == "exploding")
     assert bad["n"] == 4 and bad["n_failed"] == 4 and math.isnan(bad["mse"]) and bad["mean_renders"] == 1
     md = study.report(ctx.dir / "trials", res)
-    assert "FloatingPointError: NLL is nan" in md and "| 0.5 | exploding | 4 |" in md and "| failed 4 |" in md
+    assert "FloatingPointError: NLL is nan" in md and "| 0.5 | exploding | 4 (4) |" in md and "| failed 4 |" in md
+
+
+def test_two_studies_of_a_run_draw_distinct_noise_start_and_fit_seeds(tmp_path):
+    """Two trials studies in one run (ids a and b) with the same θ* and trial count: their starts (drawn from the
+    study's own seed stream) differ, so the studies are independent; the same study id gives the same starts."""
+    ctx, block = make_ctx(tmp_path, {"name": "edge1d"}, {
+        "id": "a", "theta": [0.5], "n": 3, "n_eff": 1, "hcr_grid": 5, "bounds": [],
+        "estimators": [{"name": "grid-search", "options": {"num": 5, "spp": 1, "refine": False}}]})
+    starts = {sid: [r["init"] for r in read_log(ctx.dir / sid / LOG_NAME)] for sid in ("a", "b")
+              if study.run(ctx, {**block, "id": sid})}
+    assert len(starts["a"]) == len(starts["b"]) == 3
+    assert all(a != b for a, b in zip(starts["a"], starts["b"], strict=True))
+    study.run(ctx, {**block, "id": "a"})
+    assert [r["init"] for r in read_log(ctx.dir / "a" / LOG_NAME)] == starts["a"]
 
 
 @pytest.mark.parametrize("change, path, msg", [

@@ -8,8 +8,9 @@ and biases the HCR low, most where the sup sits at small Δ (NLOS). The paper's 
 
 * render θ* and every θ*+Δ at k spp levels N_1..N_k and fit λ̃^(N_i) = λ + C/N_i^p by weighted
   least squares (weights N_i^p, the inverse of Var λ̃ = O(N^−p)) → λ̂ (`fit_lambda`);
-* HCR-hat = HCR from λ̂ is an upper bound on the true HCR *in expectation* (Jensen); HCR_Neff, from
-  one render set at N_eff ≈ Σ N_i (equal budget), is typically a lower one (`inexact_hcr`).
+* HCR-hat = HCR from λ̂ is an upper bound *in expectation* (Jensen) on the HCR restricted to the tested Δ
+  — not on the HCR over every Δ, which a sup over more Δ (or Δ → 0) can raise; HCR_Neff, from one render
+  set at N_eff ≈ Σ N_i (equal budget), is typically a lower one (`inexact_hcr`).
 
 Replicates. Each level (and the N_eff set) is rendered as R independent replicates of N/R spp; their
 mean is statistically a render at N spp (`RenderBank.replicates`). A (θ*, Δ) pair reduces to the R×R Gram

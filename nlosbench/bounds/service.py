@@ -12,25 +12,32 @@ every Δ from them (R·G renders, not G²); the FD stencils of the Δ → 0 term
 extra render). Bounds at θ* reuse the same sets, so a θ* on a curve's grid costs no new render.
 
 Kinds (parameter units²; `Bound.log10` is the value to quote):
-  hcr       the HCR on the MSE as a confidence interval with its Δ → 0 term (`hcr_interval`): log10 = the
-            lower end (a one-sided lower confidence limit at `level`), `upper` the upper end, `point` the
-            estimate, `terms` which term set each end. λ(Δ) and F are U-statistics over the R replicates
-            (`ustat`): unbiased, so rendering noise no longer inflates λ (the C/N term) or F;
+  hcr       the HCR on the MSE as a confidence interval with its Δ → 0 term, the CRLB term (`hcr_interval`):
+            log10 = the lower end (a one-sided lower confidence limit at `level`), `upper` the upper end (+inf:
+            open, whenever a tested Δ is unresolved), `point` the estimate, `terms` which term set each end.
+            λ(Δ) and F are U-statistics over the R replicates (`ustat`): unbiased, so rendering noise no longer
+            inflates λ (the C/N term) or F;
   crlb      the CRLB from the unbiased Fisher information (trace of F̂⁻¹; 1/F̂ for a scalar θ): log10 the
             central value (+inf when F̂ ≤ 0: no resolved information), `lower`/`upper` its ends (from the
-            upper / lower confidence limit of F). It bounds the FI of the FD-smoothed derivative at step ξ;
-            the step is checked by changing it 2× (flag fd-step-sensitive when F moves beyond 2 SE);
+            largest upper / smallest lower confidence limit of F over the FD steps tried). F is the FI of the
+            FD-smoothed derivative, biased low where an edge crosses a pixel within the step: `at` and `fisher`
+            halve the step until F is shown to have stopped rising (`fd_step`), `curve` checks h against 2h;
+            a lower end whose step did not converge carries `lower_note` "not a confidence limit: …";
   hcr_neff  the paper's HCR_Neff: the plug-in λ̃ of the replicate means (R·spp samples per image), sup
             over the tested Δ only (no Δ → 0 term, so it can fall far below the CRLB: the paper's 80 cm row);
-  hcr_hat   the paper's HCR-hat (bias-corrected λ̂ from a fit over spp levels), point estimate;
+  hcr_hat   the paper's HCR-hat (bias-corrected λ̂ from a fit over spp levels), point estimate: an upper bound
+            in expectation on the HCR restricted to the tested Δ (not on the HCR over every Δ);
   barankin  multi-point Barankin bound on Var θ̂ of a scalar θ from the replicate means (plug-in);
   zzb       (curves on a uniform grid) the Ziv–Zakai bound on the Bayesian MSE over the prior on the grid's
-            range, for every estimator (`zzb`): log10 the lower end, with `upper`, `point`.
+            range, for every estimator (`zzb`): log10 the lower end, with `upper`, `point`; for Poisson noise
+            the Bhattacharyya distance is an upper estimate (`zzb.bhattacharyya_ustat`), which keeps it a bound.
 
-Poisson weights scale/L0 need the mean image at θ*; the service uses the mean of its R replicates (a
-relative bias O(Var/(L0² R·N)) remains, stated) and the *zero-pixel policy*: a pixel whose mean is exactly
-0 (no sample found light) gets the weight of the smallest positive mean in that image instead of +inf, and
-the count of such pixels is in the flags (never a silent −inf or a dropped Δ).
+Poisson weights scale/L come from one render of each θ independent of every replicate (purpose
+"bounds-weight", spp samples): a weight computed from the same replicates as a U-statistic would correlate
+with it (E[1/L̄] > 1/L enters as a cross term). E[1/Y] ≥ 1/L, so the weight errs high by about Var(Y)/L²
+(stated, not corrected). The *zero-pixel policy*: a pixel whose weight render is exactly 0 (no sample found
+light) gets the weight of the smallest positive value in that image instead of +inf, and the count of such
+pixels is in the flags (never a silent −inf or a dropped Δ).
 """
 from __future__ import annotations
 
@@ -45,13 +52,14 @@ import torch
 
 from nlosbench.bank import RenderBank
 from nlosbench.bounds.barankin import barankin
+from nlosbench.bounds.fd_step import Stage, StepFisher, converge, crlb_term, halving, single
 from nlosbench.bounds.grid import pairwise_lambda
 from nlosbench.bounds.hcr import HCRResult, hcr_from_lambda
 from nlosbench.bounds.hcr_interval import HCRInterval, hcr_interval
 from nlosbench.bounds.inexact import InexactHCR, inexact_hcr
 from nlosbench.bounds.unbiased_fisher import unbiased_fisher
-from nlosbench.bounds.ustat import UStat, pairwise_ustat, pixel_ustat, t_quantile
-from nlosbench.bounds.zzb import uniform_spacing, zzb_interval
+from nlosbench.bounds.ustat import UStat, pairwise_ustat, pixel_ustat
+from nlosbench.bounds.zzb import bhattacharyya_ustat, uniform_spacing, zzb_interval
 from nlosbench.noise import AWGN, NoiseModel, Poisson, QuadraticNoise, to_float64
 from nlosbench.seeds import derive
 
@@ -66,9 +74,10 @@ class Bound:
     estimate of an interval bound (None where the kind has none); level: the one-sided confidence of each
     end; terms: which term set each end; delta: the Δ at the sup (HCR family); flags: short tags
     (sup-at-smallest-delta, sup-at-largest-delta, unresolved, unresolved-delta, no-bound, estimate-only,
-    upper-unbounded, singular, fd-step-sensitive, zero-pixels=N, grid-limited, plug-in); extra: details;
-    loo: (R,) log10 point estimate without each replicate set (hcr, crlb with R ≥ 3; else empty), for
-    jackknifes of quantities that pair two bounds from the same replicate sets."""
+    upper-unbounded, ends-crossed, singular, fd-step-not-converged, fd-step-diverging, zero-pixels=N,
+    grid-limited, plug-in); extra: details; loo: (R,) log10 point estimate without each replicate set (hcr,
+    crlb with R ≥ 3; else empty), for jackknifes of quantities that pair two bounds from the same replicate
+    sets; lower_note / upper_note: why that end is not a confidence limit ("" when it is one)."""
 
     kind: str
     log10: float
@@ -82,6 +91,8 @@ class Bound:
     terms: str = ""
     extra: dict = field(default_factory=dict)
     loo: np.ndarray = field(default_factory=lambda: np.empty(0), compare=False)
+    lower_note: str = ""
+    upper_note: str = ""
 
     @property
     def value(self) -> float:
@@ -89,12 +100,14 @@ class Bound:
         return _exp10(self.log10)
 
     def columns(self) -> dict:
-        """Flat CSV cells: log10_<kind>, then (where present) <kind>_lower/_upper/_point/_level/_terms, and
-        <kind>_delta (JSON), <kind>_flags, <kind>_reason."""
+        """Flat CSV cells: log10_<kind>, then (where present) <kind>_lower/_upper/_point/_level/_terms, with an
+        interval <kind>_lower_note/_upper_note, and <kind>_delta (JSON), <kind>_flags, <kind>_reason."""
         out = {f"log10_{self.kind}": self.log10}
         for name in ("lower", "upper", "point", "level"):
             if getattr(self, name) is not None:
                 out[f"{self.kind}_{name}"] = getattr(self, name)
+        if self.lower is not None:
+            out[f"{self.kind}_lower_note"], out[f"{self.kind}_upper_note"] = self.lower_note, self.upper_note
         if self.terms:
             out[f"{self.kind}_terms"] = self.terms
         out.update({f"{self.kind}_delta": json.dumps(self.delta), f"{self.kind}_flags": ",".join(self.flags),
@@ -161,68 +174,37 @@ def hcr_bound(r: HCRResult, kind: str = "hcr_neff") -> Bound:
     return Bound(kind, float(r.log10), delta, tuple(flags), r.reason, point=float(r.log10))
 
 
-def interval_bound(iv: HCRInterval, extra_flags: tuple = ()) -> Bound:
-    """The `hcr` Bound from an HCRInterval: log10 = its lower end."""
+def interval_bound(iv: HCRInterval, extra_flags: tuple = (), step: StepFisher | None = None) -> Bound:
+    """The `hcr` Bound from an HCRInterval: log10 = its lower end; `step` adds the FD step note."""
     terms = f"lower: {iv.lower_term}; upper: {iv.upper_term}; point: {iv.point_term}"
     reason = ("both ends are point estimates (fewer than 3 replicates)" if iv.estimate_only else
               f"one-sided {iv.level:.0%} limits from {iv.replicates} replicates, Bonferroni over the tested Δ and "
-              "Δ → 0; the upper end bounds the HCR over the resolved Δ and Δ → 0")
+              "Δ → 0 (the CRLB term); the upper end bounds the HCR over the tested Δ and Δ → 0")
     if iv.unresolved:
-        reason += f"; unresolved Δ (λ_L ≤ 0, left out of the upper end): {iv.unresolved}"
+        reason += f"; unresolved Δ (λ_L ≤ 0: the upper end is open): {iv.unresolved}"
+    if step is not None and step.checked:
+        reason += "; " + step.note() + (f" ({step.settle()})" if step.settle() else "")
     return Bound("hcr", iv.lower, None, iv.flags + tuple(extra_flags), reason, lower=iv.lower, upper=iv.upper,
-                 point=iv.point, level=iv.level, terms=terms, loo=iv.point_loo)
+                 point=iv.point, level=iv.level, terms=terms, loo=iv.point_loo, lower_note=iv.lower_note)
 
 
-def crlb_bound(F: UStat, level: float, extra_flags: tuple = (), step_note: str = "") -> Bound:
-    """The `crlb` Bound (trace of F̂⁻¹, units²) from an unbiased Fisher information F (a UStat of shape (P, P)),
-    with one-sided ends at `level` (Student t with the SE's degrees of freedom)."""
-    P, R = F.est.shape[0], F.replicates
-    value = _trace_inv(F.est)
-    flags = list(extra_flags)
-    if not math.isfinite(value):
-        flags.append("singular" if P > 1 else "unresolved")
-    lo = hi = value
-    if R >= 3:
-        if P == 1:
-            f, s, t = F.est[0, 0], F.se[0, 0], float(t_quantile(level, F.dof[0, 0]))
-            lo = 1.0 / (f + t * s) if f + t * s > 0 else math.inf
-            hi = 1.0 / (f - t * s) if f - t * s > 0 else math.inf
-        else:
-            loo = np.array([_trace_inv(Fk) for Fk in F.loo])
-            se = math.sqrt((R - 1) / R * ((loo - loo.mean()) ** 2).sum()) if np.all(np.isfinite(loo)) else math.inf
-            t = float(t_quantile(level, R - 1))
-            lo, hi = max(value - t * se, 0.0), value + t * se
-    else:
+def crlb_bound(sf: StepFisher | UStat, level: float, extra_flags: tuple = ()) -> Bound:
+    """The `crlb` Bound (trace of F̂⁻¹, units²) from the unbiased Fisher information at every FD stage tried
+    (`fd_step`; a UStat of F (P, P): one stage, no step check), with one-sided ends at `level`."""
+    sf = sf if isinstance(sf, StepFisher) else single(sf)
+    term = crlb_term(sf, level)
+    R = sf.final.replicates
+    flags = list(extra_flags) + list(term.flags)
+    if not math.isfinite(term.point):
+        flags.append("singular" if sf.final.est.shape[0] > 1 else "unresolved")
+    if R < 3:
         flags.append("estimate-only")
-    log = (lambda v: math.log10(v) if v > 0 else -math.inf)
-    reason = ("no resolved information: F̂ is not positive" if not math.isfinite(value) else
+    reason = ("no resolved information: F̂ is not positive" if not math.isfinite(term.point) else
               f"CRLB from an unbiased FI (U-statistic over {R} FD rounds; the FI of the FD-smoothed derivative)")
-    if step_note:
-        reason += f"; {step_note}"
-    loo = np.array([log(_trace_inv(Fk)) for Fk in F.loo]) if F.loo.size else np.empty(0)
-    return Bound("crlb", log(value), flags=tuple(flags), reason=reason, lower=log(lo), upper=log(hi),
-                 point=log(value), level=level if R >= 3 else None, loo=loo)
-
-
-def fisher_ustat(J: torch.Tensor, w) -> UStat:
-    """The unbiased Fisher information (P, P) from R FD rounds J (R, P, *S) and a per-pixel weight w (*S):
-    for P = 1 the per-pixel U-statistic (`pixel_ustat`: SE from independent pixels), else the Gram U-statistic
-    over rounds (`unbiased_fisher`: SE from the rounds)."""
-    R, P = J.shape[:2]
-    if P == 1:
-        u = pixel_ustat(J.reshape(R, 1, -1).numpy(), to_float64(w).expand(J.shape[2:]).reshape(-1).numpy())
-        return UStat(u.est.reshape(1, 1), u.se.reshape(1, 1), u.loo.reshape(-1, 1, 1), R, u.df.reshape(1, 1))
-    fi = unbiased_fisher(J, to_float64(w).expand(J.shape[2:]))
-    return UStat(fi.F, fi.se, fi.leave_one_out, R)
-
-
-def _trace_inv(F: np.ndarray) -> float:
-    """trace(F⁻¹), +inf where F is not (numerically) positive definite."""
-    try:
-        np.linalg.cholesky(F)
-    except np.linalg.LinAlgError:
-        return math.inf
-    return float(np.trace(np.linalg.inv(F)))
+    if sf.checked:
+        reason += "; " + (term.zero_note or sf.note()) + (f" ({sf.settle()})" if sf.settle() else "")
+    return Bound("crlb", term.point, flags=tuple(flags), reason=reason, lower=term.lower, upper=term.upper,
+                 point=term.point, level=level if R >= 3 else None, loo=term.loo, lower_note=term.lower_note)
 
 
 def poisson_weight_image(L) -> tuple[torch.Tensor, int]:
@@ -285,65 +267,113 @@ class BoundService:
             raise ValueError(f"FD step {step} leaves no room inside Θ")
         return st, sep
 
-    def _fd_rounds(self, thetas: np.ndarray, spp: int, seeds: str, R: int, step: float) -> torch.Tensor:
-        """FD Jacobians (R, T, P, *S) at thetas (T, P), round r independent of the others and with common
-        random numbers inside each stencil: with common seeds the central differences of replicate r's
-        renders (stencils shared with the grid); with independent seeds the bank's FD Jacobians (a seed per
-        stencil, θ and round)."""
+    def _stages(self, thetas: np.ndarray, center: torch.Tensor | None, spp: int, seeds: str, R: int,
+                step: float) -> list[Stage]:
+        """One FD Stage at step ξ per θ of thetas (T, P), R rounds, each independent of the others and with
+        common random numbers inside each stencil. Common seeds: the central differences of replicate r's
+        stencil renders (θ ± ξ e_j clipped into Θ) and, from the θ renders `center` (R, T, *S) of the same
+        replicates (their seed is the stencils'), the forward and backward differences; independent seeds: the
+        bank's central FD Jacobians (a seed per θ and round, the same at every step, so stages pair)."""
+        T, P = thetas.shape
         if seeds == "independent":
-            return torch.stack([self.bank.jacobians_at(thetas, spp, step, PURPOSE, False, r,
-                                                       desc=f"FD Jacobians (round {r})") for r in range(R)]).double()
+            J = torch.stack([self.bank.jacobians_at(thetas, spp, step, PURPOSE, False, r,
+                                                    desc=f"FD Jacobians (round {r})") for r in range(R)]).double()
+            return [Stage(step, {"central": J[:, t].reshape(R, P, -1).numpy()}) for t in range(T)]
         st, sep = self._stencils(thetas, step)
-        T, P = sep.shape
-        X = self.replicates(st.reshape(-1, P), spp, seeds, R, "FD stencil renders")  # (R, T·P·2, *S)
-        X = X.reshape(R, T, P, 2, *X.shape[2:]).double()
-        d = torch.as_tensor(sep, dtype=torch.float64).reshape(1, T, P, *([1] * (X.ndim - 4)))
-        return (X[:, :, :, 0] - X[:, :, :, 1]) / d
+        X = self.replicates(st.reshape(-1, P), spp, seeds, R, "FD stencil renders").double().reshape(R, T, P, 2, -1)
+        diag = np.arange(P)
+        out = []
+        for t in range(T):
+            rounds = {"central": _diff(X[:, t, :, 0], X[:, t, :, 1], sep[t])}
+            if center is not None:
+                c = center[:, t].reshape(R, 1, -1)
+                fwd, bwd = st[t, diag, 0, diag] - thetas[t], thetas[t] - st[t, diag, 1, diag]
+                if np.all(fwd > 0):
+                    rounds["forward"] = _diff(X[:, t, :, 0], c, fwd)
+                if np.all(bwd > 0):
+                    rounds["backward"] = _diff(c, X[:, t, :, 1], bwd)
+            out.append(Stage(step, rounds))
+        return out
 
-    def _weight(self, noise: NoiseModel, mean_image) -> tuple[object, tuple]:
+    def _refine(self, thetas: np.ndarray, stage_fn, weights: dict, step: float, step_tol: float,
+                max_halvings: int) -> list[list[Stage]]:
+        """FD stages (coarse to fine) per θ of thetas (T, P): ξ, then ξ/2, ξ/4 … for the θ whose step has not
+        converged (`fd_step.halving`) for every weight in `weights` ({noise index: [w per θ]}), at most
+        `max_halvings` times. stage_fn(index array, ξ) gives the stages of those θ."""
+        _check_step(step, step_tol, max_halvings)
+        stages: list[list[Stage]] = [[] for _ in thetas]
+        active = np.arange(len(thetas))
+        for k in range(max_halvings + 1):
+            for i, stage in zip(active, stage_fn(active, step / 2**k), strict=True):
+                stages[i].append(stage)
+            if k == max_halvings:
+                break
+            if k:
+                active = np.array([i for i in active if not all(
+                    halving(stages[i][-2], stages[i][-1], w[i], self.level, step_tol).converged
+                    for w in weights.values())], dtype=np.int64)
+                if active.size == 0:
+                    break
+        return stages
+
+    def _weights(self, thetas: np.ndarray, spp: int, mean_images: torch.Tensor, noises) -> dict:
+        """{noise index: [(weight (N,) float64 or a scalar, flags) per θ]}: AWGN 1/σ²; Poisson scale/Y under the
+        zero-pixel policy, Y an independent render of θ (purpose "bounds-weight", spp) — never the replicates
+        the U-statistics use, so the weight is independent of them (E[1/Y] ≥ 1/L: the weight errs high, by
+        about Var(Y)/L², which raises λ̂ and F̂ and so lowers the bounds' ends). mean_images (T, *S): the
+        images AWGN weights are taken at (any: the weight is constant)."""
+        sel = self._select(noises)
+        Y = None
+        if any(isinstance(n, Poisson) for n in sel.values()):
+            Y = self.bank.at(thetas, spp, PURPOSE + "-weight", desc="Poisson weight renders").double()
+        out = {}
+        for j, noise in sel.items():
+            rows = []
+            for i in range(len(thetas)):
+                w, flags = self._weight(noise, Y[i] if isinstance(noise, Poisson) else mean_images[i])
+                shape = mean_images.shape[1:]
+                rows.append((to_float64(w).expand(shape).reshape(-1).numpy(), flags))
+            out[j] = rows
+        return out
+
+    def _weight(self, noise: NoiseModel, image) -> tuple[object, tuple]:
         """(per-pixel weight for λ and F at an image, flags): AWGN 1/σ²; Poisson scale/L under the zero-pixel
         policy."""
         if isinstance(noise, Poisson):
-            L, n = poisson_weight_image(mean_image)
+            L, n = poisson_weight_image(image)
             return noise.weight(L), ((f"zero-pixels={n}",) if n else ())
         if isinstance(noise, QuadraticNoise):
-            return noise.weight(to_float64(mean_image)), ()
+            return noise.weight(to_float64(image)), ()
         raise TypeError(f"bounds from replicated renders need a quadratic noise model (AWGN, Poisson), got "
                         f"{type(noise).__name__}")
 
     # -- curves ------------------------------------------------------------------------------------------
     def curve(self, thetas, spp: int, seeds: str = "common", replicates: int = 3, crlb: bool = True,
               barankin: bool = False, zzb: bool = True, prior=None, noises=None, fd_step: float | None = None,
-              gradient: str = "fd", ad: dict | None = None, check_step: bool = True) -> Curve:
+              gradient: str = "fd", ad: dict | None = None, check_step: bool = True, step_tol: float = 0.1) -> Curve:
         """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders: the HCR interval (test points:
         the other grid points inside Θ, and Δ → 0), the CRLB, the paper's HCR_Neff, optionally Barankin, and
         on a uniform grid the ZZB over the grid's range (`prior`: a density on the grid, default uniform).
         The Δ → 0 term's Jacobian: FD from the grid neighbours (fd_step None with common seeds: no extra render;
-        checked against the neighbours two steps away), FD at θ ± ξ (with independent seeds ξ defaults to the
-        grid's smallest spacing) (fd_step ξ: 2R renders per θ, checked against ξ/2 with 2R
-        more unless `check_step` is off), or with gradient "ad" Mitsuba AD with integrator options `ad`. A
-        BoundPoint per (noise, θ), noise-major."""
+        the step h checked against 2h, with the one-sided neighbour differences as variants), FD at θ ± ξ (with
+        independent seeds ξ defaults to the grid's smallest spacing; 2R renders per θ, checked against ξ/2 with
+        2R more unless `check_step` is off), or with gradient "ad" Mitsuba AD with integrator options `ad`.
+        A curve does not refine its step further (`at` does, for the θ a study quotes): where the check does
+        not show F converged within 1 + `step_tol`, the Δ → 0 ends are labelled. Poisson weights come from
+        one independent render per grid θ. A BoundPoint per (noise, θ), noise-major."""
         if self.params.dim != 1:
             raise ValueError(f"a bound curve needs one parameter; the model has {list(self.params.names)}")
         T = np.asarray(thetas, dtype=np.float64).reshape(-1)
         if T.size < 3 or np.any(np.diff(T) <= 0):
             raise ValueError("a bound curve needs at least 3 increasing grid points")
         R = _need_replicates(replicates)
-        X = self.replicates(T, spp, seeds, R, "bound-curve renders")  # (R, G, *S)
-        Xd = X.double()
+        _check_step(fd_step or 1.0, step_tol, 0)
+        Xd = self.replicates(T, spp, seeds, R, "bound-curve renders").double()  # (R, G, *S)
         G = len(T)
-        if gradient == "fd" and fd_step is None and seeds == "common":  # the Δ → 0 term always needs F
-            J1, J2 = _grid_fd(Xd, T, 1), _grid_fd(Xd, T, 2)  # (R, G, *S) at steps ~h and ~2h
-        elif gradient == "fd":  # explicit stencils (independent seeds: the grid's renders share no seed)
-            fd_step = fd_step or float(np.min(np.diff(T)))
-            J1 = self._fd_rounds(T[:, None], spp, seeds, R, fd_step)[:, :, 0]
-            J2 = self._fd_rounds(T[:, None], spp, seeds, R, fd_step / 2)[:, :, 0] if check_step else None
-        else:
-            J1 = torch.stack([self.bank.jacobians_at(T, spp, float(T[1] - T[0]), PURPOSE, seeds == "common", r,
-                                                     method=gradient, ad=ad)[:, 0] for r in range(R)]).double()
-            J2 = None
+        stages = self._curve_stages(T, Xd, spp, seeds, R, fd_step, gradient, ad, check_step)
         lo, hi = self.params.lower[0], self.params.upper[0]
         pooled = Xd.mean(dim=0)
+        weights = self._weights(T[:, None], spp, pooled, noises)
         zzb_reason = ""
         try:
             uniform_spacing(T)
@@ -351,40 +381,58 @@ class BoundService:
             zzb_reason = str(e)
         points, zzbs = [], {}
         for j, noise in self._select(noises).items():
-            W, zero_flags = zip(*[self._weight(noise, pooled[g]) for g in range(G)], strict=True)
-            Wflat = torch.stack([w.expand(pooled.shape[1:]).reshape(-1) for w in W]).numpy()
+            Wflat = np.stack([w for w, _ in weights[j]])
             lam = pairwise_ustat(Xd.reshape(R, G, -1).numpy(), Wflat)
-            F1 = pixel_ustat(J1.reshape(R, G, -1).numpy(), Wflat)
-            F2 = pixel_ustat(J2.reshape(R, G, -1).numpy(), Wflat) if J2 is not None else None
             plug = pairwise_lambda(pooled, noise) if not isinstance(noise, Poisson) else _plugin_poisson(pooled, Wflat)
             for g, t in enumerate(T):
                 others = np.flatnonzero(np.arange(G) != g)
                 deltas = T[others] - t
-                b: dict[str, Bound] = {}
-                fi = _slice(F1, g)
-                note, step_flag = "", ()
-                if J2 is not None:
-                    note, step_flag = _step_check(fi, _slice(F2, g), "doubling" if fd_step is None else "halving")
+                flags = weights[j][g][1]
+                sf = converge(stages[g], Wflat[g], self.level, step_tol, spp)
                 loo = lam.loo[:, g, others] if lam.loo.size else lam.loo
-                sub = UStat(lam.est[g, others], lam.se[g, others], loo, R)
-                iv = hcr_interval(sub, deltas, fi, self.level, lo - t, hi - t)
-                b["hcr"] = interval_bound(iv, zero_flags[g] + step_flag)
+                sub = UStat(lam.est[g, others], lam.se[g, others], loo, R, lam.df[g, others])
+                b: dict[str, Bound] = {}
+                b["hcr"] = interval_bound(hcr_interval(sub, deltas, sf, self.level, lo - t, hi - t), flags, sf)
                 if crlb:
-                    b["crlb"] = crlb_bound(fi, self.level, zero_flags[g] + step_flag, note)
+                    b["crlb"] = crlb_bound(sf, self.level, flags)
                 b["hcr_neff"] = hcr_bound(hcr_from_lambda(plug[g, others], deltas, lo - t, hi - t))
                 if barankin:
                     b["barankin"] = _barankin(pooled[g], pooled[others], deltas, noise, lo - t, hi - t)
                 points.append(BoundPoint(j, str(noise), np.array([t]), b))
-            if zzb and not zzb_reason:
-                zzbs[j] = self._zzb(Xd, T, noise, Wflat, prior)
-            else:
-                zzbs[j] = None
+            zzbs[j] = self._zzb(Xd, T, noise, Wflat, prior, spp) if zzb and not zzb_reason else None
         return Curve(points, zzbs, zzb_reason)
 
-    def _zzb(self, Xd: torch.Tensor, T: np.ndarray, noise: NoiseModel, Wflat: np.ndarray, prior) -> Bound:
+    def _curve_stages(self, T: np.ndarray, Xd: torch.Tensor, spp: int, seeds: str, R: int, fd_step, gradient: str,
+                      ad, check_step: bool) -> list[list[Stage]]:
+        """The FD stages (coarse to fine) of every grid θ for `curve`."""
+        G = len(T)
+        if gradient == "fd" and fd_step is None and seeds == "common":  # grid neighbours: no extra render
+            J1, J2 = _grid_fd(Xd, T, 1), _grid_fd(Xd, T, 2)  # (R, G, *S) at steps ~h and ~2h
+            i = np.arange(G)
+            h = (T[np.minimum(i + 1, G - 1)] - T[np.maximum(i - 1, 0)]) / 2
+            out = []
+            for g in range(G):
+                fine = {"central": _flat(J1[:, g])}
+                if 0 < g < G - 1:
+                    fine["forward"] = _diff(Xd[:, g + 1][:, None], Xd[:, g][:, None], [T[g + 1] - T[g]])
+                    fine["backward"] = _diff(Xd[:, g][:, None], Xd[:, g - 1][:, None], [T[g] - T[g - 1]])
+                out.append([Stage(2 * h[g], {"central": _flat(J2[:, g])}), Stage(h[g], fine)])
+            return out
+        if gradient == "fd":  # explicit stencils (independent seeds: the grid's renders share no seed)
+            fd_step = fd_step or float(np.min(np.diff(T)))
+            center = Xd if seeds == "common" else None
+            steps = (fd_step, fd_step / 2) if check_step else (fd_step,)
+            per = [self._stages(T[:, None], center, spp, seeds, R, xi) for xi in steps]
+            return [[p[g] for p in per] for g in range(G)]
+        J = torch.stack([self.bank.jacobians_at(T, spp, float(T[1] - T[0]), PURPOSE, seeds == "common", r,
+                                                method=gradient, ad=ad)[:, 0] for r in range(R)]).double()
+        return [[Stage(math.nan, {"central": _flat(J[:, g])})] for g in range(G)]
+
+    def _zzb(self, Xd: torch.Tensor, T: np.ndarray, noise: NoiseModel, Wflat: np.ndarray, prior, spp: int) -> Bound:
         R = Xd.shape[0]
         if isinstance(noise, Poisson):
-            stat = pairwise_ustat(np.sqrt(Xd.clamp_min(0).reshape(R, len(T), -1).numpy()), 0.5 * noise.scale)
+            Y = self.bank.at(T, spp, PURPOSE + "-weight", desc="Poisson weight renders").double()
+            stat = bhattacharyya_ustat(Xd.reshape(R, len(T), -1).numpy(), Y.reshape(len(T), -1).numpy(), noise.scale)
             kind = "bhattacharyya"
         else:
             stat = pairwise_ustat(Xd.reshape(R, len(T), -1).numpy(), Wflat)
@@ -402,12 +450,14 @@ class BoundService:
     # -- bounds at θ* --------------------------------------------------------------------------------------
     def at(self, thetas, spp: int, want: Sequence[str] = ("hcr", "crlb"), seeds: str = "common",
            replicates: int = 3, test_grid: int = 21, offsets: int = 4, fd_step: float = 0.01,
-           levels: Sequence[int] = (1024, 2048), noises=None) -> list[BoundPoint]:
+           levels: Sequence[int] = (1024, 2048), noises=None, step_tol: float = 0.1,
+           max_halvings: int = 3) -> list[BoundPoint]:
         """Every bound in `want` (hcr, crlb, hcr_neff, barankin, hcr_hat) at each θ* (T, P), a BoundPoint per
         (noise, θ*), noise-major. Test Δ: a `test_grid`^P grid over Θ (shared by every θ*, points equal to
         θ* skipped) and the offsets ±ξ·2^k (k < `offsets`) along each axis; the Δ → 0 term and the CRLB
-        from FD rounds at step ξ (checked against ξ/2); HCR-hat fits λ over the spp `levels`. "hcr" also
-        reports the paper's hcr_neff."""
+        from FD rounds at step ξ, halved (with the same seeds) until F is shown to have stopped rising within
+        1 + `step_tol`, at most `max_halvings` times (`fd_step`); HCR-hat fits λ over the spp `levels`.
+        "hcr" also reports the paper's hcr_neff. Poisson weights come from one independent render per θ*."""
         known = {"hcr", "crlb", "hcr_neff", "barankin", "hcr_hat"}
         bad = sorted(set(want) - known)
         if bad:
@@ -415,14 +465,21 @@ class BoundService:
         if "barankin" in want and self.params.dim > 1:
             raise ValueError(f"barankin bounds a scalar θ; this model has {list(self.params.names)}")
         p, R = self.params, _need_replicates(replicates)
+        _check_step(fd_step, step_tol, max_halvings)
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, p.dim)
         grid = p.grid(test_grid)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
         need_fi = bool({"hcr", "crlb"} & set(want))
         center = self.replicates(thetas, spp, seeds, R, "bound renders at θ*").double()
         grid_X = self.replicates(grid, spp, seeds, R, "bound test renders").double() if need_alt else None
-        J1 = self._fd_rounds(thetas, spp, seeds, R, fd_step) if need_fi else None
-        J2 = self._fd_rounds(thetas, spp, seeds, R, fd_step / 2) if need_fi else None
+        weights = self._weights(thetas, spp, center.mean(dim=0), noises)
+        stages = None
+        if need_fi:
+            common = center if seeds == "common" else None
+            stages = self._refine(thetas, lambda idx, xi: self._stages(thetas[idx], None if common is None else
+                                                                       common[:, idx], spp, seeds, R, xi),
+                                  {j: [w for w, _ in rows] for j, rows in weights.items()}, fd_step, step_tol,
+                                  max_halvings)
         rows: dict[tuple[int, int], BoundPoint] = {}
         for i, theta in enumerate(thetas):
             near = np.flatnonzero(np.abs((grid - theta) / (p.upper - p.lower)).max(axis=1) > 1e-9)
@@ -441,19 +498,18 @@ class BoundService:
                                          seeds == "common")
             L0 = center[:, i].mean(dim=0)
             for j, noise in self._select(noises).items():
-                w, zero_flags = self._weight(noise, L0)
+                wflat, zero_flags = weights[j][i]
+                w = torch.from_numpy(wflat).reshape(L0.shape)
                 b: dict[str, Bound] = {}
-                if need_fi:
-                    fi = fisher_ustat(J1[:, i], w)
-                    note, step_flag = _step_check(fi, fisher_ustat(J2[:, i], w), "halving")
-                    if "crlb" in want:
-                        b["crlb"] = crlb_bound(fi, self.level, zero_flags + step_flag, note)
+                sf = converge(stages[i], wflat, self.level, step_tol, spp) if need_fi else None
+                if "crlb" in want:
+                    b["crlb"] = crlb_bound(sf, self.level, zero_flags)
                 if need_alt and {"hcr", "hcr_neff"} & set(want):
                     if "hcr" in want:
                         D = (alt - center[:, i][:, None]).reshape(R, alt.shape[1], -1).numpy()  # (R, K, N)
-                        lam = pixel_ustat(D, to_float64(w).expand(L0.shape).reshape(-1).numpy())
-                        iv = hcr_interval(lam, deltas, fi, self.level, lower, upper)
-                        b["hcr"] = interval_bound(iv, zero_flags + step_flag)
+                        lam = pixel_ustat(D, wflat)
+                        iv = hcr_interval(lam, deltas, sf, self.level, lower, upper)
+                        b["hcr"] = interval_bound(iv, zero_flags, sf)
                     plug = _FixedWeight(w).chi2_exponent(L0, alt.mean(dim=0))
                     b["hcr_neff"] = hcr_bound(hcr_from_lambda(plug, deltas, lower, upper))
                 if "barankin" in want:
@@ -467,28 +523,43 @@ class BoundService:
 
     # -- Fisher information ------------------------------------------------------------------------------
     def fisher(self, thetas, spp: int, fd_step: float = 0.01, rounds: int = 3, reduce: str = "sum",
-               noises=None) -> list[FisherPoint]:
+               noises=None, step_tol: float = 0.1, max_halvings: int = 3) -> list[FisherPoint]:
         """Unbiased per-pixel Fisher information maps and the CRLB per parameter at each θ (T, P): a render
-        (purpose "fisher", the Poisson weight image) and `rounds` independent central-FD Jacobians (step ξ,
-        common random numbers inside each stencil; purpose "fisher-fd", replicate r) per θ."""
+        (purpose "fisher", the Poisson weight image) and `rounds` independent central-FD Jacobians (common
+        random numbers inside each stencil; purpose "fisher-fd", replicate r) per θ at step ξ, halved with the
+        same seeds until F has stopped rising within 1 + `step_tol` (at most `max_halvings` times); maps and
+        bounds from the finest step."""
         if rounds < 2:
             raise ValueError(f"an unbiased Fisher information needs >= 2 independent FD rounds, got {rounds}")
         if reduce not in ("sum", "mean"):
             raise ValueError(f"reduce must be 'sum' or 'mean', got {reduce!r}")
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, self.params.dim)
+        P = self.params.dim
         Ls = self.bank.at(thetas, spp, "fisher", desc="Fisher-map renders")
-        Js = torch.stack([self.bank.jacobians_at(thetas, spp, fd_step, "fisher", replicate=r,
-                                                 desc=f"Fisher-map FD Jacobians (round {r})") for r in range(rounds)])
+        sel = self._select(noises)
+        weights = {j: [self._weight(noise, L) for L in Ls] for j, noise in sel.items()}
+        wflat = {j: [to_float64(w).expand(Ls.shape[1:]).reshape(-1).numpy() for w, _ in rows]
+                 for j, rows in weights.items()}
+
+        def stage_fn(idx, xi):
+            J = torch.stack([self.bank.jacobians_at(thetas[idx], spp, xi, "fisher", replicate=r,
+                                                    desc=f"Fisher-map FD Jacobians (round {r})")
+                             for r in range(rounds)]).double()  # (rounds, T', P, *S)
+            return [Stage(xi, {"central": J[:, t].reshape(rounds, P, -1).numpy()}) for t in range(len(idx))]
+
+        stages = self._refine(thetas, stage_fn, wflat, fd_step, step_tol, max_halvings)
         out = []
         for i, (t, L) in enumerate(zip(thetas, Ls, strict=True)):
+            Jf = torch.from_numpy(stages[i][-1].rounds["central"]).reshape(rounds, P, *L.shape)
             maps, bounds = {}, {}
-            for j, noise in self._select(noises).items():
-                w, flags = self._weight(noise, L)
-                m = unbiased_fisher(Js[:, i], w.expand(L.shape)).pixel_map  # (P, H, W, C)
+            for j in sel:
+                w, flags = weights[j][i]
+                m = unbiased_fisher(Jf, w.expand(L.shape)).pixel_map  # (P, H, W, C)
                 maps[j] = m.sum(axis=-1) if reduce == "sum" else m.mean(axis=-1)
-                bounds[j] = [crlb_bound(fisher_ustat(Js[:, i, k:k + 1], w), self.level, flags)
-                             for k in range(self.params.dim)]
-            out.append(FisherPoint(t, L, Js[:, i].mean(dim=0), maps, bounds))
+                bounds[j] = [crlb_bound(converge([Stage(s.step, {"central": s.rounds["central"][:, k:k + 1]})
+                                                  for s in stages[i]], wflat[j][i], self.level, step_tol, spp),
+                                        self.level, flags) for k in range(P)]
+            out.append(FisherPoint(t, L, Jf.mean(dim=0), maps, bounds))
         return out
 
     # -- the paper's HCR intervals from inexact renders -----------------------------------------------------
@@ -564,21 +635,26 @@ def _grid_fd(X: torch.Tensor, T: np.ndarray, k: int) -> torch.Tensor:
     return (X[:, hi] - X[:, lo]) / sep
 
 
-def _step_check(fine: UStat, coarse: UStat, how: str) -> tuple[str, tuple]:
-    """(note, flags) comparing F at two FD steps (scalar θ: F; vector: the trace)."""
-    a, b = float(np.trace(fine.est)), float(np.trace(coarse.est))
-    sa = float(np.sqrt(np.nansum(np.diag(fine.se) ** 2)))
-    sb = float(np.sqrt(np.nansum(np.diag(coarse.se) ** 2)))
-    ratio = a / b if b > 0 and a > 0 else math.nan
-    note = f"FD step {how}: F changes by ×{ratio:.3g}" if math.isfinite(ratio) else f"FD step {how}: F unresolved"
-    sensitive = math.isfinite(sa) and math.isfinite(sb) and abs(a - b) > 2 * math.hypot(sa, sb)
-    return note, (("fd-step-sensitive",) if sensitive else ())
+def _diff(a: torch.Tensor, b: torch.Tensor, sep) -> np.ndarray:
+    """FD rounds (R, P, N) (a − b) / sep from renders a, b (R, P or 1, *S) float64 and separations (P,)."""
+    d = a - b
+    P = len(sep)
+    return (d / torch.as_tensor(np.asarray(sep, dtype=np.float64)).reshape(1, P, *([1] * (d.ndim - 2)))
+            ).reshape(d.shape[0], P, -1).numpy()
 
 
-def _slice(F: UStat, g: int) -> UStat:
-    """The scalar UStat (1, 1) of quantity g of a vector UStat (est (G,), loo (R, G))."""
-    loo = F.loo[:, g].reshape(-1, 1, 1) if F.loo.size else F.loo.reshape(0, 1, 1)
-    return UStat(F.est[g].reshape(1, 1), F.se[g].reshape(1, 1), loo, F.replicates, F.dof[g].reshape(1, 1))
+def _flat(J: torch.Tensor) -> np.ndarray:
+    """One-parameter FD rounds (R, *S) as (R, 1, N) float64."""
+    return J.reshape(J.shape[0], 1, -1).double().numpy()
+
+
+def _check_step(step, step_tol, max_halvings) -> None:
+    if not (isinstance(step, (int, float)) and math.isfinite(step) and step > 0):
+        raise ValueError(f"fd_step must be a positive number of parameter units, got {step!r}")
+    if not (isinstance(step_tol, (int, float)) and math.isfinite(step_tol) and step_tol > 0):
+        raise ValueError(f"step_tol must be a positive number (e.g. 0.1: F within 10 %), got {step_tol!r}")
+    if isinstance(max_halvings, bool) or int(max_halvings) != max_halvings or not 0 <= max_halvings <= 12:
+        raise ValueError(f"max_halvings must be an integer in [0, 12], got {max_halvings!r}")
 
 
 def _barankin(L0, L_alt, deltas, noise, lower, upper) -> Bound:

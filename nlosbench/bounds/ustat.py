@@ -80,6 +80,33 @@ def t_quantile(level: float, dof, tests: int = 1):
     return float(q) if q.ndim == 0 else q
 
 
+def pixel_terms(x: np.ndarray, w) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pixel U-statistics of Σ_ω w X_r X_s (x (R, k, N) float64, w scalar or (k, N)): (per (k, N), the
+    estimate of each pixel; lo (R, k, N), each pixel's estimate without replicate r; empty for R < 3)."""
+    R = x.shape[0]
+    S, Q = x.sum(axis=0), (x * x).sum(axis=0)  # (k, N)
+    per = w * (S * S - Q) / (R * (R - 1))
+    if R < 3:
+        return per, np.empty((0,) + per.shape)
+    return per, w * ((S[None] - x) ** 2 - (Q[None] - x * x)) / ((R - 1) * (R - 2))
+
+
+def sum_terms(per: np.ndarray, lo: np.ndarray, R: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(est (k,), loo (R, k), se (k,), df (k,)) of a sum over independent pixels of per-pixel statistics per
+    (k, N) with leave-one-out values lo (R, k, N): se from the per-pixel jackknife variances summed,
+    Satterthwaite's degrees of freedom; NaN se for R < 3. Linear in (per, lo), so a contrast of two
+    statistics over the same replicates (paired) is `sum_terms(per_b − c·per_a, lo_b − c·lo_a, R)`."""
+    est = per.sum(axis=1)
+    if R < 3:
+        nan = np.full(est.shape, math.nan)
+        return est, np.empty((0,) + est.shape), nan, nan
+    v = (R - 1) / R * ((lo - lo.mean(axis=0)) ** 2).sum(axis=0)  # per-pixel jackknife variances (k, N)
+    tot = v.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        df = np.where(tot > 0, tot**2 / ((v * v).sum(axis=1) / (R - 1)), R - 1.0)
+    return est, lo.sum(axis=2), np.sqrt(tot), df
+
+
 def pixel_ustat(X, weights, chunk_bytes: int = 256 * 2**20) -> UStat:
     """U-statistics of Σ_ω w_ω X_r,k,ω X_s,k,ω over R replicates for each of K quantities (X (R, K, N):
     replicate differences or FD Jacobians, pixels flattened; weights scalar, (N,) or (K, N)): est (K,),
@@ -96,20 +123,11 @@ def pixel_ustat(X, weights, chunk_bytes: int = 256 * 2**20) -> UStat:
     step = max(1, chunk_bytes // (8 * R * N * 3))
     for k0 in range(0, K, step):
         k1 = min(K, k0 + step)
-        x = X[:, k0:k1].astype(np.float64)
-        w = float(weights) if W is None else W[k0:k1]
-        S, Q = x.sum(axis=0), (x * x).sum(axis=0)  # (k, N)
-        per = w * (S * S - Q) / (R * (R - 1))  # per-pixel U-statistics
-        est[k0:k1] = per.sum(axis=1)
-        if R < 3:
-            continue
-        lo = w * ((S[None] - x) ** 2 - (Q[None] - x * x)) / ((R - 1) * (R - 2))  # (R, k, N): without replicate r
-        loo[:, k0:k1] = lo.sum(axis=2)
-        v = (R - 1) / R * ((lo - lo.mean(axis=0)) ** 2).sum(axis=0)  # per-pixel jackknife variances (k, N)
-        tot = v.sum(axis=1)
-        se[k0:k1] = np.sqrt(tot)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            df[k0:k1] = np.where(tot > 0, tot**2 / ((v * v).sum(axis=1) / (R - 1)), R - 1.0)
+        per, lo = pixel_terms(X[:, k0:k1].astype(np.float64), float(weights) if W is None else W[k0:k1])
+        e, left, s, d = sum_terms(per, lo, R)
+        est[k0:k1], se[k0:k1], df[k0:k1] = e, s, d
+        if R >= 3:
+            loo[:, k0:k1] = left
     return UStat(est, se, loo, R, df)
 
 

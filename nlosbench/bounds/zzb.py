@@ -10,7 +10,8 @@ V valley filling (V{A}(h) = max_{η ≥ 0} A(h + η), so V{A} is non-increasing)
   equal-prior error P_e; a density `prior` on the grid uses the valid weaker form 2·min(p(φ), p(φ+h))·P_e;
 * AWGN: P_e = Q(√λ / 2), λ = ‖L1 − L0‖² / σ² (the HCR curve's pairwise λ: no extra renders);
 * Poisson: P_e ≥ ½(1 − √(1 − ρ²)) with the Bhattacharyya coefficient ρ = exp(−½ Σ s(√L1 − √L0)²) (it is
-  not a function of λ), a lower bound on P_e, so the ZZB stays a bound;
+  not a function of λ), a lower bound on P_e, so the ZZB stays a bound; from Monte Carlo renders the
+  distance comes from `bhattacharyya_ustat`, an estimate biased only upward (which keeps the ZZB a bound);
 * on a uniform grid θ_0 < … < θ_{n−1} (spacing δ, T = (n−1)δ): A(kδ) by the trapezoid rule over φ, then
   valley filling, then a *lower* sum in h: ∫_{h_k}^{h_{k+1}} h V(h) dh ≥ V(h_{k+1}) (h_k + δ/2) δ, since V
   is non-increasing. A sum over grid points cannot bound P_e between them: `halved` reports the change
@@ -28,7 +29,7 @@ from scipy.special import erfc
 
 from nlosbench.bounds.grid import pairwise_lambda
 from nlosbench.bounds.hcr import as_numpy
-from nlosbench.bounds.ustat import UStat, t_quantile
+from nlosbench.bounds.ustat import UStat, pixel_ustat, t_quantile
 from nlosbench.noise import AWGN, NoiseModel, Poisson, to_float64
 
 
@@ -65,6 +66,41 @@ def bhattacharyya(renders, noise: Poisson) -> np.ndarray:
     S = to_float64(renders, "renders")
     noise.validate(S, "renders")
     return 0.5 * noise.scale * _pairwise_sq(np.sqrt(as_numpy(S).reshape(len(S), -1)))
+
+
+def bhattacharyya_ustat(X, Y, scale: float) -> UStat:
+    """Upper estimates of the pairwise Bhattacharyya distances b[i, j] = ½ s Σ_ω (√L_i − √L_j)² of Poisson
+    observations (photon scale s) from R replicate renders X (R, G, N) and one render Y (G, N) of every point,
+    independent of X. est (G, G), loo (R, G, G), se (G, G) (`pixel_ustat`'s, plus the zero-pixel term's
+    jackknife).
+
+    (√L_j − √L_i)² = (L_j − L_i)²·w with w = 1/(√L_i + √L_j)². The U-statistic of (L_j − L_i)² over the
+    replicates is unbiased; w is taken from Y, independent of them. E√Y ≤ √L (Jensen: √ is concave), and
+    x ↦ 1/x² is convex and decreasing, so E[1/(√Y_i + √Y_j)²] ≥ 1/(E√Y_i + E√Y_j)² ≥ 1/(√L_i + √L_j)²; the
+    product of independent estimates has the product of their expectations, so E b̂ ≥ b: biased only upward
+    (and the upper confidence limit of b̂ more so). A larger distance gives a smaller P_e bound, so the ZZB
+    from b̂ stays a lower bound on the ZZB of the exact b. (The U-statistic on √X is unbiased for
+    Σ(E√X_j − E√X_i)², not for b: in rare-path renders it errs either way.)
+    Zero pixels: where Y_i = Y_j = 0 the weight is unbounded; there (√L_j − √L_i)² ≤ L_i + L_j is used,
+    estimated by the replicates' mean X̄_i + X̄_j (unbiased: again an upper estimate)."""
+    X = np.asarray(X, dtype=np.float64)
+    R, G, N = X.shape
+    root = np.sqrt(np.clip(np.asarray(Y, dtype=np.float64).reshape(G, N), 0.0, None))
+    est, se = np.zeros((G, G)), np.zeros((G, G))
+    loo = np.zeros((R, G, G)) if R >= 3 else np.empty((0, G, G))
+    for i in range(G):
+        den = (root + root[i]) ** 2  # (G, N)
+        zero = den == 0
+        u = pixel_ustat(X - X[:, i:i + 1], np.where(zero, 0.0, 0.5 * scale / np.where(zero, 1.0, den)))
+        z = 0.5 * scale * ((X + X[:, i:i + 1]) * zero[None]).sum(axis=2)  # (R, G): the zero pixels' bound
+        est[i] = u.est + z.mean(axis=0)
+        if R >= 3:
+            zl = (z.sum(axis=0)[None] - z) / (R - 1)
+            loo[:, i] = u.loo + zl
+            zse = np.sqrt((R - 1) / R * ((zl - zl.mean(axis=0)) ** 2).sum(axis=0))
+            se[i] = np.hypot(u.se, zse)
+        est[i, i] = 0.0
+    return UStat(est, se, loo, R)
 
 
 def _pairwise_sq(X: np.ndarray) -> np.ndarray:
@@ -178,8 +214,8 @@ def ziv_zakai(renders, thetas, noise: NoiseModel, prior=None, lower=None, upper=
     return r
 
 
-__all__ = ["ZZBInterval", "ZZBResult", "zzb_interval", "a_of_h", "bhattacharyya", "error_matrix", "integrate",
-           "pe_from_bhattacharyya", "pe_from_lambda", "uniform_spacing", "zzb_from_errors", "ziv_zakai"]
+__all__ = ["ZZBInterval", "ZZBResult", "zzb_interval", "a_of_h", "bhattacharyya", "bhattacharyya_ustat", "error_matrix",
+           "integrate", "pe_from_bhattacharyya", "pe_from_lambda", "uniform_spacing", "zzb_from_errors", "ziv_zakai"]
 
 
 @dataclass

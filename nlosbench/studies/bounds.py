@@ -15,7 +15,8 @@ import numpy as np
 
 from ..bounds import BoundService
 from ..io import read_csv, write_csv, write_exr
-from ..schema import GRID, ConfigError, Field, grid_values, smoke_grid
+from ..noise import Poisson
+from ..schema import GRID, STEP_TOL, ConfigError, Field, grid_values, smoke_grid
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import bound_curves_plot
@@ -34,6 +35,7 @@ SCHEMA = {
     "crlb": Field(bool, True, "also report the CRLB (its Δ → 0 term enters the HCR either way)"),
     "fd_step": Field(float, None, "FD step ξ of the Δ → 0 term and the CRLB (parameter units); null: the grid "
                                   "neighbours (no extra render)", nullable=True),
+    "step_tol": STEP_TOL,
     "barankin": Field(bool, False, "also compute the multi-point Barankin bound at each grid point (plug-in)"),
     "zzb": Field(bool, True, "the Ziv–Zakai bound on the Bayesian MSE over a uniform prior on the grid's range "
                              "(needs a uniform grid)"),
@@ -55,6 +57,7 @@ class Plan:
     barankin: bool
     zzb: bool
     fd_step: float | None
+    step_tol: float
 
 
 def plan(ctx: RunContext, cfg: dict) -> Plan:
@@ -81,12 +84,14 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     if not 0 < cfg["level"] < 1:
         raise ConfigError(f"{sid}.level", f"expected a confidence level in (0, 1), got {cfg['level']}")
     return Plan(np.unique(thetas), cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
-                cfg["barankin"], cfg["zzb"], cfg["fd_step"])
+                cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"])
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
-    """R·G grid renders; with an `fd_step`, 4R·G FD stencil renders more (at ξ and at ξ/2, the step check)."""
-    renders = p.replicates * len(p.thetas) * (1 + (4 if p.fd_step is not None else 0))
+    """R·G grid renders; with an `fd_step`, 4R·G FD stencil renders more (at ξ and at ξ/2, the step check);
+    with a Poisson noise model, G weight renders more."""
+    poisson = any(isinstance(n, Poisson) for n in ctx.noises)
+    renders = p.replicates * len(p.thetas) * (1 + (4 if p.fd_step is not None else 0)) + poisson * len(p.thetas)
     return Estimate(renders, renders * p.spp * pixels(ctx.model))
 
 
@@ -95,7 +100,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     before = ctx.bank.renders
     svc = BoundService(ctx.bank, ctx.noises, p.level)
     curve = svc.curve(p.thetas, p.spp, p.seeds, p.replicates, crlb=p.crlb, barankin=p.barankin, zzb=p.zzb,
-                      fd_step=p.fd_step)
+                      fd_step=p.fd_step, step_tol=p.step_tol)
     names = ctx.model.params.names
     write_csv(out / "bounds.csv", [pt.row(names) for pt in curve.points])
     zrows = [{"noise_index": j, "noise": str(ctx.noises[j]), **b.columns(), **b.extra}
@@ -106,14 +111,15 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         for g, img in enumerate(svc.replicates(p.thetas, p.spp, p.seeds, 1)[0]):
             write_exr(out / "images" / f"grid_{g:04d}.exr", img)
     return {"grid_points": len(p.thetas), "renders": ctx.bank.renders - before, "spp": p.spp, "seeds": p.seeds,
-            "replicates": p.replicates, "level": p.level, "los_until": cfg["los_until"], "parameter": names[0],
+            "replicates": p.replicates, "level": p.level, "step_tol": p.step_tol, "los_until": cfg["los_until"],
+            "parameter": names[0],
             "units": ctx.model.params.units[0], "zzb_reason": curve.zzb_reason,
             "noise": summarize(read_csv(out / "bounds.csv"), zrows)}
 
 
 def summarize(rows: list[dict], zrows: list[dict]) -> dict:
-    """Per noise model: the range of the HCR's lower end, where the Δ → 0 term sets it, θ with an unbounded
-    upper end or an FD step that matters, and the ZZB with its ends."""
+    """Per noise model: the range of the HCR's lower end, where the Δ → 0 term sets it, θ with an open upper
+    end, θ whose Δ → 0 lower end is not a confidence limit (FD step not converged), and the ZZB with its ends."""
     out = {}
     for noise in dict.fromkeys(r["noise"] for r in rows):
         rs = [r for r in rows if r["noise"] == noise]
@@ -124,7 +130,8 @@ def summarize(rows: list[dict], zrows: list[dict]) -> dict:
                       "min_log10_hcr": float(fin.min()) if fin.size else float("nan"),
                       "set_by_limit": sum("lower: Δ → 0" in r["hcr_terms"] for r in rs),
                       "upper_unbounded": sum("upper-unbounded" in r["hcr_flags"] for r in rs),
-                      "fd_step_sensitive": sum("fd-step-sensitive" in r.get("crlb_flags", "") for r in rs),
+                      "step_not_converged": sum("fd-step-not-converged" in r["hcr_flags"] for r in rs),
+                      "not_limits": sum(bool(r.get("hcr_lower_note")) for r in rs),
                       "zzb": None if z is None else {k: float(z[k]) for k in ("log10_zzb", "zzb_upper", "zzb_point",
                                                                                "prior_variance", "halved")} |
                       {"flags": z["zzb_flags"]}}
@@ -150,26 +157,30 @@ def report(study_dir: Path, results: dict) -> str:
              f"whose limit is the CRLB term; λ(Δ) and the Fisher information are U-statistics over the replicates "
              f"(unbiased: rendering noise does not inflate them). The line is the lower end, a one-sided {lvl} "
              f"confidence limit (Bonferroni over the tested Δ and Δ → 0) — the bound to quote; the band reaches "
-             f"the upper end, which bounds the HCR over the resolved Δ and Δ → 0 (open where λ or F is not resolved: "
-             f"▲ on the plot, ∞ in tables; an end that is not a confidence limit is a hollow marker).",
-             f"- **CRLB**: 1/F̂ from the unbiased Fisher information of the FD-smoothed derivative (grid-neighbour "
-             f"FD), with its {lvl} ends; checked against twice the FD step.",
+             f"the upper end, which bounds the HCR over the tested Δ and Δ → 0 (open where any tested Δ or F is not "
+             f"resolved: ▲ on the plot, ∞ in tables).",
+             f"- **CRLB**: 1/F̂ from the unbiased Fisher information of the FD-smoothed derivative, with its {lvl} "
+             f"ends over the FD steps tried. An FD step that is too wide makes F too small (an edge crossing a pixel "
+             f"inside θ ± ξ), so the step is checked: where the paired upper limit of F at the finer step over F at "
+             f"the coarser exceeds 1 + {results.get('step_tol', 0.1):g}, the Δ → 0 lower ends are *not confidence "
+             f"limits* (labelled in bounds.csv: hcr_lower_note, crlb_lower_note; drawn hollow in the plot). A "
+             f"curve does not refine its step; the bounds a trials or fisher-maps study quotes at its θ* do.",
              "- **HCR_Neff (paper)**: the paper's direct bound from the replicate means, sup over the grid's Δ "
              "only: without its Δ → 0 term it can sit decades below the CRLB (the paper's 80 cm row is this).",
              "- **ZZB**: the Ziv–Zakai bound on the Bayesian MSE over a uniform prior on the grid's range: it holds "
              "for every estimator, biased or not (one number per noise model).", "",
              f"![bounds]({study_dir.name}/bounds.png)", "",
              "| noise | log10 HCR lower end, min – max | θ where Δ → 0 sets it | θ with open upper end | "
-             f"θ where the FD step matters | ZZB [{lvl} ends] |", "|---|---|---|---|---|---|"]
+             f"θ whose lower end is not a confidence limit | ZZB point [{lvl} ends] |", "|---|---|---|---|---|---|"]
     for noise, s in results["noise"].items():
         z = s.get("zzb")
         zz = "–"
         if z is not None:
-            zz = f"{fmt_log10(z['log10_zzb'])} [{fmt_end(z['log10_zzb'])}, {fmt_end(z['zzb_upper'])}]"
+            zz = f"{fmt_log10(z['zzb_point'])} [{fmt_end(z['log10_zzb'])}, {fmt_end(z['zzb_upper'])}]"
             if z["flags"]:
                 zz += f" ({z['flags']}; grid halving: {z['halved']:+.2g} decades)"
         lines.append(f"| {noise} | {s['min_log10_hcr']:.3g} – {s['max_log10_hcr']:.3g} | {s['set_by_limit']} of "
-                     f"{results['grid_points']} | {s['upper_unbounded']} | {s['fd_step_sensitive']} | {zz} |")
+                     f"{results['grid_points']} | {s['upper_unbounded']} | {s.get('not_limits', '–')} | {zz} |")
     if results.get("zzb_reason"):
         lines += ["", f"No ZZB: {results['zzb_reason']}."]
     return "\n".join(lines)

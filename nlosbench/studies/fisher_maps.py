@@ -9,11 +9,12 @@ import numpy as np
 
 from ..bounds import save_fisher_maps
 from ..io import read_csv, write_csv, write_exr
-from ..schema import ConfigError, Field, point_spec
+from ..schema import MAX_HALVINGS, STEP_TOL, ConfigError, Field, point_spec
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import fisher_figure
 from .plotstyle import theta_text
+from .tables import fmt_end
 
 NAME = "fisher-maps"
 SCHEMA = {
@@ -24,6 +25,8 @@ SCHEMA = {
     "fd_rounds": Field(int, 3, "independent FD rounds: the unbiased Fisher information is a U-statistic over them "
                                "(>= 2; >= 3 for the CRLB's interval)"),
     "reduce": Field(str, "sum", "combine channels by", choices=("sum", "mean")),
+    "step_tol": STEP_TOL,
+    "max_halvings": MAX_HALVINGS,
 }
 
 
@@ -37,6 +40,8 @@ class Plan:
     fd_step: float
     fd_rounds: int
     reduce: str
+    step_tol: float
+    max_halvings: int
 
 
 def plan(ctx: RunContext, cfg: dict) -> Plan:
@@ -57,12 +62,14 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     if cfg["fd_rounds"] < 2:
         raise ConfigError(f"{sid}.fd_rounds", f"the unbiased Fisher information needs >= 2 rounds, got "
                                               f"{cfg['fd_rounds']}")
-    return Plan(np.array(thetas), labels, cfg["spp"], cfg["fd_step"], cfg["fd_rounds"], cfg["reduce"])
+    return Plan(np.array(thetas), labels, cfg["spp"], cfg["fd_step"], cfg["fd_rounds"], cfg["reduce"],
+                cfg["step_tol"], cfg["max_halvings"])
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
-    """Per θ: a render and `fd_rounds` central-FD Jacobians (2 renders per parameter and round)."""
-    renders = len(p.thetas) * (1 + 2 * ctx.model.params.dim * p.fd_rounds)
+    """Per θ: a render and `fd_rounds` central-FD Jacobians (2 renders per parameter and round) at ξ and ξ/2;
+    at most `max_halvings` − 1 more halvings where the step has not converged (counted: the most it can cost)."""
+    renders = len(p.thetas) * (1 + 2 * ctx.model.params.dim * p.fd_rounds * (1 + max(p.max_halvings, 0)))
     return Estimate(renders, renders * p.spp * pixels(ctx.model))
 
 
@@ -72,7 +79,9 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     rows = []
     names, units = list(m.params.names), list(m.params.units)
     where = {}
-    for label, fp in zip(p.labels, ctx.bounds.fisher(p.thetas, p.spp, p.fd_step, p.fd_rounds, p.reduce), strict=True):
+    points = ctx.bounds.fisher(p.thetas, p.spp, p.fd_step, p.fd_rounds, p.reduce, step_tol=p.step_tol,
+                               max_halvings=p.max_halvings)
+    for label, fp in zip(p.labels, points, strict=True):
         where[label] = theta_text(names, fp.theta, units)
         write_exr(out / f"{label}_rgb.exr", fp.L)
         for j, name in enumerate(m.params.names):
@@ -83,7 +92,9 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             for j, name in enumerate(m.params.names):
                 b = fp.crlb[k][j]
                 rows.append({"label": label, "theta": fp.theta.tolist(), "noise": str(noise), "param": name,
-                             "fisher_total": float(fp.maps[k][j].sum()), "log10_crlb": b.log10, "flag": b.reason})
+                             "fisher_total": float(fp.maps[k][j].sum()), "log10_crlb": b.log10,
+                             "crlb_lower": b.lower, "crlb_upper": b.upper, "crlb_lower_note": b.lower_note,
+                             "flag": b.reason})
     write_csv(out / "fisher.csv", rows)  # the figure: report() draws it from the saved EXRs
     return {"points": p.labels, "params": names, "units": units, "where": where,
             "noises": [str(n) for n in ctx.noises], "renders": ctx.bank.renders - before, "spp": p.spp}
@@ -101,8 +112,14 @@ def report(study_dir: Path, results: dict) -> str:
                   results.get("units"))
     lines = [f"Per-pixel Fisher information from central FD (common random numbers) at {results['spp']} spp; "
              f"{results['renders']} renders.", "", f"![Fisher maps]({study_dir.name}/fisher_maps.png)", "",
-             "| point | θ | noise | parameter | total FI | log10 CRLB | flag |", "|---|---|---|---|---|---|---|"]
+             "| point | θ | noise | parameter | total FI | log10 CRLB [95 % ends] | how |",
+             "|---|---|---|---|---|---|---|"]
     for r in rows:
+        ends = (f" [{fmt_end(r['crlb_lower'])}{'†' if r.get('crlb_lower_note') else ''}, "
+                f"{fmt_end(r['crlb_upper'])}]" if "crlb_lower" in r else "")
         lines.append(f"| {r['label']} | {r['theta']} | {r['noise']} | {r['param']} | {float(r['fisher_total']):.4g} "
-                     f"| {float(r['log10_crlb']):.4g} | {r['flag']} |")
+                     f"| {float(r['log10_crlb']):.4g}{ends} | {r['flag']} |")
+    if any(r.get("crlb_lower_note") for r in rows):
+        lines += ["", "† not a confidence limit: the FD step did not converge (the note in fisher.csv says which "
+                      "step or spp would settle it)."]
     return "\n".join(lines)

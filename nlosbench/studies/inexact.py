@@ -319,8 +319,9 @@ def report(study_dir: Path, results: dict) -> str:
         f"N_eff = {results['n_eff']} spp. Each level and N_eff: {results['replicates']} independent replicates, "
         f"{results.get('seeds', 'independent')} seeds across θ* and θ*+Δ.",
         "",
-        "HCR_Neff is typically *below* the true HCR (rendering noise inflates λ); HCR-hat is above it only "
-        "*in expectation* — one run can fall on either side. The bracketed ranges are "
+        "HCR_Neff is typically *below* the true HCR (rendering noise inflates λ); HCR-hat is above the HCR over "
+        "the tested Δ only *in expectation* — one run can fall on either side, and a sup over more Δ can be "
+        "higher. The bracketed ranges are "
         f"{results['confidence']:.0%} half-sample bootstrap intervals over the render replicates "
         f"({results['bootstrap']} resamples): how far another run of the same budget may land. "
         "Values: log10 of the bound on the variance [units²].",

@@ -70,7 +70,7 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
         ax.plot(x, low, "-", color=color, label=f"HCR lower end, {noise}")
         if "hcr_upper" in rs[0]:
             up = np.array([cell(r["hcr_upper"]) for r in rs])
-            band = np.isfinite(up) & np.isfinite(low)
+            band = np.isfinite(up) & np.isfinite(low) & (up > low)
             if band.any():
                 ax.fill_between(x, low, np.where(band, up, np.nan), where=band, step="mid", color=color, alpha=0.15,
                                 lw=0, label=f"HCR interval (lower to upper end), {noise}")

@@ -20,6 +20,8 @@ def mse_units(units) -> str:
 def fmt(v, digits: int = 3) -> str:
     if v is None or (isinstance(v, float) and math.isnan(v)):
         return "–"
+    if isinstance(v, float) and math.isinf(v):
+        return "∞" if v > 0 else "−∞"
     if isinstance(v, float):
         return f"{v:.{digits}g}"
     return str(v)

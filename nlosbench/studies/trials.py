@@ -5,10 +5,11 @@ Two protocols (`mode`):
   starts near θ*, is confined to Θ or uses a prior is biased there, so its MSE is set beside the HCR
   interval and the CRLB *with its measured bias* (a bias test whose standard error includes the clean
   image's own Monte Carlo error: the clean image is `truth_replicates` independent renders, trial k uses
-  replicate k mod C); a row "below" the interval is explained by that bias, or flagged as unexplained.
+  replicate k mod C); a row "below" the interval (a one-sided test at `level`, `nlosbench.verdicts`) is
+  explained by that bias, or flagged as unexplained.
 * bayesian: every trial draws its own θ* from the prior (uniform over Θ) and starts uniformly over Θ (the
-  paper's protocol); the Bayesian MSE with its SE is held against the Ziv–Zakai bound, which holds for
-  every estimator, biased or not.
+  paper's protocol); the Bayesian MSE with its one-sided limits is held against the Ziv–Zakai bound, which
+  holds for every estimator, biased or not.
 
 Per θ* the bound service gives the HCR interval (with its Δ → 0 term), the CRLB from an unbiased Fisher
 information, and the paper's HCR_Neff / HCR-hat; in bayesian mode its curve over a uniform `hcr_grid` on
@@ -27,6 +28,7 @@ import copy
 import dataclasses
 import inspect
 import json
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,7 +44,17 @@ from ..estimators import BankGrid, Budget
 from ..forward.gradients import GradientSettings
 from ..io import write_csv
 from ..montecarlo import LOG_NAME, Setting, make_bayes_trials, make_trials, run_trials, summarize, summarize_bayes
-from ..schema import ConfigError, Field, grid_values, noise_spec, points_spec, smoke_grid
+from ..schema import (
+    MAX_HALVINGS,
+    STEP_TOL,
+    ConfigError,
+    Field,
+    grid_values,
+    noise_spec,
+    points_spec,
+    positive_number,
+    smoke_grid,
+)
 from .estimate import AD_PASS_RENDERS, Estimate, pixels
 from .plots import plot_mse, plot_speed
 from .tables import fmt, fmt_end, fmt_log10, mse_units, paper_table
@@ -53,13 +65,15 @@ BOUND_NOTES = {
     "hcr": "HCR interval on the MSE of an unbiased estimator, with its Δ → 0 (CRLB) term: λ(Δ) and the Fisher "
            "information are U-statistics over independent replicate render sets (unbiased: rendering noise does "
            "not inflate them); the value shown is the lower end, a one-sided confidence limit (Bonferroni over "
-           "the tested Δ and Δ → 0); the upper end bounds the HCR over the resolved Δ and Δ → 0",
-    "crlb": "CRLB (trace of F̂⁻¹) from an unbiased Fisher information (U-statistic over independent FD rounds at "
-            "step ξ: the FI of the FD-smoothed derivative), with its one-sided ends",
+           "the tested Δ and Δ → 0); the upper end bounds the HCR over the tested Δ and Δ → 0 (open when any "
+           "tested Δ is unresolved)",
+    "crlb": "CRLB (trace of F̂⁻¹) from an unbiased Fisher information (U-statistic over independent FD rounds: the "
+            "FI of the FD-smoothed derivative, its step ξ halved until F is shown to have stopped rising), with "
+            "its one-sided ends; a lower end whose step did not converge is marked as not a confidence limit",
     "hcr_neff": "HCR_Neff (the paper's direct bound): plug-in λ̃ of the replicate means, sup over the tested Δ "
                 "only; no Δ → 0 term, so it can fall decades below the CRLB (the paper's 80 cm row)",
     "hcr_hat": "HCR-hat (the paper's): HCR from the bias-corrected λ̂ (fit of λ̃ = λ + C/N over the spp levels), "
-               "a point estimate that is an upper bound on the true HCR in expectation",
+               "a point estimate, an upper bound in expectation on the HCR over the tested Δ only",
     "barankin": "Barankin (McAulay–Seidman) on Var of the scalar θ, plug-in from the replicate means",
 }
 
@@ -79,10 +93,13 @@ SCHEMA = {
                                       "else a list of lists", nullable=True),
     "prior": Field(str, "uniform", "prior of θ* in bayesian mode (and of the ZZB)", choices=("uniform",)),
     "n": Field(int, 30, "trials per θ* (local) or in all (bayesian), each with fresh noise and a fresh start"),
-    "n_eff": Field(int, 4096, "spp of each clean image (the observation's mean); local: split over "
-                              "`truth_replicates` independent renders"),
-    "truth_replicates": Field(int, 4, "local mode: independent renders making the clean image, whose spread "
-                                      "enters the bias test's SE (n_eff divisible by it)"),
+    "n_eff": Field(int, 4096, "spp of the clean image (the observation's mean) per θ*; local: split over "
+                              "`truth_replicates` independent renders, so each trial's observation has the mean "
+                              "of n_eff / truth_replicates spp"),
+    "truth_replicates": Field(int, 4, "local mode: independent renders making the clean image (trial k uses render "
+                                      "k mod truth_replicates), whose spread enters the bias test's SE and the "
+                                      "MSE's limits (n_eff divisible by it); = n makes the trials independent, "
+                                      "which gives the sharpest verdicts"),
     "estimators": Field(list, help="estimator settings {name, options, label, gradient}", items=ESTIMATOR),
     "noise": Field(noise_spec, "all", "index (or list of indices) into the run's noise models, or 'all'"),
     "bounds": Field(list, ["hcr", "crlb", "hcr_neff"], "bounds at each θ* (local mode)",
@@ -91,10 +108,13 @@ SCHEMA = {
     "replicates": Field(int, 3, "independent replicate render sets of the bounds (>= 3 for confidence limits)"),
     "seeds": Field(str, "common", "seeds across θ within a bound replicate: common (common random numbers) or "
                                   "independent", choices=("independent", "common")),
-    "level": Field(float, 0.95, "one-sided confidence level of every bound's ends"),
+    "level": Field(float, 0.95, "one-sided confidence level of every bound's ends, and of the verdicts of a "
+                                "table (Bonferroni over its tests)"),
     "hcr_grid": Field(int, 21, "HCR test points (and the bank grid, and the ZZB grid) per parameter over Θ"),
     "hcr_offsets": Field(int, 4, "HCR test offsets ±ξ·2^k, k < hcr_offsets, along each parameter"),
-    "fd_step": Field(float, 0.01, "ξ: FD step of the Δ → 0 term and the CRLB, and the smallest HCR offset"),
+    "fd_step": Field(positive_number, 0.01, "ξ: FD step of the Δ → 0 term and the CRLB, and the smallest HCR offset"),
+    "step_tol": STEP_TOL,
+    "max_halvings": MAX_HALVINGS,
     "levels": Field(list, [1024, 2048], "spp levels of the λ̂ fit for hcr_hat", items=int),
     "budget": Field({"iterations": Field(int, None, "iterations per fit", nullable=True),
                      "renders": Field(int, None, "renders + AD passes per fit", nullable=True),
@@ -102,7 +122,7 @@ SCHEMA = {
     "start_width": Field(float, None, "local mode: starts uniform in θ* ± width·|Θ|/2 (null: uniform in Θ, the "
                                       "paper's protocol)", nullable=True),
     "far_above": Field(float, 3.0, "flag MSE / bound above this factor"),
-    "bootstrap": Field(int, 1000, "bootstrap resamples for standard errors"),
+    "bootstrap": Field(int, 1000, "bootstrap resamples for the variance's standard error"),
     "traces": Field(bool, False, "store each fit's loss/θ trace in trials.jsonl"),
 }
 
@@ -232,8 +252,9 @@ def plan(ctx, cfg: dict) -> Plan:
 
 def cost(ctx, cfg: dict, p: Plan) -> Estimate:
     """Renders and pixel-samples: counted for the clean images and the bound renders (the bank grid, θ*, FD
-    stencils at ξ and ξ/2, the axis offsets, the spp levels of hcr_hat), estimated for the fits (`_fit_cost`:
-    each setting's iterations × spp, an upper bound for fits that stop early)."""
+    stencils at ξ and ξ/2 — further halvings, up to max_halvings, where the step has not converged, are not
+    counted —, the axis offsets, the spp levels of hcr_hat, Poisson weight renders), estimated for the fits
+    (`_fit_cost`: each setting's iterations × spp, an upper bound for fits that stop early)."""
     P, R, bspp, px = ctx.model.params.dim, p.replicates, p.bound_spp, pixels(ctx.model)
     G, T = cfg["hcr_grid"] ** P, len(p.thetas)
     renders, samples = R * G, R * G * bspp  # the bank grid (the bayesian ZZB curve uses the same renders)
@@ -288,15 +309,27 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
     return iterations * per, iterations * (spp + grad * (gradient.spp or spp))
 
 
+POINT_NOTE = "a plug-in point estimate"
+ESTIMATE_NOTE = "a point estimate: fewer than 3 replicate sets"
+
+
+def bound_entry(row: dict, kind: str) -> dict:
+    """One bound's cells of a CSV row (`Bound.columns`) as `montecarlo.summarize` takes them: {log10, lower,
+    upper, flags (a tuple), lower_note, upper_note} (ends and notes where present). A bound without ends
+    (hcr_neff, hcr_hat, barankin: plug-in point estimates) gets `POINT_NOTE` on both ends, one flagged
+    `estimate-only` (its ends are its point estimate) `ESTIMATE_NOTE`: no verdict is a test against them."""
+    ends = {e: float(row[f"{kind}_{e}"]) for e in ("lower", "upper") if row.get(f"{kind}_{e}") not in (None, "")}
+    notes = {e: str(row[f"{kind}_{e}"]) for e in ("lower_note", "upper_note") if row.get(f"{kind}_{e}")}
+    flags = tuple(f for f in str(row.get(f"{kind}_flags") or "").split(",") if f)
+    if not ends or "estimate-only" in flags:
+        note = ESTIMATE_NOTE if ends else POINT_NOTE
+        notes = {"lower_note": note, "upper_note": note}
+    return {"log10": float(row[f"log10_{kind}"]), **ends, "flags": flags, **notes}
+
+
 def bounds_map(rows: list[dict], want) -> dict:
-    """(noise, θ index) → {bound: {log10, lower, upper}} for `montecarlo.summarize` (ends where present)."""
-    out = {}
-    for r in rows:
-        out[r["noise_index"], r["theta_index"]] = {
-            b: {"log10": float(r[f"log10_{b}"]),
-                **{e: float(r[f"{b}_{e}"]) for e in ("lower", "upper") if r.get(f"{b}_{e}") not in (None, "")}}
-            for b in want}
-    return out
+    """(noise, θ index) → {bound: `bound_entry`} for `montecarlo.summarize`."""
+    return {(r["noise_index"], r["theta_index"]): {b: bound_entry(r, b) for b in want} for r in rows}
 
 
 # -- the study ------------------------------------------------------------------------------------
@@ -320,6 +353,7 @@ def run(ctx, cfg: dict) -> dict:
     reps = svc.replicates(grid, p.bound_spp, cfg["seeds"], p.replicates, "bank grid")
     bank_grid = BankGrid(grid, reps.mean(dim=0), p.replicates * p.bound_spp)
     bound_rows, zzb = [], {}
+    tseed = ctx.seed_for(f"trials {sid}")  # the trials' noise, start and fit seeds: a stream of this study's own
     if p.mode == "bayesian":
         curve = svc.curve(grid[:, 0], p.bound_spp, cfg["seeds"], p.replicates, crlb=False, zzb=True,
                           noises=list(p.noises))
@@ -328,7 +362,7 @@ def run(ctx, cfg: dict) -> dict:
             write_csv(folder / "zzb.csv", [{"noise_index": j, "noise": str(p.noises[j]), **b.columns(), **b.extra}
                                            for j, b in zzb.items()])
         cleans = list(ctx.bank.at(p.thetas, p.n_eff, TRUTH, desc="clean images (one per trial)"))
-        trials = make_bayes_trials(p.thetas, p.settings, p.noises, cleans, ctx.seed, p.budget, cfg["traces"],
+        trials = make_bayes_trials(p.thetas, p.settings, p.noises, cleans, tseed, p.budget, cfg["traces"],
                                    bank_grid)
     else:
         cleans = {}
@@ -341,17 +375,18 @@ def run(ctx, cfg: dict) -> dict:
             io.write_exr(folder / "images" / f"clean_{i:03d}.exr", mean)
         want = cfg["bounds"]
         points = svc.at(p.thetas, p.bound_spp, want, cfg["seeds"], p.replicates, cfg["hcr_grid"], cfg["hcr_offsets"],
-                        cfg["fd_step"], cfg["levels"], noises=list(p.noises)) if want else []
+                        cfg["fd_step"], cfg["levels"], noises=list(p.noises), step_tol=cfg["step_tol"],
+                        max_halvings=cfg["max_halvings"]) if want else []
         bound_rows = [{"theta_index": i % len(p.thetas), **pt.row(params.names)} for i, pt in enumerate(points)]
         write_csv(folder / "bounds.csv", bound_rows)
-        trials = make_trials(p.thetas, p.n, p.settings, p.noises, cleans, ctx.seed, p.budget, cfg["start_width"],
+        trials = make_trials(p.thetas, p.n, p.settings, p.noises, cleans, tseed, p.budget, cfg["start_width"],
                              cfg["traces"], bank_grid, p.clusters)
     renders = ctx.bank.renders - before
     records = run_trials(ctx.bank.executor, trials, folder / LOG_NAME, resume=ctx.resume, progress=ctx.progress)
     labels = [s.label for s in p.settings]
     if p.mode == "bayesian":
-        zmap = {j: {"log10": b.log10, "lower": b.lower, "upper": b.upper} for j, b in zzb.items()}
-        rows = summarize_bayes(records, zmap, labels)
+        zmap = {j: bound_entry(b.columns(), "zzb") for j, b in zzb.items()}
+        rows = summarize_bayes(records, zmap, labels, cfg["level"])
     else:
         rows = summarize(records, params.names, bounds_map(bound_rows, cfg["bounds"]), cfg["far_above"],
                          cfg["bootstrap"], ctx.seed_for("summary"), labels=labels, level=cfg["level"])
@@ -443,8 +478,12 @@ def report(study_dir, results: dict) -> str:
             if bayes else f"{results['n']} trials at each of {len(results['theta'])} θ*")
     lines = [f"Estimators against the bounds that apply to them ({results.get('mode', 'local')} protocol): {what}; "
              f"parameters {results['params']} ({', '.join(results['units'])}); estimators {results['estimators']}; "
-             f"noise {', '.join(results['noise'].values())}. Clean images at N_eff = {results['n_eff']} spp"
-             + ("" if bayes else f" ({results['truth_replicates']} independent renders)")
+             f"noise {', '.join(results['noise'].values())}. "
+             + (f"Clean images at N_eff = {results['n_eff']} spp" if bayes or results["truth_replicates"] == 1 else
+                f"Clean images: N_eff = {results['n_eff']} spp per θ* in {results['truth_replicates']} independent "
+                f"renders of {results['n_eff'] // results['truth_replicates']} spp; trial k's observation has the "
+                f"mean of render k mod {results['truth_replicates']}, so each observation's mean is a "
+                f"{results['n_eff'] // results['truth_replicates']}-spp image")
              + f"; bound renders {results['bound_spp']} spp × {results['replicates']} replicates, {results['seeds']} "
              f"seeds. {results['trials']} fits recorded, {failed} failed, {nonconv} did not converge (statuses "
              f"below). {results['seconds']:.1f} s in all; renders: {results['bank_renders']} for the clean images "
@@ -464,22 +503,32 @@ def report(study_dir, results: dict) -> str:
 
 
 def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lvl: str) -> list[str]:
-    lines = ["", "MSE = mean ‖θ̂ − θ*‖² over the fits that did not fail (bootstrap SE over trials). Bounds:", ""]
+    tests = max((r.get("verdict_tests", 0) for r in rows), default=0)
+    each = min((r.get("verdict_level", 1.0) for r in rows), default=1.0)
+    lines = ["", "MSE = mean ‖θ̂ − θ*‖² over the fits that did not fail (the failed ones are counted beside it and "
+             "named in the verdict), with its one-sided limits. Bounds:", ""]
     lines += [f"- **{b}**: {results['bound_notes'][b]}" for b in bounds]
-    lines += ["", f"Verdicts against a bound (its {lvl} ends): **below** = MSE + 2 SE under the lower end (an unbiased "
-              "estimator cannot do that, so the estimator is biased there: the measured bias is given); **inside** "
-              "= consistent with the interval; **above** = MSE − 2 SE over the upper end (a better estimator may "
-              "exist). Var is shown without a verdict: comparing it with a bound for unbiased estimators would "
-              "need the bias gradient. The bias test: mean error against its SE over the clean-image replicates "
-              "(which holds the clean image's own Monte Carlo error), Student t with (clean-image replicates − 1) "
-              "degrees of freedom, two-sided 95 %; p is its two-sided p-value (with 4 replicates a t below 3.18 "
-              "is not significant at 95 %: more `truth_replicates` make the test sharper)."]
+    lines += ["", f"Verdicts against a bound are one-sided tests at {lvl} for the table ({tests} tests, Bonferroni: "
+              f"each at {each:.2%}): **below** = the MSE's upper limit under the bound's lower end; **above** = "
+              "its lower limit over the upper end (a better estimator may exist; never against an open end); "
+              "**inside** = neither; **undetermined** = the bound's ends are crossed; **not tested** = no valid "
+              "test (fewer than 3 successful fits, one fit holding more of the squared errors than Gaussian errors "
+              "give, or a deciding end that is not a confidence limit), with the reason. The MSE's limits treat it "
+              "as right-skewed (a scaled χ² split over the clean-image renders: trials that share one are a "
+              "cluster; Graybill–Wang upper limit, Satterthwaite lower limit), so an efficient estimator is called "
+              "below its bound at most at the stated level. An unbiased estimator can still be below by chance at "
+              f"that rate; below at {lvl} means bias (the measured bias is given) or a bug. Var is shown without "
+              "a verdict: comparing it with a bound for unbiased estimators would need the bias gradient. The bias "
+              "test: mean error against its SE over the clean-image replicates (which holds the clean image's own "
+              "Monte Carlo error), Student t with (clean-image replicates − 1) degrees of freedom, two-sided 95 %; "
+              "p is its two-sided p-value (with 4 replicates a t below 3.18 is not significant at 95 %: more "
+              "`truth_replicates` make the test sharper)."]
     for j in sorted({r["noise"] for r in rows}):
         lines += ["", f"### The paper's format (noise {j}: {results['noise'][str(j)]}; {units})", ""]
         paper = [b for b in ("hcr_neff", "hcr_hat") if b in bounds]
         lines += paper_table(rows, results["bound_rows"], paper, results["params"], results["units"], j)
         lines += ["", f"### Against the bounds that apply (noise {j}; {units})", ""]
-        head = ["θ*", "estimator", "n", "MSE ± SE", "Var", "bias ± SE (t, p)"]
+        head = ["θ*", "estimator", "n (failed)", "MSE [lower, upper limit]", "Var", "bias ± SE (t, p)"]
         head += [f"{b} [{lvl} ends]" for b in bounds if b in ("hcr", "crlb")] + ["verdict", "fit status",
                                                                                 "s / trial", "renders / trial"]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -488,21 +537,24 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
                       if b["noise_index"] == j and b["theta_index"] == r["theta_index"]), {})
             theta = ", ".join(fmt(r[f"theta_{n}"], 4) for n in results["params"])
             bias = ", ".join(f"{fmt(r[f'bias_{n}'], 3)} ± {fmt(r[f'bias_se_{n}'], 2)}" for n in results["params"])
-            cells = [theta, r["estimator"], r["n"], f"{fmt(r['mse'])} ± {fmt(r['mse_se'], 2)}", fmt(r["var"]),
+            cells = [theta, r["estimator"], f"{r['n']} ({r['n_failed']})", _mse_cell(r, "mse"), fmt(r["var"]),
                      f"{bias} ({fmt(r['bias_t_stat'], 2)}, {fmt(float(r.get('bias_p', 'nan')), 2)})"]
             for k in (k for k in bounds if k in ("hcr", "crlb")):
-                cells.append(f"{fmt_log10(float(b[f'log10_{k}']))} [{fmt_end(b.get(f'{k}_lower'))}, "
-                             f"{fmt_end(b.get(f'{k}_upper'))}]" if b else "–")
+                cells.append(f"{fmt_log10(float(b[f'log10_{k}']))} [{_end(b, k, 'lower')}, {_end(b, k, 'upper')}]"
+                             if b else "–")
             cells += [_verdict(r, bounds), r.get("status", ""), fmt(r["mean_seconds"]),
                       fmt(r["mean_renders"] + r["mean_grad_passes"])]
             lines.append("| " + " | ".join(str(c) for c in cells) + " |")
-    notes = [(r, b) for r in rows for b in bounds if b in ("hcr", "crlb") and r.get(f"vs_{b}") == "below"]
-    lines += ["", "**Below an interval**: " + ("; ".join(
+    if any(b.get(f"{k}_{e}_note") for b in results["bound_rows"] for k in ("hcr", "crlb") for e in ("lower", "upper")):
+        lines += ["", "† not a confidence limit (why: `<bound>_lower_note` / `_upper_note` in bounds.csv); ∞: an open "
+                      "upper end."]
+    notes = [(r, b) for r in rows for b in bounds if b in ("hcr", "crlb") and r.get(f"vs_{b}", "").startswith("below")]
+    lines += ["", f"**Below an interval** (at {lvl}: bias, or a bug): " + ("; ".join(
         f"{r['estimator']} at θ* #{r['theta_index']} ({b}): " + (
             f"explained by its measured bias {fmt(r['bias'], 3)} ± {fmt(r['bias_se'], 2)} "
             f"(t = {fmt(r['bias_t_stat'], 2)}, p = {fmt(float(r.get('bias_p', 'nan')), 2)})"
             if r["biased"] else f"no significant bias at n = {r['n']} (|bias| {fmt(r['bias'], 3)} ± "
-            f"{fmt(r['bias_se'], 2)}): too few trials to see it, or an estimator to investigate")
+            f"{fmt(r['bias_se'], 2)}): a bias too small to see with these trials, or an estimator to investigate")
         for r, b in notes) or "none.")]
     if any(r["far_above"] for r in rows):
         lines += [f"**Far above** (MSE > {results['far_above']:g} × the quoted bound): " + "; ".join(
@@ -510,30 +562,48 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
     return lines
 
 
+def _end(b: dict, kind: str, end: str) -> str:
+    """A bound's end for a table: its value (∞ open, – not computed), † when it is not a confidence limit."""
+    return fmt_end(b.get(f"{kind}_{end}")) + ("†" if b.get(f"{kind}_{end}_note") else "")
+
+
 def _verdict(r: dict, bounds: list) -> str:
     parts = []
     for b in (b for b in bounds if b in ("hcr", "crlb")):
         v = r.get(f"vs_{b}", "")
-        if v == "below":
-            v = ("below: biased, bias = " if r["biased"] else "below (no significant bias): bias = ") + \
+        if v.startswith("below"):
+            v += ("; biased, bias = " if r["biased"] else "; no significant bias, bias = ") + \
                 f"{fmt(r['bias'], 3)} ± {fmt(r['bias_se'], 2)}"
-        parts.append(f"{b} {v}")
+        if v:
+            parts.append(f"{b} {v}")
     return "; ".join(parts) or "–"
 
 
+def _mse_cell(r: dict, key: str) -> str:
+    """MSE [lower, upper limit] (at the verdict's level), or the MSE with why it is not tested."""
+    if r.get(f"{key}_untested"):
+        return f"{fmt(r[key])} (not tested)"
+    return f"{fmt(r[key])} [{fmt(r.get(f'{key}_lower', math.nan), 2)}, {fmt(r.get(f'{key}_upper', math.nan), 2)}]"
+
+
 def _bayes_section(rows: list[dict], results: dict, units: str) -> list[str]:
+    lvl = f"{results['level']:.0%}"
+    each = min((r.get("verdict_level", 1.0) for r in rows), default=1.0)
     lines = ["", f"### Bayesian MSE against the Ziv–Zakai bound ({units})", "",
              "The ZZB bounds E[(θ̂ − θ)²] averaged over the prior for every estimator, biased or not (valley-filled, "
              "a lower sum over a uniform grid; its lower end is a one-sided confidence limit from the replicate "
-             "render sets). MSE ± SE over the trials (n stated); **below** would contradict the bound.", "",
-             "| noise | estimator | n | Bayesian MSE ± SE | MSE + 2 SE | ZZB lower end [upper end] | verdict | "
-             "fit status | s / trial | renders / trial |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "render sets). The Bayesian MSE over the successful fits (n stated, failures counted) with its "
+             f"one-sided limits (independent trials: a scaled χ²); the verdicts are one-sided tests at {lvl} for the "
+             f"table (Bonferroni: each at {each:.2%}), the same vocabulary as the local table. **below** at {lvl}: "
+             "a bug, or a ZZB grid too coarse (see its flags); any estimator is below by chance at most at that "
+             "rate.", "",
+             "| noise | estimator | n (failed) | Bayesian MSE [lower, upper limit] | ZZB lower end [upper end] | "
+             "verdict | fit status | s / trial | renders / trial |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         z = results["zzb"].get(str(r["noise"]))
         zz = "–" if z is None else f"{fmt_log10(z['log10'])} [{fmt_end(z['upper'])}]" + \
             (f" ({', '.join(z['flags'])})" if z["flags"] else "")
-        lines.append(f"| {r['noise']} | {r['estimator']} | {r['n']} | {fmt(r['bayes_mse'])} ± "
-                     f"{fmt(r['bayes_mse_se'], 2)} | {fmt(r['bayes_mse'] + 2 * r['bayes_mse_se'])} | {zz} | "
-                     f"{r.get('vs_zzb', '–')} | "
+        lines.append(f"| {r['noise']} | {r['estimator']} | {r['n']} ({r['n_failed']}) | "
+                     f"{_mse_cell(r, 'bayes_mse')} | {zz} | {r.get('vs_zzb', '–')} | "
                      f"{r.get('status', '')} | {fmt(r['mean_seconds'])} | {fmt(r['mean_renders'])} |")
     return lines

@@ -120,8 +120,11 @@ def offset_grid(num: int, step: float, axes) -> tuple[np.ndarray, np.ndarray]:
 def viewpoint_information(model: ForwardModel, theta, spp: int, seed: int, fd_step: float, rounds: int, noises,
                           reduce: str = "mean") -> FisherPoint:
     """Render, FD Jacobian and per-pixel Fisher maps (P, H, W) per noise model at the current camera pose,
-    from the bound service over a render bank of the posed model (its seeds derive from `seed`)."""
-    return BoundService(RenderBank(model, seed=seed), noises).fisher([theta], spp, fd_step, rounds, reduce)[0]
+    from the bound service over a render bank of the posed model (its seeds derive from `seed`). The maps
+    compare poses at one FD step ξ (no halving: the heat map is of the FD-smoothed information, at the same
+    cost per pose); the CRLB of a pose is labelled as not a confidence limit for that reason."""
+    svc = BoundService(RenderBank(model, seed=seed), noises)
+    return svc.fisher([theta], spp, fd_step, rounds, reduce, max_halvings=0)[0]
 
 
 def _saved_views(num: int) -> dict[tuple[int, int], str]:

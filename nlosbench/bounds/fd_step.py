@@ -1,0 +1,276 @@
+"""The FD step of the CRLB and of the HCR's Δ → 0 term, shown converged before its ends are quoted.
+
+F from FD rounds at step ξ is the Fisher information of the FD-smoothed derivative. Per pixel, by
+Cauchy–Schwarz, ((1/2ξ)∫J)² ≤ (1/2ξ)∫J², so F_ξ is at most the mean of F over [θ − ξ, θ + ξ] (weight frozen
+at θ*): where an edge crosses a pixel in less than 2ξ, F_ξ falls well below F(θ*), and a CRLB or Δ → 0 term
+at that step is too high — its "lower end" is no lower confidence limit. Where θ* sits near a kink (an edge
+at a pixel boundary), the central difference averages the left and right derivatives, ((J⁻ + J⁺)/2)², and
+stays low at every step wider than the distance to the kink; the one-sided differences do not (J⁺ alone is
+the derivative on the side of θ* that holds the edge).
+
+Stages. A `Stage` holds R independent FD rounds at one step ξ in one or more *variants*: "central"
+(X(θ+ξ) − X(θ−ξ))/2ξ and, where the θ* render shares each round's seed (common random numbers), "forward"
+(X(θ+ξ) − X(θ))/ξ and "backward" (X(θ) − X(θ−ξ))/ξ. Stages at ξ, ξ/2, ξ/4 … use the same seeds in each round
+(paired), so F(ξ/2) − c·F(ξ) is a per-pixel contrast with a jackknife SE (`ustat.sum_terms`).
+
+The rule (`converge`, used by the bound service):
+* halve ξ while, for some variant and parameter, the paired one-sided upper limit of F(ξ/2)/F(ξ) exceeds
+  1 + step_tol (F is not shown to have stopped rising, the direction that breaks lower ends), at most
+  `max_halvings` times. The upper limit is Fieller's: F(ξ/2)/F(ξ) ≤ c is shown when the upper confidence
+  limit of F(ξ/2) − c·F(ξ) is ≤ 0;
+* ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage and variant, upper ends
+  from the *smallest* lower limit, the point from the finest stage's central F. For a vector θ the same with
+  the jackknife limits of trace(F⁻¹);
+* one FD step only (no check asked for): the lower end is labelled "not a confidence limit: FD step not
+  checked"; AD gradients (step NaN) and an F given directly are taken as they are;
+* not converged: the lower end is labelled "not a confidence limit: FD step not converged (F ×r ± se from ξ
+  to ξ/2)", and `settle` says which step or spp would settle it. The upper end stays a limit: a rising F
+  only lowers the true bound below it, and the smallest lower limit over the stages covers a falling one;
+* diverging (F shown to rise by more than 1 + step_tol at every one of ≥ 2 halvings, as where the derivative
+  is infinite, L ∝ √|θ − θ₀|): the lower end is 0 and says why.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from nlosbench.bounds.unbiased_fisher import unbiased_fisher
+from nlosbench.bounds.ustat import UStat, pixel_terms, pixel_ustat, sum_terms, t_quantile
+
+VARIANTS = ("central", "forward", "backward")
+
+
+@dataclass
+class Stage:
+    """FD rounds at one step ξ (parameter units): variant → Jacobian rounds (R, P, N) float64, pixels
+    flattened (N = H·W·C)."""
+
+    step: float
+    rounds: dict[str, np.ndarray]
+
+
+@dataclass
+class Halving:
+    """The paired comparison of F at one step with F at half of it: ratio F(ξ/2)/F(ξ) and its paired SE for
+    the variant and parameter that decide (the largest upper limit); converged: every variant's upper limit
+    ≤ 1 + tol; rising: some variant's lower limit > 1 + tol."""
+
+    step: float
+    ratio: float
+    se: float
+    converged: bool
+    rising: bool
+
+
+@dataclass
+class StepFisher:
+    """The unbiased F (P, P) of every stage and variant at one θ for one weight, and the verdict on the step.
+
+    stats: per stage (coarse to fine), variant → UStat of F (P, P); steps: ξ per stage; halvings: the paired
+    comparisons of consecutive stages; checked: whether a step comparison was made at all (AD or a single
+    stage: no); converged / diverging: see the module docstring; settle: what would settle an unconverged
+    step ("" when converged)."""
+
+    stats: list[dict[str, UStat]]
+    steps: list[float]
+    halvings: list[Halving] = field(default_factory=list)
+    step_tol: float = 0.1
+    spp: int = 0
+    level: float = 0.95
+
+    @property
+    def final(self) -> UStat:
+        """The finest stage's central F (the point estimate)."""
+        last = self.stats[-1]
+        return last.get("central", next(iter(last.values())))
+
+    @property
+    def checked(self) -> bool:
+        return bool(self.halvings)
+
+    @property
+    def converged(self) -> bool:
+        return (not self.checked) or self.halvings[-1].converged
+
+    @property
+    def diverging(self) -> bool:
+        return len(self.halvings) >= 2 and all(h.rising for h in self.halvings)
+
+    def note(self) -> str:
+        """The step note: F(ξ/2)/F(ξ) with its paired SE at each halving."""
+        if not self.checked:
+            return ""
+        parts = [f"F(ξ/2)/F(ξ) = {h.ratio:.3g} ± {h.se:.2g} at ξ = {h.step:.3g}" if math.isfinite(h.ratio)
+                 else f"F unresolved at ξ = {h.step:.3g}" for h in self.halvings]
+        return "FD step " + ("converged" if self.converged else "not converged") + ": " + "; ".join(parts)
+
+    def settle(self) -> str:
+        """Which step and spp would settle an unconverged step ("" when converged)."""
+        if self.converged:
+            return ""
+        h = self.halvings[-1]
+        finer = f"ξ = {h.step / 4:.3g} (one more halving)"
+        if not math.isfinite(h.ratio) or h.ratio >= 1 + self.step_tol or not h.se > 0:
+            return f"F still rises or is unresolved: try {finer}, or more spp"
+        # the upper limit r̂ + t·SE reaches 1 + tol when the SE shrinks by (1 + tol − r̂)/(t·SE): SE² ∝ 1/spp
+        t = float(t_quantile(self.level, 1e6))
+        factor = max((t * h.se / (1 + self.step_tol - h.ratio)) ** 2, 1.0)
+        spp = f"≈ {factor:.1f}× the spp" + (f" ({math.ceil(factor * self.spp)} spp)" if self.spp else "")
+        return f"F has stopped rising within the noise: {spp} would show it, or {finer}"
+
+
+def stage_stats(stage: Stage, w: np.ndarray | float) -> dict[str, UStat]:
+    """UStat of F (P, P) per variant of a stage, for the per-pixel weight w (N,) or a scalar."""
+    return {name: fisher_stat(J, w) for name, J in stage.rounds.items()}
+
+
+def fisher_stat(J: np.ndarray, w) -> UStat:
+    """The unbiased F (P, P) from R rounds J (R, P, N) and a weight w (N,) or scalar: scalar θ the per-pixel
+    U-statistic (SE from independent pixels, Satterthwaite df); vector θ the Gram U-statistic over rounds
+    (SE from the rounds' jackknife, R − 1 df)."""
+    R, P, N = J.shape
+    if P == 1:
+        u = pixel_ustat(J.reshape(R, 1, N), w)
+        return UStat(u.est.reshape(1, 1), u.se.reshape(1, 1), u.loo.reshape(-1, 1, 1), R, u.df.reshape(1, 1))
+    wide = np.broadcast_to(np.asarray(w, dtype=np.float64), (N,)).copy()
+    fi = unbiased_fisher(torch.from_numpy(J), torch.from_numpy(wide))
+    return UStat(fi.F, fi.se, fi.leave_one_out, R)
+
+
+def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
+    """The paired comparison of F(fine) with F(coarse) over every shared variant and parameter."""
+    c = 1.0 + tol
+    worst = None
+    converged, rising = True, False
+    for name in fine.rounds.keys() & coarse.rounds.keys():
+        A, B = coarse.rounds[name], fine.rounds[name]
+        R, P, N = A.shape
+        for j in range(P):
+            pa, la = pixel_terms(A[:, j][:, None], _row(w, N))
+            pb, lb = pixel_terms(B[:, j][:, None], _row(w, N))
+            fa, fb = float(pa.sum()), float(pb.sum())
+            est, _, se, df = sum_terms(pb - c * pa, lb - c * la, R)
+            t = _t(level, df[0], se[0])
+            up, down = est[0] + t * se[0], est[0] - t * se[0]
+            converged &= bool(up <= 0) and fa > 0
+            rising |= bool(down > 0)
+            ratio = fb / fa if fa > 0 and fb > 0 else math.nan
+            _, _, rse, _ = sum_terms(pb - (ratio if math.isfinite(ratio) else 1.0) * pa,
+                                     lb - (ratio if math.isfinite(ratio) else 1.0) * la, R)
+            key = up / fa if fa > 0 else math.inf
+            if worst is None or key > worst[0]:
+                worst = (key, ratio, float(rse[0] / fa) if fa > 0 else math.nan)
+    return Halving(coarse.step, worst[1], worst[2], converged, rising)
+
+
+def _row(w, N: int):
+    return np.broadcast_to(np.asarray(w, dtype=np.float64), (1, N)) if np.ndim(w) else float(w)
+
+
+def _t(level: float, df: float, se: float, tests: int = 1) -> float:
+    """The one-sided t quantile (Bonferroni share 1/tests); 0 where the SE is 0 (exact rounds), +inf where the
+    SE is unknown."""
+    if se == 0:
+        return 0.0
+    q = t_quantile(level, df, tests)
+    return float(q) if math.isfinite(q) else math.inf
+
+
+@dataclass
+class CRLBTerm:
+    """log10 of the CRLB term (trace F⁻¹; 1/F for a scalar θ) in units²: point, lower end (−inf: 0), upper
+    end (+inf: open); lower_note: why the lower end is not a confidence limit ("" when it is); zero_note: why
+    a diverging derivative set the lower end to 0; loo: (R,) log10 point without each round (empty for R < 3)."""
+
+    point: float
+    lower: float
+    upper: float
+    lower_note: str
+    zero_note: str
+    loo: np.ndarray
+
+    @property
+    def flags(self) -> tuple[str, ...]:
+        if "not checked" in self.lower_note:
+            return ("fd-step-not-checked",)
+        return (("fd-step-diverging",) if self.zero_note else ()) + (
+            ("fd-step-not-converged",) if self.lower_note or self.zero_note else ())
+
+
+def crlb_term(sf: StepFisher, level: float, tests: int = 1) -> CRLBTerm:
+    """The CRLB term's ends at one-sided `level` (Bonferroni share 1/`tests`) over every stage and variant
+    of `sf` (see the module docstring)."""
+    point = trace_inv(sf.final.est)
+    lows, ups = [], []
+    for stage in sf.stats:
+        for u in stage.values():
+            lo, hi = _ends(u, level, tests)
+            lows.append(lo)
+            ups.append(hi)
+    lower, upper = min(lows), max(ups)
+    note = zero = ""
+    if sf.diverging:
+        lower = 0.0
+        zero = ("FD step not converged: F rises with every halving of the step (" +
+                ", ".join(f"×{h.ratio:.3g}" for h in sf.halvings) + "): the derivative may diverge, so the lower end "
+                "is 0")
+    elif not sf.checked and math.isfinite(sf.steps[-1]):
+        note = f"not a confidence limit: FD step not checked (one step, ξ = {sf.steps[-1]:.3g})"
+    elif not sf.converged:
+        h = sf.halvings[-1]
+        note = (f"not a confidence limit: FD step not converged (F ×{h.ratio:.3g} ± {h.se:.2g} from ξ = {h.step:.3g} "
+                f"to ξ/2)")
+    final = sf.final
+    loo = np.array([_log(trace_inv(Fk)) for Fk in final.loo]) if final.loo.size else np.empty(0)
+    return CRLBTerm(_log(point), _log(lower), _log(upper), note, zero, loo)
+
+
+def _ends(u: UStat, level: float, tests: int) -> tuple[float, float]:
+    """(lower, upper) one-sided limits of trace(F⁻¹) (units²) from one UStat of F; (value, value) without SE."""
+    P, R = u.est.shape[0], u.replicates
+    value = trace_inv(u.est)
+    if R < 3:
+        return value, value
+    if P == 1:
+        f, s = float(u.est[0, 0]), float(u.se[0, 0])
+        t = _t(level, float(u.dof[0, 0]), s, tests)
+        hi_f, lo_f = f + t * s, f - t * s
+        return (1.0 / hi_f if hi_f > 0 else math.inf), (1.0 / lo_f if lo_f > 0 else math.inf)
+    loo = np.array([trace_inv(Fk) for Fk in u.loo])
+    if not (math.isfinite(value) and np.all(np.isfinite(loo))):
+        return 0.0, math.inf
+    se = math.sqrt((R - 1) / R * ((loo - loo.mean()) ** 2).sum())
+    t = float(t_quantile(level, R - 1, tests))
+    return max(value - t * se, 0.0), value + t * se
+
+
+def trace_inv(F: np.ndarray) -> float:
+    """trace(F⁻¹), +inf where F is not (numerically) positive definite."""
+    try:
+        np.linalg.cholesky(F)
+    except np.linalg.LinAlgError:
+        return math.inf
+    return float(np.trace(np.linalg.inv(F)))
+
+
+def _log(v: float) -> float:
+    return math.log10(v) if v > 0 else -math.inf
+
+
+def single(F: UStat) -> StepFisher:
+    """A StepFisher of one stage without a step check (AD gradients, or an F given directly)."""
+    return StepFisher([{"central": F}], [math.nan])
+
+
+def converge(stages: list[Stage], w, level: float, step_tol: float, spp: int = 0) -> StepFisher:
+    """The StepFisher of stages (coarse to fine, each step half the previous one, the same seeds) for the
+    weight w: every stage's F and the halvings between consecutive stages."""
+    if not 0 < step_tol:
+        raise ValueError(f"step_tol must be > 0, got {step_tol}")
+    sf = StepFisher([stage_stats(s, w) for s in stages], [s.step for s in stages], step_tol=step_tol, spp=spp,
+                    level=level)
+    sf.halvings = [halving(a, b, w, level, step_tol) for a, b in zip(stages, stages[1:], strict=False)]
+    return sf
