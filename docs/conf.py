@@ -1,11 +1,9 @@
 """Sphinx configuration of the nlosbench documentation (`make docs`: warnings are errors, offline)."""
-import os
 import sys
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parent
 sys.path[:0] = [str(DOCS.parent), str(DOCS / "_ext")]
-os.environ.setdefault("NLOSBENCH_VARIANT", "llvm_ad_rgb")  # the gallery's toys render on any machine
 
 import nlosbench  # noqa: E402
 
