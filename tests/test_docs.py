@@ -50,3 +50,22 @@ def test_the_api_page_lists_every_public_name():
     assert public and public <= listed
     for module in ("nlosbench.bounds", "nlosbench.estimators", "nlosbench.noise"):
         assert f".. currentmodule:: {module}" in page
+
+
+def test_the_guides_python_tour_runs_and_finds_the_ball():
+    """docs/guide/python.md's example, as a reader runs it (cornell_ball, CPU renders are bit-reproducible)."""
+    import math
+
+    from nlosbench.estimators.base import STATUSES
+
+    page = (ROOT / "docs" / "guide" / "python.md").read_text()
+    scope: dict = {}
+    exec(compile(re.search(r"```python\n(.*?)```", page, re.S).group(1), "python.md", "exec"), scope)
+    p, fit, bank = scope["p"], scope["fit"], scope["bank"]
+    assert abs(float(p.theta[0]) - 0.1) < 1e-12 and bank.renders >= 3 * 13  # "θ* = 0.1 m", "3 × 13 renders"
+    hcr, crlb = p.bounds["hcr"], p.bounds["crlb"]
+    assert hcr.log10 <= hcr.upper and crlb.lower <= crlb.log10 <= crlb.upper
+    assert "grid-limited" in scope["curve"].zzb[0].flags  # as the comment says
+    assert fit.status in STATUSES and fit.renders > 0
+    # one observation: the fit lands within 5 standard deviations the CRLB allows (seeded, so deterministic)
+    assert abs(float(fit.theta[0]) - 0.1) < 5 * math.sqrt(10 ** crlb.upper)

@@ -57,7 +57,7 @@ def test_every_relative_link_of_the_readme_exists():
 
 def test_no_words_about_how_the_work_was_organised():
     """User-facing text names machines and commands, not sessions, issue numbers or who had a GPU."""
-    pages = [ROOT / "README.md", ROOT / "CHANGELOG.md", ROOT / "results" / "README.md",
+    pages = [ROOT / "README.md", ROOT / "CHANGELOG.md", ROOT / "results" / "README.md", ROOT / "examples" / "README.md",
              *sorted((ROOT / "docs").rglob("*.md")),
              *sorted((ROOT / "docs" / "tutorials").glob("*.py")), *sorted((ROOT / "configs").glob("*.yaml")),
              *sorted((ROOT / "results").glob("*/report.md"))]
