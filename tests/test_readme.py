@@ -23,17 +23,19 @@ def test_the_first_bound_example_runs_and_matches_the_closed_form():
     with contextlib.redirect_stdout(out):
         exec(compile(python_block("First bound in Python"), "README.md", "exec"), scope)
     assert "HCR ≥ 10^" in out.getvalue() and "renders" in out.getvalue()
-    p, noise, model = scope["p"], scope["noise"], scope["model"]
-    assert abs(float(p.theta[0]) - 0.5) < 1e-12  # "θ* = 0.5 m", as the comment says
+    curve, noise, model = scope["curve"], scope["noise"], scope["model"]
+    assert abs(float(curve.points[10].theta[0]) - 0.5) < 1e-12  # "θ* = 0.5 m", as the comment says
     # AWGN: F = ‖∂L/∂x‖² / σ², exact for the analytic toy; the example's CRLB is FD over 2 cm grid neighbours
     y = torch.tensor(0.5, dtype=torch.float64)
     full = scope["nb"].scenes.get("blob2d")
     J = torch.autograd.functional.jacobian(lambda v: full.clean(torch.stack([v, y])),
                                            torch.tensor(0.5, dtype=torch.float64))
     exact = math.log10(noise.sigma**2 / float((J**2).sum()))
-    crlb, hcr = p.bounds["crlb"].log10, p.bounds["hcr"].log10
+    hcr, crlb_bound = scope["hcr"], scope["crlb"]
+    crlb = crlb_bound.log10
     assert abs(crlb - exact) < 0.02, (crlb, exact)
-    assert hcr >= crlb - 1e-9  # the HCR's sup includes Δ → 0, whose limit is the CRLB
+    # the HCR's sup includes Δ → 0, whose limit is the CRLB: end for end, it is no lower
+    assert hcr.log10 >= crlb_bound.lower - 1e-9 and hcr.point >= crlb_bound.point - 1e-9
     # the sentence after the example quotes the RMS error this bound allows
     mm = re.search(r"RMS error of about ([\d.]+) mm", README).group(1)
     assert f"{1e3 * 10 ** (crlb / 2):.1f}" == mm
