@@ -7,6 +7,7 @@ Built in: the analytic toys `blob2d` and `edge1d` (torch, exact gradients) and e
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 
@@ -35,6 +36,19 @@ def _specs() -> dict[str, Path]:
 def available() -> list[str]:
     """Names accepted by `get`."""
     return sorted(set(_BUILTIN) | set(_specs()))
+
+
+def describe() -> dict[str, str]:
+    """name → one line: a spec's `description`, else the first sentence of the factory's docstring."""
+    specs = _specs()
+    out = {}
+    for name in available():
+        if name in _BUILTIN:
+            doc = " ".join((_BUILTIN[name].__doc__ or "").split())
+            out[name] = re.split(r"[.:]\s", doc, maxsplit=1)[0]
+        else:
+            out[name] = str((yaml.safe_load(specs[name].read_text()) or {}).get("description", ""))
+    return out
 
 
 def register(name: str, factory: Callable[..., ForwardModel]) -> None:
