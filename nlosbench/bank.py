@@ -38,7 +38,7 @@ import numpy as np
 import torch
 
 from .executors import Executor, SerialExecutor
-from .forward.cache import RenderCache, render_key
+from .forward.cache import RenderCache, RenderKey, render_key
 from .forward.gradients import GradientSettings, jacobian
 from .forward.model import ForwardModel
 from .seeds import derive
@@ -191,7 +191,7 @@ class RenderBank:
         return X.reshape(len(lv), replicates, len(pts), *X.shape[1:])
 
     # -- memory ----------------------------------------------------------------------------------
-    def _store_key(self, key: Hashable) -> str:
+    def _store_key(self, key: Hashable) -> RenderKey:
         return render_key(model=self.model.content_key(), request=repr(key))
 
     def _get(self, key: Hashable) -> torch.Tensor | None:
