@@ -39,6 +39,10 @@ def make_report(run_dir: str | Path) -> Path:
         "processes included, where it keeps one; else those of the main process).",
         "",
     ]
+    for r in results.get("resumed_anyway", []):
+        files = ", ".join(r["changed"]) or "the rendering code"
+        lines += [f"**Resumed across a code change** (`--resume-anyway`, {r['at']}): nlosbench {r['from']} → "
+                  f"{r['to']}, changed: {files}. Work finished before and after it is mixed in these results.", ""]
     for sid, s in results["studies"].items():
         mod = studies.get(s["type"])
         lines += [

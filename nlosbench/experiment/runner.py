@@ -46,19 +46,26 @@ class Run:
     fingerprint: dict
     resume: bool = False
     notes: list = field(default_factory=list)
+    anyway: bool = False  # resume across a code change (--resume-anyway)
 
     def execute(self) -> Path:
         """Run every study into the folder (see the module docstring); returns the folder."""
         cfg, ctx, run_dir = self.cfg, self.ctx, self.dir
         results_path = run_dir / "results.json"
         with rundir.RunLock(run_dir):
-            rundir.check(run_dir, self.fingerprint, self.resume)  # again, now that no one else can write
+            change = rundir.check(run_dir, self.fingerprint, self.resume, self.anyway)  # again, now no one else writes
             try:
                 ctx.start()  # the executor (an unreachable Dask scheduler fails here, before any file is written)
                 rundir.write_fingerprint(run_dir, self.fingerprint)
                 write_text(run_dir / "config.yaml", yaml.safe_dump(cfg, sort_keys=False))
                 results = json.loads(results_path.read_text()) if self.resume and results_path.exists() \
                     else {"studies": {}}
+                if change:
+                    ctx.log(f"resuming across a code change ({change['from']} → {change['to']}), as --resume-anyway "
+                            "asks; recorded in results.json and report.md")
+                    at = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+                    results.setdefault("resumed_anyway", []).append({**change, "at": at})
+                    write_json(results_path, results)
                 for study in cfg["studies"]:
                     sid = study["id"]
                     if results["studies"].get(sid, {}).get("status") == "done":
@@ -90,8 +97,9 @@ class Run:
 
 
 def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path | None = None, resume: bool = False,
-            quiet: bool = False, smoke: bool = False, yes: bool = False) -> Run:
-    """Check a run completely without writing anything (see the module docstring); ConfigError otherwise."""
+            quiet: bool = False, smoke: bool = False, yes: bool = False, anyway: bool = False) -> Run:
+    """Check a run completely without writing anything (see the module docstring); ConfigError otherwise.
+    `anyway`: a resume may go across a code change (recorded in the run)."""
     cfg = config_mod.load(config_path, overrides, smoke=smoke)
     ids = []
     for i, study in enumerate(cfg["studies"]):
@@ -115,7 +123,7 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
         plans[study["id"]] = mod.plan(ctx, study)
         estimates[study["id"]] = mod.cost(ctx, study, plans[study["id"]])
     fp = rundir.fingerprint(cfg, ctx.model.content_key(), plans)
-    rundir.check(run_dir, fp, resume)
+    rundir.check(run_dir, fp, resume, anyway)
     rate = estimate.rate(ctx.model)
     total = sum(rate.seconds(e) for e in estimates.values())
     lines = [f"[{sid}] plan: {e.renders} renders, {e.samples:.3g} pixel-samples, ≈ {estimate.describe(rate.seconds(e))}"
@@ -129,7 +137,7 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
         raise ConfigError("--yes", f"this run is estimated at {estimate.describe(total)} ({samples:.3g} pixel-samples "
                                    f"at {rate.seconds_per_sample * 1e9:.3g} ns each), above "
                                    f"{estimate.describe(CONFIRM_ABOVE)}: pass --yes to run it, or try --smoke first")
-    return Run(cfg, run_dir, ctx, plans, estimates, total, fp, resume, lines)
+    return Run(cfg, run_dir, ctx, plans, estimates, total, fp, resume, lines, anyway)
 
 
 def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | None = None,
