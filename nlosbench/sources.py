@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import ast
 import hashlib
-from functools import lru_cache
+from functools import cache, lru_cache
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent
@@ -34,7 +34,7 @@ def digest(names=None) -> str:
     return h.hexdigest()
 
 
-@lru_cache(maxsize=None)
+@cache
 def closure(folder: str) -> tuple[str, ...]:
     """The files of subpackage `folder` (e.g. 'forward') and the top-level modules they import
     (relative imports such as `from ..seeds import derive`): the code that subpackage runs."""

@@ -636,3 +636,74 @@ def test_a_resume_across_a_code_change_is_refused_unless_resume_anyway(tmp_path,
     (record,) = json.loads((run / "results.json").read_text())["resumed_anyway"]
     assert record["changed"] == ["studies/bounds.py"]
     assert "**Resumed across a code change** (`--resume-anyway`" in (run / "report.md").read_text()
+
+
+# -- a resume that rebuilds --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def two_studies(tmp_path_factory):
+    """A finished run of a bounds and a trials study on edge1d, its config and a snapshot of its files."""
+    tmp = tmp_path_factory.mktemp("two")
+    cfg = config(tmp, EDGE, [BOUNDS, TRIALS])
+    assert main(["run", str(cfg), "--out", str(tmp / "full"), "--quiet"]) == 0
+    return cfg, tmp / "full", snapshot(tmp / "full")
+
+
+def test_resume_rebuilds_a_deleted_study_folder_and_trials_log(two_studies, tmp_path, capsys):
+    """A finished run whose bounds study folder was removed (`rm -rf RUN/00-bounds`) and whose trials.jsonl was
+    deleted: `--resume` warns naming each, rebuilds both studies from the render store and the record logs,
+    and gives the uninterrupted run's numbers (bounds.csv byte for byte, every trial's estimate); the render
+    counts that report.md adds up cover the renders of both invocations (the rebuild reads them back from
+    the store). Fit costs and wall times are not compared: fits in one process share a memo."""
+    import shutil
+
+    cfg, full, files = two_studies
+    run = tmp_path / "run"
+    shutil.copytree(full, run)
+    shutil.rmtree(run / "00-bounds")
+    (run / "01-trials" / "trials.jsonl").unlink()
+    with pytest.warns(UserWarning) as caught:
+        rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")
+    assert rc == 0, err
+    rebuilt = [str(w.message) for w in caught if "rebuilding the study" in str(w.message)]
+    assert len(rebuilt) == 2 and f"{run / '00-bounds'}/" in rebuilt[0] and "is missing" in rebuilt[0], rebuilt
+    assert f"{run / '01-trials' / 'trials.jsonl'} is missing" in rebuilt[1], rebuilt
+    assert (run / "00-bounds" / "bounds.csv").read_bytes() == files["00-bounds/bounds.csv"]
+    estimates = [[(r["trial"], r["theta_hat"]) for r in RecordLog(d / "01-trials" / "trials.jsonl").read()]
+                 for d in (full, run)]
+    assert estimates[0] == estimates[1] and len(estimates[0]) == TRIALS["n"]
+    counts = [json.loads((d / "results.json").read_text())["studies"] for d in (full, run)]
+    assert counts[0]["00-bounds"]["results"]["renders"] == counts[1]["00-bounds"]["results"]["renders"] > 0
+    assert counts[0]["01-trials"]["results"]["bank_renders"] == counts[1]["01-trials"]["results"]["bank_renders"] > 0
+
+
+@pytest.mark.parametrize("name", ["results.json", "fingerprint.json", "01-trials/trials.jsonl"])
+def test_a_damaged_run_record_is_one_line_naming_the_file(two_studies, tmp_path, capsys, name):
+    """results.json or fingerprint.json cut short (as a copy or a disk error leaves them), or a line in the middle
+    of trials.jsonl damaged: `--resume` exits 2 with one error line naming the file, not a bare JSON message."""
+    import shutil
+
+    cfg, full, _ = two_studies
+    run = tmp_path / "run"
+    shutil.copytree(full, run)
+    damaged = run / name
+    raw = damaged.read_bytes()
+    damaged.write_bytes(raw[:len(raw) // 2] if name.endswith(".json") else raw.replace(b"\n", b"\n{\n", 1))
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")
+    assert rc == 2 and len(errors(err)) == 1 and str(damaged) in errors(err)[0], err
+
+
+def test_report_refuses_a_table_cut_short(two_studies, tmp_path, capsys):
+    """bounds.csv cut to its first rows (no torn line: a file truncated at a line's end): `nlosbench report`
+    exits 2 naming the file and the rows results.json says it has, instead of drawing from what is left."""
+    import shutil
+
+    _, full, _ = two_studies
+    run = tmp_path / "run"
+    shutil.copytree(full, run)
+    table = run / "00-bounds" / "bounds.csv"
+    rows = table.read_text().splitlines(keepends=True)
+    table.write_text("".join(rows[:4]))
+    rc, err = cli(capsys, "report", run)
+    assert rc == 2 and errors(err) == [f"nlosbench: error: {table}: has 3 rows, results.json says {len(rows) - 1}: "
+                                       f"a report from it would be wrong; resume the run (nlosbench run <its config> "
+                                       f"--out {run} --resume) to rebuild it"], err

@@ -8,13 +8,14 @@ folder that holds one, or a resume whose fingerprint differs, is refused). Any p
 (one line, key path, what was expected and what was given) and nothing has been written.
 
 `Run.execute` then holds the folder's lock (`rundir.RunLock`), writes fingerprint.json and config.yaml
-(resolved), runs each study (a resumed run skips finished studies; studies resume their own partial work
-from their record logs and the render store), writes results.json after every study and report.md.
+(resolved), runs each study (a resumed run skips finished studies whose outputs are all there and parse, as
+results.json lists them, and rebuilds the others with a warning; studies resume their own partial work from
+their record logs and the render store), writes results.json after every study and report.md.
 On Ctrl-C or an error the executor's workers are stopped at once (`abort`)."""
 from __future__ import annotations
 
-import json
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,11 +27,15 @@ from ..schema import ConfigError
 from ..studies import estimate
 from ..studies.context import RunContext
 from . import config as config_mod
-from . import rundir
+from . import outputs, rundir
 from .report import make_report
 
 #: an estimated time above this (seconds) needs `yes` (the CLI's --yes)
 CONFIRM_ABOVE = 3600.0
+
+
+class RebuildWarning(UserWarning):
+    """A resumed run found a finished study's outputs missing or damaged and runs that study again."""
 
 
 @dataclass
@@ -58,7 +63,7 @@ class Run:
                 ctx.start()  # the executor (an unreachable Dask scheduler fails here, before any file is written)
                 rundir.write_fingerprint(run_dir, self.fingerprint)
                 write_text(run_dir / "config.yaml", yaml.safe_dump(cfg, sort_keys=False))
-                results = json.loads(results_path.read_text()) if self.resume and results_path.exists() \
+                results = outputs.load_results(results_path) if self.resume and results_path.exists() \
                     else {"studies": {}}
                 if change:
                     ctx.log(f"resuming across a code change ({change['from']} → {change['to']}), as --resume-anyway "
@@ -68,10 +73,17 @@ class Run:
                     write_json(results_path, results)
                 for study in cfg["studies"]:
                     sid = study["id"]
-                    if results["studies"].get(sid, {}).get("status") == "done":
-                        ctx.log(f"[{sid}] done already, skipped")
-                        continue
+                    done = results["studies"].get(sid, {})
+                    if done.get("status") == "done":
+                        bad = outputs.problems(run_dir / sid, done.get("outputs", {}))
+                        if not bad:
+                            ctx.log(f"[{sid}] done already, skipped")
+                            continue
+                        more = f" (and {len(bad) - 1} more of its files)" if len(bad) > 1 else ""
+                        warnings.warn(f"study {sid}: {bad[0][0]} {bad[0][1]}{more}; rebuilding the study from the "
+                                      "render store and its record logs", RebuildWarning, stacklevel=1)
                     ctx.log(f"[{sid}] running")
+                    ctx.bank.owner = sid  # renders it reads back from the store count for it if it made them
                     before, t0 = ctx.model.stats.snapshot(), time.perf_counter()
                     try:
                         summary = studies.get(study["type"]).run(ctx, study)
@@ -84,7 +96,8 @@ class Run:
                     results["studies"][sid] = {"type": study["type"], "status": "done", "results": summary,
                                                "seconds": time.perf_counter() - t0,
                                                "renders_in_process": spent.renders,
-                                               "render_seconds_in_process": spent.seconds}
+                                               "render_seconds_in_process": spent.seconds,
+                                               "outputs": outputs.manifest(run_dir / sid)}
                     write_json(results_path, results)
             except BaseException:
                 ctx.abort()
@@ -116,6 +129,8 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
                                                   "to finish or stop it, or use another --out")
     if not resume:
         rundir.check(run_dir, {}, resume=False)
+    elif (run_dir / "results.json").is_file():
+        outputs.load_results(run_dir / "results.json")  # damaged: one line naming it, before the scene loads
     ctx = RunContext.create(cfg, run_dir, resume=resume, quiet=quiet)  # the scene: ConfigError if it cannot load
     plans, estimates = {}, {}
     for study in cfg["studies"]:
