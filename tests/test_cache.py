@@ -77,3 +77,20 @@ def test_scene_hash_covers_included_and_referenced_files(tmp_path):
     (tmp_path / "inner.obj").write_text("v 0 0 0\nv 3 0 0\nv 0 1 0\nf 1 2 3\n")
     seen.append(h())
     assert len(set(seen)) == 4 and seen[1] == seen[3]  # b.obj untouched: the same hash with mesh=b
+
+
+def test_render_keys_hold_the_rendering_code_and_any_component_that_joins(monkeypatch):
+    """Every render key holds `code`: a hash over forward/ and the package modules it imports (seeds.py: the
+    pass seeds; not the studies). A component added to `keys.COMPONENTS` joins every key, and the key's
+    fields (what a stored render carries) name it."""
+    from nlosbench import sources
+    from nlosbench.forward import keys
+
+    files = sources.closure("forward")
+    assert "forward/mitsuba_model.py" in files and "seeds.py" in files and "params.py" in files
+    assert not [f for f in files if f.startswith(("studies/", "experiment/", "bounds/"))]
+    before = render_key(theta=["0.5"], spp=4, seed=1)
+    assert before.fields["code"] == sources.digest(files)
+    monkeypatch.setitem(keys.COMPONENTS, "machine", lambda: {"isa": "test"})
+    after = render_key(theta=["0.5"], spp=4, seed=1)
+    assert after != before and after.fields["machine"] == {"isa": "test"}
