@@ -82,7 +82,7 @@ class RenderCache:
             return None
         entry, problem = _decode(raw)
         if entry is not None and entry[2] != key.fields:
-            entry, problem = None, f": it holds the render of another key ({_differs(entry[2], key.fields)} differ)"
+            entry, problem = None, f": it holds the render of another key ({_differs(entry[2], key.fields)})"
         if entry is None:
             self.corrupt += 1
             self.misses += 1
@@ -126,9 +126,9 @@ def _decode(raw: bytes) -> tuple[tuple[torch.Tensor, dict, dict] | None, str]:
 
 
 def _differs(stored: dict, wanted: dict) -> str:
-    """The components (top-level names) in which two keys differ, e.g. 'seed, theta'."""
+    """The components (top-level names) in which two keys differ, e.g. 'seed, theta differ'."""
     names = sorted(k for k in set(stored) | set(wanted) if stored.get(k) != wanted.get(k))
-    return ", ".join(names) or "nothing"
+    return ", ".join(names) + (" differs" if len(names) == 1 else " differ")
 
 
 def _why(e: OSError) -> str:
