@@ -24,9 +24,12 @@ _MAGIC = {".png": b"\x89PNG", ".exr": b"\x76\x2f\x31\x01"}
 def _rows(path: Path) -> int:
     """Data rows of a CSV file (ValueError when it does not parse as one: a row of another width than the
     header's, or a last line without its end, as a file cut short has)."""
-    text = path.read_text()
-    rows = list(csv.reader(text.splitlines(), strict=True))
-    if text and not text.endswith("\n") or any(len(r) != len(rows[0]) for r in rows):
+    with open(path, newline="") as f:
+        rows = list(csv.reader(f, strict=True))  # quoted fields may hold line breaks
+    with open(path, "rb") as f:
+        f.seek(max(path.stat().st_size - 1, 0))
+        ends = f.read() in (b"", b"\n")
+    if not ends or any(len(r) != len(rows[0]) for r in rows):
         raise ValueError("a row is cut short")
     return max(len(rows) - 1, 0)
 
