@@ -117,7 +117,7 @@ def _killed_copy(src: Path, dst: Path, keep: int, tail: bytes = b"") -> Path:
 def test_viewpoints_resume_with_another_sigma_is_refused_and_writes_nothing(views, tmp_path, capsys):
     """Row 1. Simulates a viewpoints run killed after 4 of 9 viewpoints (log cut, no results.json), then
     `--resume --set noise.0.sigma=0.5`: exit 2, one line naming the key, not one byte changed; the same
-    config then resumes to the uninterrupted run's numbers."""
+    config then resumes to the uninterrupted run's numbers, and its render count covers both invocations."""
     cfg, full, csv = views
     run = tmp_path / "killed"
     _killed_copy(full, run, keep=4)
@@ -130,6 +130,9 @@ def test_viewpoints_resume_with_another_sigma_is_refused_and_writes_nothing(view
     assert rc == 0, err
     assert (run / "00-viewpoints" / "viewpoints.csv").read_text() == csv
     assert len(RecordLog(run / "00-viewpoints" / "viewpoints.jsonl").read()) == 9
+    counts = [json.loads((d / "results.json").read_text())["studies"]["00-viewpoints"]["results"]["renders"]
+              for d in (full, run)]
+    assert counts[0] == counts[1] == 9 * 5  # both invocations' renders: a render and 2 FD rounds per viewpoint
 
 
 def test_torn_viewpoints_record_is_cut_with_a_warning_and_resumes(views, tmp_path):
