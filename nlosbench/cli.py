@@ -50,6 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a config value, e.g. --set seed=3 --set studies.0.spp=64 (repeatable)")
     r.add_argument("--out", help="run directory (default: OUTPUT/NAME from the config)")
     r.add_argument("--resume", action="store_true", help="continue a run in --out, keeping finished work")
+    r.add_argument("--resume-anyway", action="store_true", help="--resume even when nlosbench's code changed since "
+                   "the run started (old and new work then mix; recorded in results.json and report.md)")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
     r.add_argument("--smoke", action="store_true", help="a seconds-long run of the same config: tiny image, grids, "
                    "spp and trials (checks a paper-scale config before it runs for days)")
@@ -174,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
             if args.command == "run":
                 from .experiment.runner import prepare
 
-                prepared = prepare(args.config, args.overrides, args.out, args.resume, args.quiet, args.smoke, args.yes)
+                prepared = prepare(args.config, args.overrides, args.out, args.resume or args.resume_anyway, args.quiet,
+                                   args.smoke, args.yes, args.resume_anyway)
                 resume = _resume_command(args, prepared.dir)
                 run_dir = prepared.execute()
                 print(f"done: {run_dir}/report.md")
@@ -246,7 +249,8 @@ def _describe(e: OSError) -> str:
 
 def _resume_command(args, run_dir: Path) -> str:
     """The command that resumes this run: same config, overrides and --smoke, its folder, --resume."""
-    cmd = ["nlosbench", "run", args.config, "--out", str(run_dir), "--resume"]
+    again = "--resume-anyway" if args.resume_anyway else "--resume"
+    cmd = ["nlosbench", "run", args.config, "--out", str(run_dir), again]
     for item in args.overrides:
         cmd += ["--set", item]
     return shlex.join(cmd + (["--smoke"] if args.smoke else []) + (["--yes"] if args.yes else []))

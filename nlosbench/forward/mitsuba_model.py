@@ -15,7 +15,6 @@ turns it off. What is frozen, what re-records and why the scene update is not fr
 """
 from __future__ import annotations
 
-import hashlib
 import re
 import warnings
 from pathlib import Path
@@ -29,6 +28,7 @@ from ..seeds import derive
 from .bindings import GEOMETRY_KINDS, Binding, SceneBinder
 from .model import ForwardModel, check_spp_seed
 from .passes import WAVEFRONT_LIMIT, FrozenRender, backend_of, freeze_default, pass_samples, split_spp
+from .scene_files import content_hash
 
 __all__ = ["MitsubaModel", "SceneError", "WAVEFRONT_LIMIT", "split_spp", "pruned_xml", "AD_INTEGRATORS"]
 
@@ -44,17 +44,6 @@ def _first_line(e: Exception) -> str:
     """The message of a Mitsuba error without its source location prefix ('[parser.cpp:1087] ')."""
     text = (str(e).strip().splitlines() or [type(e).__name__])[0]
     return re.sub(r"^\[[\w.]+:\d+\]\s*", "", text)
-
-
-def _scene_hash(path: Path) -> str:
-    """SHA-256 of a scene file and the files it references (meshes, textures, includes)."""
-    text = path.read_bytes()
-    h = hashlib.sha256(text)
-    for ref in sorted(set(re.findall(rb'(?:value|filename)="([^"$]+\.(?:obj|ply|serialized|exr|png|jpg|xml))"', text))):
-        f = path.parent / ref.decode()
-        if f.is_file():
-            h.update(f.read_bytes())
-    return h.hexdigest()
 
 
 def pruned_xml(scene_file: Path, remove: list[str]) -> str:
@@ -140,7 +129,8 @@ class MitsubaModel(ForwardModel):
                 self.ad_defaults.setdefault(opt, int(found.group(1)))
         self._ad_cache: dict = {}
         self._applied: np.ndarray | None = None
-        self._hash = _scene_hash(self.scene_file)
+        # every file the scene loads (includes and $-named meshes too), as Mitsuba's parser finds them
+        self._hash = content_hash(self.scene_file, {k: str(v) for k, v in self.defines.items()}, self.variant)
         self._renderer = FrozenRender(freeze_default(freeze), label=f"scene {name!r}")
 
     @property
@@ -271,7 +261,8 @@ class MitsubaModel(ForwardModel):
         return out
 
     def content_key(self) -> dict:
-        """Everything besides (θ, spp, seed) that changes an image: scene files (hash), defines, removed
+        """Everything besides (θ, spp, seed) that changes an image: scene content (a hash over every file the
+        scene loads, `scene_files.content_hash`), defines, removed
         ids, variant, the primal integrator's settings, the bindings, the pass size (it decides the pass
         split, hence the random numbers), and the Mitsuba and Dr.Jit versions. Freezing is not in it: the
         frozen and traced paths give the same image (bit for bit on the CPU)."""
