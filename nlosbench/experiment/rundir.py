@@ -3,7 +3,8 @@ changes its numbers (`fingerprint`), so that `--resume` continues exactly the ru
 
 Fingerprint (fingerprint.json, written before any other file of the run): the resolved config without
 the keys that cannot change a number (`NUMBERLESS`), the model's content key (scene files' hash, defines,
-variant, integrator, bindings, pass size, Mitsuba and Dr.Jit versions; the analytic toys' settings), the
+variant, integrator, bindings, pass size, Mitsuba and Dr.Jit versions, and under `model.render` what else
+decides a render's bits: the LLVM target, libLLVM, the host's ISA; the analytic toys' settings), the
 versions of nlosbench, torch and numpy, and what each study's plan fixes beyond the config (its
 `Plan.fingerprint`, e.g. the trials study's `auto` gradients as resolved from a verdicts file). A resume
 whose fingerprint differs is refused with the first differing key, before anything is written.
@@ -99,6 +100,14 @@ def check(run_dir: Path, fp: dict, resume: bool) -> None:
         raise RunFolderError(str(run_dir / FINGERPRINT), f"unreadable ({e}); start a new run with another --out") \
             from None
     d = first_difference(old, fp)
+    parts = d[0].split(".") if d else []
+    if parts[:1] == ["model"] and "render" in parts[:-1]:  # the machine, not the config
+        _, was, now = d
+        key = ".".join(parts[parts.index("render") + 1:])
+        raise RunFolderError(str(run_dir), f"was rendered with {key} = {_short(was)}, "
+                                           f"this process has {_short(now)}, and renders differ in their last bits "
+                                           "between the two: resume where it was started (same CPU, scene.llvm_target "
+                                           "and versions), or use a new --out")
     if d:
         key, was, now = d
         key = key.removeprefix("config.")

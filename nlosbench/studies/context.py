@@ -56,7 +56,7 @@ class RunContext:
     def create(cls, cfg: dict, run_dir: Path, resume: bool = False, quiet: bool = False) -> RunContext:
         sc = cfg["scene"]
         spec = {"name": sc["name"], "options": sc["options"], "params": sc["params"], "fixed": sc["fixed"],
-                "variant": sc["variant"], "cache": cfg["cache"]}
+                "variant": sc["variant"], "llvm_target": sc["llvm_target"], "cache": cfg["cache"]}
         noises = []
         for i, n in enumerate(cfg["noise"]):
             try:
