@@ -13,16 +13,19 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 NAME = "pi_hallway_16x12_portable"
+#: the model spec (`nlosbench.scenes.build`) and the render's arguments
+SPEC = {"name": "pi_hallway", "options": {"defines": {"width": 16, "height": 12}}, "llvm_target": "portable"}
+THETA, SPP, SEED = [1.3], 64, 3
 
 
 def make(out: Path) -> Path:
     """Render the reference into folder `out`; return the .npy path."""
     import numpy as np
 
-    import nlosbench as nb
+    from nlosbench import scenes
 
-    model = nb.scenes.get("pi_hallway", defines={"width": 16, "height": 12}, llvm_target="portable")
-    image = model.render([1.3], spp=64, seed=3).numpy()
+    model = scenes.build(SPEC)
+    image = model.render(THETA, spp=SPP, seed=SEED).numpy()
     out.mkdir(parents=True, exist_ok=True)
     np.save(out / f"{NAME}.npy", image)
     (out / f"{NAME}.json").write_text(json.dumps(model.content_key()["render"], indent=2) + "\n")

@@ -1,9 +1,8 @@
 """Dr.Jit's LLVM target: the pinned portable target reproduces a committed reference image bit for bit; the
 render identity keys the render cache and refuses a resume on another machine; the target is one per process."""
+import importlib.util
 import json
 import platform
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,13 +10,17 @@ import pytest
 import torch
 
 import nlosbench as nb
+from nlosbench.executors import LocalPoolExecutor
 from nlosbench.experiment import config, rundir
 from nlosbench.forward import identity, llvm_target
 from nlosbench.schema import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"
-REF = "pi_hallway_16x12_portable"
+_spec = importlib.util.spec_from_file_location("make_target_reference", ROOT / "scripts" / "make_target_reference.py")
+MAKE = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(MAKE)  # the reference's spec and arguments
+REF = MAKE.NAME
 
 
 def _reference(folder: Path = DATA) -> tuple[np.ndarray, dict]:
@@ -42,14 +45,19 @@ def _skip_unless_comparable(ref: dict) -> None:
                     "intersector) picks its kernels by the CPU's ISA, which no target pins")
 
 
-def test_portable_render_matches_reference(tmp_path):
-    """A fresh process pinned to the portable target renders pi_hallway 16×12 (64 spp, seed 3) to the same bits
-    as the committed reference (made on an AMD EPYC Zen 5 with AVX-512), and reports the pinned target."""
+def reference_task(model, _):
+    """Runs in a pool worker: (its render identity, the reference render)."""
+    return model.content_key()["render"], model.render(MAKE.THETA, MAKE.SPP, MAKE.SEED).numpy()
+
+
+def test_pool_worker_pinned_to_portable_renders_the_reference():
+    """A spawned pool worker whose spec asks for the portable target pins it before its first kernel and renders
+    pi_hallway 16×12 (64 spp, seed 3) to the same bits as the committed reference (made by
+    scripts/make_target_reference.py on an AMD EPYC, LLVM CPU znver5, AVX-512)."""
     ref_img, ref = _reference()
     _skip_unless_comparable(ref)
-    subprocess.run([sys.executable, str(ROOT / "scripts" / "make_target_reference.py"), str(tmp_path)], cwd=ROOT,
-                   check=True, capture_output=True)
-    img, got = _reference(tmp_path)
+    with LocalPoolExecutor(MAKE.SPEC, workers=1) as pool:
+        [(got, img)] = list(pool.imap_unordered(reference_task, [0]))
     assert got["llvm_target"] == {"name": "portable", "cpu": llvm_target.PORTABLE.cpu, "features": "",
                                   "width": llvm_target.PORTABLE.width}
     assert img.dtype == ref_img.dtype and img.shape == ref_img.shape == (12, 16, 3)
@@ -60,7 +68,7 @@ def test_portable_render_matches_reference(tmp_path):
 def hallway(tmp_path_factory):
     """pi_hallway 16×12 in this process (its target: the session's, native unless NLOSBENCH_LLVM_TARGET is
     set), with a render cache."""
-    return nb.scenes.get("pi_hallway", defines={"width": 16, "height": 12}, cache=tmp_path_factory.mktemp("cache"))
+    return nb.scenes.get(MAKE.SPEC["name"], **MAKE.SPEC["options"], cache=tmp_path_factory.mktemp("cache"))
 
 
 def test_native_target_renders_other_bits(hallway):
@@ -72,7 +80,7 @@ def test_native_target_renders_other_bits(hallway):
     if hallway.llvm_target == "portable" or (target.cpu, target.width) == (llvm_target.PORTABLE.cpu,
                                                                            llvm_target.PORTABLE.width):
         pytest.skip(f"this process renders with the portable target already ({target.cpu}, width {target.width})")
-    img = hallway.render([1.3], spp=64, seed=3).numpy()
+    img = hallway.render(MAKE.THETA, spp=MAKE.SPP, seed=MAKE.SEED).numpy()
     assert not np.array_equal(img.view(np.uint32), ref_img.view(np.uint32))
     np.testing.assert_allclose(img, ref_img, atol=0.02)  # the same image up to Monte Carlo path changes
 
