@@ -2,8 +2,8 @@
 
 Dr.Jit compiles its kernels for the host, like `-march=native`: LLVM's name for the host CPU (e.g.
 `znver5`), its feature list, and a vector width of 16 with AVX-512 (8 with AVX, 4 with SSE 4.2). The
-target changes a render's last bits, and through them Monte Carlo paths (measured on pi_hallway 40×30,
-96 spp: 2817 to 2930 of the 3600 values differ between the targets below, by up to 3.7e-3):
+target changes a render's last bits, and through them Monte Carlo paths (pi_hallway 40×30, 96 spp on an
+AMD EPYC, znver5 at width 16 against the portable target: 2890 of 3600 values differ, by up to 3.7e-3):
 
 - at width 16 on an AVX-512 host, 1/√x is `vrsqrt14ps` plus a Newton step; at width 8 on an AVX host,
   `vrsqrtps` plus a Newton step (an approximation whose bits the CPU vendor decides); at any other
@@ -11,15 +11,19 @@ target changes a render's last bits, and through them Monte Carlo paths (measure
 - vector sums are emitted with `reassoc`, so LLVM orders them for the target's registers.
 
 `pin("portable")` sets x86-64-v3 (AVX2 and FMA: every x86-64 CPU since Intel Haswell and AMD Zen 1)
-at width 4 (`PORTABLE`): no approximate instruction, no AVX-512, the same code on every such CPU. Width 4,
-not 8, because width 8 brings back `vrsqrtps`. Dr.Jit 1.5 has no Python call for this; libdrjit-core
-exports `jit_llvm_set_target(cpu, features, width)` (C++ linkage), called here through ctypes. It takes
-effect for kernels compiled afterwards, so it is applied once per process, before the first scene is
-loaded (`MitsubaModel` does it); asking for another target later in the same process is an error.
+at width 4 (`PORTABLE`): no approximate instruction, no AVX-512, the same kernels on every such CPU for a
+given libLLVM. Width 4, not 8, because width 8 brings back `vrsqrtps` (and costs about the same: ×1.73
+against ×1.81 CPU time per render over the native AVX-512 target, measured side by side). Width 16 with
+an AVX2 CPU is no option: Dr.Jit still emits the AVX-512 intrinsic on an AVX-512 host and LLVM aborts.
+Dr.Jit 1.5 has no Python call for this; libdrjit-core exports `jit_llvm_set_target(cpu, features, width)`
+(C++ linkage), called here through ctypes. It takes effect for kernels compiled afterwards, so it is
+applied once per process, before the first scene is loaded (`MitsubaModel` does it); asking for another
+target later in the same process is an error.
 
 Not pinned by this: Embree, Mitsuba's ray–triangle intersector on the CPU (meshes: `cube`, `ply`, `obj`;
 `rectangle`, `sphere` and `disk` are Mitsuba's own code), picks its kernels by the host's ISA (SSE 4.2,
-AVX, AVX2, AVX-512) at run time and uses approximate reciprocals; Mitsuba sets no option to fix it.
+AVX, AVX2, AVX-512) at run time, and its triangle tests scale t, u, v by an approximate reciprocal
+(`rcp`); Mitsuba passes Embree no option to fix the ISA.
 `identity.render_identity` therefore keeps the host's ISA level and CPU vendor in every key.
 
 Choose with the `scene.llvm_target` config key or the environment variable NLOSBENCH_LLVM_TARGET
