@@ -110,10 +110,18 @@ def test_resume_on_another_machine_is_refused_naming_it(tmp_path, restricted):
     rundir.check(tmp_path, rundir.fingerprint(cfg, wrap(key), {}), resume=True)  # the same machine: fine
     moved = {**key, "render": {**key["render"], "llvm_target": {"name": "native", "cpu": "skylake-avx512",
                                                                 "width": 16}}}
-    with pytest.raises(rundir.RunFolderError, match=r"rendered with llvm_target\.cpu = 'znver5', this process has "
-                                                    r"'skylake-avx512'") as e:
+    with pytest.raises(rundir.RunFolderError, match=r"rendered with render\.llvm_target\.cpu = 'znver5', this "
+                                                    r"process has 'skylake-avx512'") as e:
         rundir.check(tmp_path, rundir.fingerprint(cfg, wrap(moved), {}), resume=True)
     assert "\n" not in str(e.value)
+
+
+def test_resume_of_a_run_without_a_render_identity_is_refused(tmp_path):
+    """A folder whose fingerprint predates the render identity cannot show it was rendered here: refused."""
+    cfg, key = {"name": "x", "seed": 0}, {"scene": "abc"}
+    rundir.write_fingerprint(tmp_path, rundir.fingerprint(cfg, key, {}))
+    with pytest.raises(rundir.RunFolderError, match="rendered with render = '<absent>'"):
+        rundir.check(tmp_path, rundir.fingerprint(cfg, {**key, "render": identity.render_identity()}, {}), resume=True)
 
 
 def test_target_is_fixed_once_per_process():

@@ -101,9 +101,9 @@ def check(run_dir: Path, fp: dict, resume: bool) -> None:
             from None
     d = first_difference(old, fp)
     parts = d[0].split(".") if d else []
-    if parts[:1] == ["model"] and "render" in parts[:-1]:  # the machine, not the config
+    if parts[:1] == ["model"] and "render" in parts:  # the machine (or a run from before it was recorded)
         _, was, now = d
-        key = ".".join(parts[parts.index("render") + 1:])
+        key = ".".join(parts[parts.index("render"):])
         raise RunFolderError(str(run_dir), f"was rendered with {key} = {_short(was)}, "
                                            f"this process has {_short(now)}, and renders differ in their last bits "
                                            "between the two: resume where it was started (same CPU, scene.llvm_target "
