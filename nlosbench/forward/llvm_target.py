@@ -117,10 +117,12 @@ def requested(name: str | None = None) -> str:
 def pin(name: str | None = None) -> str:
     """Fix this process's LLVM target (`requested(name)`) before any kernel; return its name.
 
-    Calling it again with the same target is free; another target raises TargetError (kernels already
-    compiled for the first would mix with the second). 'portable' on a CPU that is not x86-64 with AVX2
-    and FMA raises TargetError."""
+    Calling it again with the same target, or with None once a target is fixed, is free; another target
+    raises TargetError (kernels already compiled for the first would mix with the second). 'portable' on a
+    CPU that is not x86-64 with AVX2 and FMA raises TargetError."""
     global _fixed
+    if name is None and _fixed is not None:
+        return _fixed
     name = requested(name)
     if _fixed is not None:
         if name != _fixed:

@@ -94,8 +94,9 @@ class MitsubaModel(ForwardModel):
     freeze: render passes through a `drjit.freeze`d `mi.render` (default: on unless the environment
     variable NLOSBENCH_FREEZE=0); False renders every pass traced, for debugging. Same images either way
     on the CPU (bit for bit).
-    llvm_target: Dr.Jit's LLVM code-generation target for this process, 'native' or 'portable' (default:
-    $NLOSBENCH_LLVM_TARGET, else native); fixed by the first model of a process (`llvm_target.pin`).
+    llvm_target: Dr.Jit's LLVM code-generation target for this process, 'native' or 'portable' (default: the
+    one already fixed in this process, else $NLOSBENCH_LLVM_TARGET, else native); fixed once per process
+    (`llvm_target.pin`): a model asking for another one later raises TargetError.
     """
 
     #: scene loads in this process, across all models (tests check that θ changes never reload)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import yaml
 
+from ..forward import llvm_target
 from ..forward.analytic import Blob2D, Edge1D
 from ..forward.model import ForwardModel
 
@@ -97,10 +98,11 @@ def get(name: str, **options) -> ForwardModel:
 def build(spec: dict) -> ForwardModel:
     """The forward model from a picklable spec {name, options, params, fixed, variant, llvm_target, cache}:
     loaded once per process (workers call this in their initialiser), restricted to `params` when given."""
+    if spec.get("llvm_target"):  # before the scene loads: its first kernel is compiled for the pinned target
+        llvm_target.pin(spec["llvm_target"])
     opts = dict(spec.get("options") or {})
-    for k in ("variant", "llvm_target"):
-        if spec.get(k):
-            opts[k] = spec[k]
+    if spec.get("variant"):
+        opts["variant"] = spec["variant"]
     if spec.get("cache"):
         opts["cache"] = spec["cache"]
     model = get(spec["name"], **opts)
