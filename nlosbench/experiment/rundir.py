@@ -3,14 +3,15 @@ changes its numbers (`fingerprint`), so that `--resume` continues exactly the ru
 
 Fingerprint (fingerprint.json, written before any other file of the run): the resolved config without
 the keys that cannot change a number (`NUMBERLESS`), the model's content key (a hash over every file the
-scene loads, defines, variant, integrator, bindings, pass size, Mitsuba and Dr.Jit versions; the analytic
+scene loads, defines, variant, integrator, bindings, pass size, Mitsuba and Dr.Jit versions, and under
+`model.render` what else decides a render's bits: the LLVM target, libLLVM, the host's ISA; the analytic
 toys' settings), the components every render key holds (`forward.keys.environment`: the rendering code's
 hash, ...), the code (nlosbench's version and a hash of each of its installed source files), the versions
 of torch and numpy, and what each study's plan fixes beyond the config (its `Plan.fingerprint`, e.g. the
 trials study's `auto` gradients as resolved from a verdicts file). A resume whose fingerprint differs is
-refused with the first differing key, before anything is written; a difference in the code alone is
-refused naming the changed files unless the resume is asked for `anyway` (the CLI's --resume-anyway),
-which the run then records (results.json, report.md).
+refused with the first differing key, before anything is written (a different machine named as such); a
+difference in the code alone is refused naming the changed files unless the resume is asked for `anyway`
+(the CLI's --resume-anyway), which the run then records (results.json, report.md).
 
 Lock: an exclusive `fcntl.flock` on RUN/.lock, held for the whole run and released by the OS when the
 process ends in any way (kill -9 included): a second run or resume into a held folder is refused at
@@ -131,6 +132,14 @@ def check(run_dir: Path, fp: dict, resume: bool, anyway: bool = False) -> dict |
         raise RunFolderError(str(run_dir / FINGERPRINT), f"unreadable ({e}); start a new run with another --out") \
             from None
     d = first_difference(_without_code(old), _without_code(fp))
+    parts = d[0].split(".") if d else []
+    if parts[:1] == ["model"] and "render" in parts:  # the machine (or a run from before it was recorded)
+        _, was, now = d
+        key = ".".join(parts[parts.index("render"):])
+        raise RunFolderError(str(run_dir), f"was rendered with {key} = {_short(was)}, "
+                                           f"this process has {_short(now)}, and renders differ in their last bits "
+                                           "between the two: resume where it was started (same CPU, scene.llvm_target "
+                                           "and versions), or use a new --out")
     if d:
         key, was, now = d
         key = key.removeprefix("config.")
