@@ -3,7 +3,12 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 CONFIG ?= configs/quick.yaml
 
-.PHONY: setup demo test lint bench bench-gpu clean
+# examples/own_scene.py's run: made by the test suite, shown by the documentation's own-scene tutorial
+OWN_SCENE ?= runs/own_scene
+# -W --keep-going: every warning is an error, all reported; -n: every cross-reference must resolve
+SPHINX := $(PY) -m sphinx -W --keep-going -n -q
+
+.PHONY: setup demo test lint docs docs-build bench bench-gpu clean
 
 setup:
 	@bash scripts/setup.sh
@@ -14,12 +19,27 @@ demo: setup
 	@echo "report: runs/demo/report.md"
 
 test: setup lint
-	$(PY) -m pytest -q
+	NLOSBENCH_OWN_SCENE_OUT=$(OWN_SCENE) $(PY) -m pytest -q
+	@$(MAKE) --no-print-directory docs-build
+
+# the site into docs/_build/html (offline, its gallery executed), then the docstrings' examples as doctests
+# (`make test` runs those in pytest: tests/test_api_docs.py)
+docs: setup docs-build
+	$(PY) -m pytest -q -p no:cacheprovider --doctest-modules nlosbench/bank.py nlosbench/noise.py \
+		nlosbench/params.py nlosbench/forward/model.py nlosbench/forward/gradients.py nlosbench/forward/cache.py \
+		nlosbench/diagnostics/policy.py nlosbench/bounds nlosbench/estimators
+
+docs-build: $(OWN_SCENE)/run/report.md
+	NLOSBENCH_OWN_SCENE_RUN=$(OWN_SCENE) $(SPHINX) -b html docs docs/_build/html
+
+$(OWN_SCENE)/run/report.md:
+	rm -rf $(OWN_SCENE)
+	$(PY) examples/own_scene.py $(OWN_SCENE)
 
 # the layers contract (import-linter) and the rule set (ruff), both configured in pyproject.toml
 lint: setup
 	$(VENV)/bin/lint-imports
-	$(VENV)/bin/ruff check nlosbench tests scripts examples
+	$(VENV)/bin/ruff check nlosbench tests scripts examples docs
 
 bench: setup
 	$(PY) -m nlosbench.cli bench
@@ -32,4 +52,5 @@ bench-gpu:
 	NLOSBENCH_VARIANT=cuda_ad_rgb $(GPU_PY) -m nlosbench.cli bench forward estimators
 
 clean:
-	rm -rf runs .pytest_cache
+	rm -rf runs .pytest_cache docs/_build docs/auto_tutorials docs/reference/generated docs/reference/api.md \
+		docs/reference/config.md

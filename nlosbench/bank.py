@@ -6,8 +6,9 @@ sets*: images (or FD Jacobians, or spp levels × replicates) of a list of θ for
 bank derives every seed itself (`seed`), looks each render up in its memory, renders the missing ones
 through the run's executor (one task per request or per group, so worker processes share the load),
 and counts every render once, worker processes included (a render served from memory or from the
-model's disk cache counts 0). FD Jacobians (central, common random numbers inside each stencil) are
-requests too.
+model's disk cache counts 0; one read back from the run's store counts what it cost when it was made, once,
+if the `owner` that asks now made it: a resumed study's count covers the work of every invocation). FD
+Jacobians (central, common random numbers inside each stencil) are requests too.
 
 Seed policy. seed = derive(run seed, "bank/" + purpose, spp, replicate[, key of θ]):
 - a render set is (purpose, spp, replicate); two sets never share a seed, so independent render sets,
@@ -38,7 +39,7 @@ import numpy as np
 import torch
 
 from .executors import Executor, SerialExecutor
-from .forward.cache import RenderCache, render_key
+from .forward.cache import RenderCache, RenderKey, render_key
 from .forward.gradients import GradientSettings, jacobian
 from .forward.model import ForwardModel
 from .seeds import derive
@@ -150,6 +151,8 @@ class RenderBank:
         self.progress = progress or (lambda it, total=None, desc="": it)
         self.memory_bytes = int(memory_bytes)
         self.renders = 0
+        self.owner = ""  # who asks now (the runner sets the study's id): kept with each stored render
+        self._counted: set[str] = set()  # store keys whose renders this bank has counted
         self._memo: OrderedDict[Hashable, torch.Tensor] = OrderedDict()
         self._held = 0
 
@@ -191,7 +194,7 @@ class RenderBank:
         return X.reshape(len(lv), replicates, len(pts), *X.shape[1:])
 
     # -- memory ----------------------------------------------------------------------------------
-    def _store_key(self, key: Hashable) -> str:
+    def _store_key(self, key: Hashable) -> RenderKey:
         return render_key(model=self.model.content_key(), request=repr(key))
 
     def _get(self, key: Hashable) -> torch.Tensor | None:
@@ -199,14 +202,21 @@ class RenderBank:
         if hit is not None:
             self._memo.move_to_end(key)
         elif self.store is not None:
-            hit = self.store.get(self._store_key(key))
-            if hit is not None:
+            skey = self._store_key(key)
+            entry = self.store.read(skey)
+            if entry is not None:
+                hit, meta = entry
+                if skey.hex not in self._counted and meta.get("by") == self.owner:  # made by an earlier invocation
+                    self.renders += int(meta.get("renders", 0))
+                    self._counted.add(skey.hex)
                 self._remember(key, hit)
         return hit
 
-    def _keep(self, key: Hashable, value: torch.Tensor) -> None:
+    def _keep(self, key: Hashable, value: torch.Tensor, renders: int) -> None:
         if self.store is not None:
-            self.store.put(self._store_key(key), value)
+            skey = self._store_key(key)
+            self.store.put(skey, value, renders=renders, by=self.owner)
+            self._counted.add(skey.hex)
         self._remember(key, value)
 
     def _remember(self, key: Hashable, value: torch.Tensor) -> None:
@@ -223,9 +233,14 @@ class RenderBank:
         """(tag, value) of a study's own render task `fn(model, item) → (tag, value, renders made)` over
         `items` through the executor, as they finish; renders are counted. For renders the bank's request
         types cannot describe (e.g. a camera posed outside θ); nothing is kept in memory."""
+        for tag, value, _ in self._tasks(fn, items, desc):
+            yield tag, value
+
+    def _tasks(self, fn: Callable, items: list, desc: str) -> Iterable[tuple[Hashable, object, int]]:
+        """As `map`, with the renders each task made."""
         for tag, value, renders in self.progress(self.executor.imap_unordered(fn, items), total=len(items), desc=desc):
             self.renders += renders
-            yield tag, value
+            yield tag, value, renders
 
     # -- requests --------------------------------------------------------------------------------
     def images(self, requests: Sequence[Request], desc: str = "renders") -> torch.Tensor:
@@ -238,9 +253,9 @@ class RenderBank:
                 todo.append(r)
             else:
                 out[r] = hit
-        for r, imgs in self.map(render_task, [(r, [r]) for r in todo], desc):
+        for r, imgs, renders in self._tasks(render_task, [(r, [r]) for r in todo], desc):
             out[r] = imgs[0]
-            self._keep(r, imgs[0])
+            self._keep(r, imgs[0], renders)
         return torch.stack([out[r] for r in requests])
 
     def jacobians(self, requests: Sequence[JacobianRequest], desc: str = "FD Jacobians") -> torch.Tensor:
@@ -253,9 +268,9 @@ class RenderBank:
                 todo.append(r)
             else:
                 out[r] = hit
-        for r, jac in self.map(jacobian_task, [(r, r) for r in todo], desc):
+        for r, jac, renders in self._tasks(jacobian_task, [(r, r) for r in todo], desc):
             out[r] = jac
-            self._keep(r, jac)
+            self._keep(r, jac, renders)
         return torch.stack([out[r] for r in requests])
 
 

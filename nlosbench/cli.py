@@ -17,6 +17,8 @@ import warnings
 from contextlib import contextmanager
 from pathlib import Path
 
+from .schema import ConfigError
+
 OK, ENVIRONMENT, BAD_INPUT, INTERRUPTED = 0, 1, 2, 130
 
 EPILOG = """examples:
@@ -28,14 +30,19 @@ EPILOG = """examples:
   nlosbench check-scene my_scene.yaml --out runs/check   # does each θ binding move what it claims?
   nlosbench list                                         # every kind: scenes, estimators, noise, studies
   nlosbench list estimators                              # one kind
+  nlosbench list keys trials                             # a study's config keys with their help
   nlosbench report runs/try                              # re-make plots and report.md from saved data
   nlosbench bench --reduced"""
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
+    """The `nlosbench` argument parser (also read by the documentation's CLI reference)."""
+    from . import __version__
+
     p = argparse.ArgumentParser(prog="nlosbench", description="Renderer-backed estimation bounds (HCR, CRLB, "
                                 "Barankin) and ML estimators for plenoptic / NLOS imaging.",
                                 epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     r = sub.add_parser("run", help="run the studies of a YAML config")
     r.add_argument("config", help="experiment config (YAML)")
@@ -43,6 +50,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="override a config value, e.g. --set seed=3 --set studies.0.spp=64 (repeatable)")
     r.add_argument("--out", help="run directory (default: OUTPUT/NAME from the config)")
     r.add_argument("--resume", action="store_true", help="continue a run in --out, keeping finished work")
+    r.add_argument("--resume-anyway", action="store_true", help="--resume even when nlosbench's code changed since "
+                   "the run started (old and new work then mix; recorded in results.json and report.md)")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
     r.add_argument("--smoke", action="store_true", help="a seconds-long run of the same config: tiny image, grids, "
                    "spp and trials (checks a paper-scale config before it runs for days)")
@@ -50,8 +59,9 @@ def _parser() -> argparse.ArgumentParser:
     d = sub.add_parser("render", help="render a scene at θ and write EXR + PNG")
     d.add_argument("scene", help="scene name (see `nlosbench list scenes`) or a scene spec .yaml")
     d.add_argument("--theta", type=float, nargs="+", help="θ values in parameter order (default: defaults)")
-    d.add_argument("--spp", type=int, default=256)
-    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--spp", type=int, default=256, help="samples per pixel (default: 256)")
+    d.add_argument("--seed", type=int, default=0, help="render seed: the same (θ, spp, seed) gives the same image "
+                   "(default: 0)")
     d.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
                    help="scene XML default, e.g. --define res=64 (repeatable)")
     d.add_argument("--out", default="runs/render", help="output folder")
@@ -59,15 +69,19 @@ def _parser() -> argparse.ArgumentParser:
                        "move what it claims? (image change per step, a PNG grid, warnings)")
     c.add_argument("scene", help="scene spec .yaml (or a registered scene name)")
     c.add_argument("--spp", type=int, default=64, help="samples per pixel of every render (one seed for all)")
-    c.add_argument("--seed", type=int, default=0)
+    c.add_argument("--seed", type=int, default=0, help="render seed shared by every render (default: 0)")
     c.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
                    help="scene XML default, e.g. --define resx=64 (repeatable)")
     c.add_argument("--out", default="runs/check-scene", help="output folder (check.png, check.json)")
-    ls = sub.add_parser("list", help="list scenes, estimators, noise models and studies (or one kind of them)")
-    ls.add_argument("what", nargs="?", choices=LIST_KINDS, help="one kind only (default: every kind, one "
-                    "section each)")
+    ls = sub.add_parser("list", help="list scenes, estimators, noise models and studies (or one kind of them), "
+                        "or the config keys of a study")
+    ls.add_argument("what", nargs="?", choices=(*LIST_KINDS, "keys"), help="one kind only (default: every kind, "
+                    "one section each); keys: the config keys of STUDY, or of the top level without one")
+    ls.add_argument("study", nargs="?", metavar="STUDY", help="with `keys`: a study type (see `nlosbench list "
+                    "studies`)")
     rep = sub.add_parser("report", help="re-make plots and report.md of a finished run from its saved data")
-    rep.add_argument("run_dir")
+    rep.add_argument("run_dir", metavar="RUN_DIR", help="a run directory written by `nlosbench run` (holds "
+                     "results.json)")
     b = sub.add_parser("bench", help="run the benchmarks side by side and print ratios")
     b.add_argument("--reduced", action="store_true", help="tiny sizes (seconds), as in the test suite")
     b.add_argument("names", nargs="*", help="benchmark modules to run (default: all)")
@@ -100,8 +114,12 @@ def _render(args) -> None:
 LIST_KINDS = ("scenes", "estimators", "noise", "studies")
 
 
-def _list(what: str | None) -> None:
-    if what is None:  # every kind, one section each under a heading
+def _list(what: str | None, study: str | None) -> None:
+    if study is not None and what != "keys":
+        raise ConfigError("list", f"a study name goes with `list keys` only, got `list {what} {study}`")
+    if what == "keys":
+        print(_keys(study))
+    elif what is None:  # every kind, one section each under a heading
         print("\n\n".join(f"{kind}:\n" + "\n".join(f"  {item}" for item in _items(kind)) for kind in LIST_KINDS))
     else:
         print("\n".join(_items(what)))
@@ -111,7 +129,7 @@ def _items(what: str) -> list[str]:
     if what == "scenes":
         from . import scenes
 
-        items = scenes.available()
+        items = [f"{name}: {text}" for name, text in scenes.describe().items()]
     elif what == "noise":
         from . import noise
 
@@ -127,11 +145,29 @@ def _items(what: str) -> list[str]:
     return items
 
 
+def _keys(study: str | None) -> str:
+    """The config keys of a study block (or of the top level), one per line: path, kind, default, help."""
+    from .experiment.config import TOP, study_schema
+    from .schema import describe
+
+    if study is None:
+        rows, title = describe(TOP), "top-level config keys (each study's: nlosbench list keys STUDY)"
+    else:
+        from . import studies
+
+        rows, title = describe(study_schema(studies.get(study))), f"keys of a `type: {study}` study block"
+    width = max(len(r.path) for r in rows)
+    lines = [f"{title}:"]
+    for r in rows:
+        default = "; required" if r.default == "required" else f"; default {r.default}" if r.default else ""
+        lines.append(f"  {r.path:<{width}}  {r.kind}{default}" + (f" — {r.help}" if r.help else ""))
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    args = build_parser().parse_args(argv)
     from concurrent.futures.process import BrokenProcessPool
 
-    from .schema import ConfigError
     from .variant import VariantError
 
     resume = ""  # how to resume, once a run has started writing its folder
@@ -140,7 +176,8 @@ def main(argv: list[str] | None = None) -> int:
             if args.command == "run":
                 from .experiment.runner import prepare
 
-                prepared = prepare(args.config, args.overrides, args.out, args.resume, args.quiet, args.smoke, args.yes)
+                prepared = prepare(args.config, args.overrides, args.out, args.resume or args.resume_anyway, args.quiet,
+                                   args.smoke, args.yes, args.resume_anyway)
                 resume = _resume_command(args, prepared.dir)
                 run_dir = prepared.execute()
                 print(f"done: {run_dir}/report.md")
@@ -152,7 +189,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(format_report(check_scene(args.scene, args.spp, args.seed,
                                                 dict(kv.split("=", 1) for kv in args.define), args.out)))
             elif args.command == "list":
-                _list(args.what)
+                _list(args.what, args.study)
             elif args.command == "report":
                 from .experiment.report import make_report
 
@@ -212,7 +249,8 @@ def _describe(e: OSError) -> str:
 
 def _resume_command(args, run_dir: Path) -> str:
     """The command that resumes this run: same config, overrides and --smoke, its folder, --resume."""
-    cmd = ["nlosbench", "run", args.config, "--out", str(run_dir), "--resume"]
+    again = "--resume-anyway" if args.resume_anyway else "--resume"
+    cmd = ["nlosbench", "run", args.config, "--out", str(run_dir), again]
     for item in args.overrides:
         cmd += ["--set", item]
     return shlex.join(cmd + (["--smoke"] if args.smoke else []) + (["--yes"] if args.yes else []))

@@ -24,6 +24,18 @@ class TornRecordWarning(UserWarning):
     """A torn last record (a run killed while writing it) was cut off a log."""
 
 
+def parse(line: bytes, where: str) -> dict:
+    """The record on one line of a log; RecordError naming `where` (file:line) when it is not one."""
+    try:
+        rec = json.loads(line)
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise RecordError(f"{where}: not a record ({e}); the log was damaged or edited — remove that line (its "
+                          "work is then done again) or start a new run") from None
+    if not isinstance(rec, dict):
+        raise RecordError(f"{where}: not a record (a JSON {type(rec).__name__}, expected an object)")
+    return rec
+
+
 class RecordLog:
     """Records (dicts) in a JSON-lines file at `path`; see the module docstring."""
 
@@ -45,17 +57,7 @@ class RecordLog:
                 os.fsync(f.fileno())
             warnings.warn(f"{self.path}: cut off a torn last record ({len(raw) - end} bytes, left by a run killed "
                           "while writing it); its work is done again", TornRecordWarning, stacklevel=2)
-        out = []
-        for n, line in enumerate(raw[:end].splitlines(), 1):
-            try:
-                rec = json.loads(line)
-            except (json.JSONDecodeError, UnicodeDecodeError) as e:
-                raise RecordError(f"{self.path}:{n}: not a record ({e}); the log was damaged or edited — "
-                                  "remove that line (its work is then done again) or start a new run") from None
-            if not isinstance(rec, dict):
-                raise RecordError(f"{self.path}:{n}: not a record (a JSON {type(rec).__name__}, expected an object)")
-            out.append(rec)
-        return out
+        return [parse(line, f"{self.path}:{n}") for n, line in enumerate(raw[:end].splitlines(), 1)]
 
     def reset(self) -> None:
         """Remove the log (a fresh start)."""

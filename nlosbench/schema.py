@@ -224,7 +224,56 @@ def number_or(*words: str):
             return value
         raise ConfigError(path, f"expected a number or one of {list(words)}, got {_given(value)}")
 
+    check.__name__ = "number or " + " or ".join(map(repr, words))  # the kind `describe` shows
     return check
 
 
 GRID = Field(grid_spec, help="θ values: a list, {start, stop, num}, or a list of {start, stop, num} segments")
+
+
+# -- the keys of a schema as rows (for `nlosbench list keys` and the documentation's config reference) -----
+_KINDS = {grid_spec: "θ grid", point_spec: "θ point", points_spec: "θ points", noise_spec: "noise choice"}
+
+
+@dataclass(frozen=True)
+class KeyDoc:
+    """One config key: its dotted path, the kind of value it takes, its default ("required" when it has
+    none) and its help text."""
+
+    path: str
+    kind: str
+    default: str
+    help: str
+
+
+def _type_name(typ) -> str:
+    if isinstance(typ, dict):
+        return "mapping"
+    name = _KINDS.get(typ) or _NAMES.get(typ) or getattr(typ, "__name__", str(typ))
+    return name.removeprefix("an ").removeprefix("a ")
+
+
+def _kind(field: Field) -> str:
+    name = _type_name(field.type)
+    items = field.items.type if isinstance(field.items, Field) else field.items
+    if items is not None:
+        name += f" of {_type_name(items)}s"
+    if field.choices:
+        name += f": one of {', '.join(map(str, field.choices))}"
+    return name
+
+
+def describe(schema: dict, path: str = "") -> list[KeyDoc]:
+    """Every key of `schema` (nested blocks and list items that are blocks included), in schema order."""
+    rows = []
+    for key, field in schema.items():
+        p = _join(path, key)
+        default = ("required" if field.default is REQUIRED and not isinstance(field.type, dict)
+                   else "" if isinstance(field.type, dict) else "null" if field.default is None
+                   else str(field.default).lower() if isinstance(field.default, bool) else repr(field.default))
+        rows.append(KeyDoc(p, _kind(field), default, field.help))
+        if isinstance(field.type, dict):
+            rows += describe(field.type, p)
+        elif isinstance(field.items, dict):
+            rows += describe(field.items, f"{p}[]")
+    return rows

@@ -1,6 +1,8 @@
 """Copy a finished run into results/<name>/ for committing: report.md, results.json, config.yaml, every CSV
 and PNG (no EXR, no render cache, no JSONL logs), plus machine.json (CPU, cores, memory, GPU if any, the
-Mitsuba variant, package versions, the run's wall time and renders per study, the command that made it).
+Mitsuba variant, package versions, what decided the renders' bits as the run recorded it in its fingerprint
+(`render`: Dr.Jit's LLVM target, libLLVM, the host's ISA), the run's wall time and renders per study, the
+command that made it).
 
     python scripts/publish_result.py runs/demo quick --config configs/quick.yaml
 
@@ -39,6 +41,17 @@ def _memory_gib() -> float | None:
         return round(kb / 2 ** 20, 1)
     except (OSError, StopIteration, ValueError):
         return None
+
+
+def render_identity(run_dir: Path) -> dict | None:
+    """The render identity the run recorded (its fingerprint's model key, under `render`), or None."""
+    try:
+        key = json.loads((run_dir / "fingerprint.json").read_text())["model"]
+    except (OSError, ValueError, KeyError):
+        return None
+    while isinstance(key, dict) and "render" not in key and "base" in key:  # a restricted or binned model
+        key = key["base"]
+    return key.get("render") if isinstance(key, dict) else None
 
 
 def machine(run: dict) -> dict:
@@ -80,7 +93,8 @@ def publish(run_dir: Path, name: str, config: str | None, dest_root: Path = ROOT
         if src.is_file() and src.suffix in KEEP and not SKIP_DIRS.intersection(rel.parts[:-1]):
             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, tmp / rel)
-    info = machine(run) | {"command": f"nlosbench run {config} --out {run_dir}" if config else None}
+    info = machine(run) | {"render": render_identity(run_dir),
+                           "command": f"nlosbench run {config} --out {run_dir}" if config else None}
     (tmp / "machine.json").write_text(json.dumps(info, indent=2) + "\n")
     dest = dest_root / name
     if dest.exists():

@@ -3,6 +3,7 @@ import csv
 import json
 import math
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -21,8 +22,13 @@ def rows(path: Path) -> list[dict]:
 
 @pytest.fixture(scope="module")
 def own_scene(tmp_path_factory):
-    """examples/own_scene.py run into a temp folder: (its folder, its stdout)."""
-    out = tmp_path_factory.mktemp("own_scene")
+    """examples/own_scene.py run into a temp folder, or into $NLOSBENCH_OWN_SCENE_OUT (emptied first: `make test`
+    keeps the run there for the documentation's own-scene tutorial): (its folder, its stdout)."""
+    keep = os.environ.get("NLOSBENCH_OWN_SCENE_OUT")
+    out = Path(keep).resolve() if keep else tmp_path_factory.mktemp("own_scene")
+    if keep:
+        shutil.rmtree(out, ignore_errors=True)
+        out.mkdir(parents=True)
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.run([sys.executable, str(ROOT / "examples" / "own_scene.py"), str(out)], cwd=out, env=env,
                           capture_output=True, text=True, timeout=500)

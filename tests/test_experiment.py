@@ -140,7 +140,7 @@ def test_render_and_list_commands(tmp_path, capsys):
     assert main(["render", "cornell_ball", "--theta", "0.1", "0.3", "0.8", "--spp", "8", "--out", str(tmp_path)]) == 0
     assert list(tmp_path.glob("*.exr")) and list(tmp_path.glob("*.png"))
     assert main(["list", "scenes"]) == 0
-    listed = capsys.readouterr().out.split()
+    listed = [line.split(": ", 1)[0] for line in capsys.readouterr().out.splitlines()]  # "name: description"
     assert {"blob2d", "edge1d", "cornell_ball"} <= set(listed)
     assert main(["render", "cornell_ball", "--theta", "9", "0.3", "0.8", "--out", str(tmp_path)]) == 2
 

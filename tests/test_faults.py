@@ -117,7 +117,7 @@ def _killed_copy(src: Path, dst: Path, keep: int, tail: bytes = b"") -> Path:
 def test_viewpoints_resume_with_another_sigma_is_refused_and_writes_nothing(views, tmp_path, capsys):
     """Row 1. Simulates a viewpoints run killed after 4 of 9 viewpoints (log cut, no results.json), then
     `--resume --set noise.0.sigma=0.5`: exit 2, one line naming the key, not one byte changed; the same
-    config then resumes to the uninterrupted run's numbers."""
+    config then resumes to the uninterrupted run's numbers, and its render count covers both invocations."""
     cfg, full, csv = views
     run = tmp_path / "killed"
     _killed_copy(full, run, keep=4)
@@ -130,6 +130,9 @@ def test_viewpoints_resume_with_another_sigma_is_refused_and_writes_nothing(view
     assert rc == 0, err
     assert (run / "00-viewpoints" / "viewpoints.csv").read_text() == csv
     assert len(RecordLog(run / "00-viewpoints" / "viewpoints.jsonl").read()) == 9
+    counts = [json.loads((d / "results.json").read_text())["studies"]["00-viewpoints"]["results"]["renders"]
+              for d in (full, run)]
+    assert counts[0] == counts[1] == 9 * 5  # both invocations' renders: a render and 2 FD rounds per viewpoint
 
 
 def test_torn_viewpoints_record_is_cut_with_a_warning_and_resumes(views, tmp_path):
@@ -530,3 +533,180 @@ def test_a_billion_spp_needs_yes_and_says_what_it_would_cost(tmp_path, capsys):
     assert not (tmp_path / "run").exists()
     rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "small", "--set", "studies.0.spp=4")
     assert rc == 0 and "[00-bounds] plan: 15 renders" in err and "estimate: ≈" in err, err
+
+
+# -- content keys, a verified render store, the code in the fingerprint ------------------------------------------
+PI_BOUNDS = {"type": "bounds", "grid": {"start": 0.8, "stop": 1.2, "num": 3}, "spp": 4, "zzb": False}
+
+
+def _pi_scene(tmp_path: Path, how: str) -> Path:
+    """A copy of the Π hallway whose teapot is named through a define (`how` = "define": `$mesh.ply`, default
+    `teapot`) or sits in an included file (`how` = "include": object.xml); returns its scene spec."""
+    scenes = ROOT / "scenes"
+    folder = tmp_path / how
+    folder.mkdir()
+    (folder / "teapot.ply").write_bytes((scenes / "teapot.ply").read_bytes())
+    xml = (scenes / "pi_hallway.xml").read_text()
+    start, end = xml.index('    <shape type="ply" id="object">'), xml.index("</scene>")
+    if how == "define":
+        xml = xml.replace('<scene version="3.0.0">', '<scene version="3.0.0"><default name="mesh" value="teapot"/>')
+        xml = xml.replace('value="teapot.ply"', 'value="$mesh.ply"')
+    else:
+        (folder / "object.xml").write_text(f'<scene version="3.0.0">\n{xml[start:end]}</scene>\n')
+        xml = xml[:start] + '    <include filename="object.xml"/>\n' + xml[end:]
+    (folder / "pi.xml").write_text(xml)
+    spec = yaml.safe_load((scenes / "pi_hallway.yaml").read_text())
+    (folder / "pi.yaml").write_text(yaml.safe_dump({**spec, "file": "pi.xml"}))
+    return folder / "pi.yaml"
+
+
+def _scale_mesh(path: Path, factor: float) -> None:
+    """Scale every vertex of a PLY mesh by `factor` (rewritten in place by Mitsuba)."""
+    import mitsuba as mi
+
+    mesh = mi.load_dict({"type": "ply", "filename": str(path)})
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = params["vertex_positions"] * factor
+    params.update()
+    mesh.write_ply(str(path))
+
+
+@pytest.mark.parametrize("how", ["define", "include"])
+def test_an_edited_mesh_named_by_a_define_or_an_include_is_never_served_stale(tmp_path, capsys, how):
+    """A mesh named through a define (`$mesh.ply`) or inside an `<include>`d file: a Π-hallway bounds run with a
+    shared `cache`, then every vertex of the teapot scaled by 1.25. The next run through the same cache gives
+    the numbers of a run without any cache (not the old mesh's), and `--resume` of the first run is refused
+    (exit 2, naming the scene's files), writing nothing."""
+    spec = _pi_scene(tmp_path, how)
+    cache = tmp_path / "cache"
+    cfg = config(tmp_path, {"name": str(spec), "options": PI["options"]}, [PI_BOUNDS], cache=str(cache))
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "old", "--quiet")[0] == 0
+    old = (tmp_path / "old" / "00-bounds" / "bounds.csv").read_bytes()
+    _scale_mesh(spec.parent / "teapot.ply", 1.25)
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "new", "--quiet")[0] == 0
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "fresh", "--set", "cache=null", "--quiet")[0] == 0
+    new = (tmp_path / "new" / "00-bounds" / "bounds.csv").read_bytes()
+    assert new != old and new == (tmp_path / "fresh" / "00-bounds" / "bounds.csv").read_bytes()
+    before = snapshot(tmp_path / "old")
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "old", "--resume", "--quiet")
+    assert rc == 2 and len(errors(err)) == 1 and "the scene's files changed: was run with model.scene" in err, err
+    assert snapshot(tmp_path / "old") == before
+
+
+def _killed_bounds(src: Path, dst: Path) -> None:
+    """The state of a bounds run killed in its study: its render store kept, nothing else of the study."""
+    import shutil
+
+    shutil.copytree(src, dst)
+    shutil.rmtree(dst / "00-bounds")
+    for f in ("results.json", "report.md"):
+        (dst / f).unlink()
+
+
+def test_a_render_file_copied_over_another_is_detected_and_rerendered(tmp_path, capsys):
+    """A valid render file copied over another in a run's render store (a restore, a sync or dedup tool,
+    merged folders), then `--resume` of the run killed in its study: the copy fails the key check (a warning
+    naming the entry's key), is re-rendered, and the numbers are those of the uninterrupted run."""
+    cfg = config(tmp_path, EDGE, [BOUNDS])
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "full", "--quiet")[0] == 0
+    run = tmp_path / "run"
+    _killed_bounds(tmp_path / "full", run)
+    a, b = sorted((run / "renders").rglob("*.npc"))[:2]
+    b.write_bytes(a.read_bytes())
+    with pytest.warns(UserWarning, match=f"entry {b.stem} is corrupt: it holds the render of another key"):
+        assert cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")[0] == 0
+    full = tmp_path / "full" / "00-bounds" / "bounds.csv"
+    assert (run / "00-bounds" / "bounds.csv").read_bytes() == full.read_bytes()
+
+
+def test_a_resume_across_a_code_change_is_refused_unless_resume_anyway(tmp_path, capsys, monkeypatch):
+    """A finished bounds run, then nlosbench's code changes (simulated: the hash of studies/bounds.py, as an
+    editable install sees an edited file). `--resume` is refused (exit 2) naming the changed file and
+    --resume-anyway, nothing written; `--resume-anyway` goes on and records the change in results.json and
+    report.md."""
+    from nlosbench import sources
+
+    cfg = config(tmp_path, EDGE, [BOUNDS])
+    run = tmp_path / "run"
+    assert cli(capsys, "run", cfg, "--out", run, "--quiet")[0] == 0
+    before = snapshot(run)
+    edited = {**sources.digests(), "studies/bounds.py": "0" * 64}
+    monkeypatch.setattr(sources, "digests", lambda: edited)
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")
+    assert rc == 2 and len(errors(err)) == 1 and "(changed: studies/bounds.py)" in err and "--resume-anyway" in err, err
+    assert snapshot(run) == before
+    assert cli(capsys, "run", cfg, "--out", run, "--resume-anyway", "--quiet")[0] == 0
+    (record,) = json.loads((run / "results.json").read_text())["resumed_anyway"]
+    assert record["changed"] == ["studies/bounds.py"]
+    assert "**Resumed across a code change** (`--resume-anyway`" in (run / "report.md").read_text()
+
+
+# -- a resume that rebuilds --------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def two_studies(tmp_path_factory):
+    """A finished run of a bounds and a trials study on edge1d, its config and a snapshot of its files."""
+    tmp = tmp_path_factory.mktemp("two")
+    cfg = config(tmp, EDGE, [BOUNDS, TRIALS])
+    assert main(["run", str(cfg), "--out", str(tmp / "full"), "--quiet"]) == 0
+    return cfg, tmp / "full", snapshot(tmp / "full")
+
+
+def test_resume_rebuilds_a_deleted_study_folder_and_trials_log(two_studies, tmp_path, capsys):
+    """A finished run whose bounds study folder was removed (`rm -rf RUN/00-bounds`) and whose trials.jsonl was
+    deleted: `--resume` warns naming each, rebuilds both studies from the render store and the record logs,
+    and gives the uninterrupted run's numbers (bounds.csv byte for byte, every trial's estimate); the render
+    counts that report.md adds up cover the renders of both invocations (the rebuild reads them back from
+    the store). Fit costs and wall times are not compared: fits in one process share a memo."""
+    import shutil
+
+    cfg, full, files = two_studies
+    run = tmp_path / "run"
+    shutil.copytree(full, run)
+    shutil.rmtree(run / "00-bounds")
+    (run / "01-trials" / "trials.jsonl").unlink()
+    with pytest.warns(UserWarning) as caught:
+        rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")
+    assert rc == 0, err
+    rebuilt = [str(w.message) for w in caught if "rebuilding the study" in str(w.message)]
+    assert len(rebuilt) == 2 and f"{run / '00-bounds'}/" in rebuilt[0] and "is missing" in rebuilt[0], rebuilt
+    assert f"{run / '01-trials' / 'trials.jsonl'} is missing" in rebuilt[1], rebuilt
+    assert (run / "00-bounds" / "bounds.csv").read_bytes() == files["00-bounds/bounds.csv"]
+    estimates = [[(r["trial"], r["theta_hat"]) for r in RecordLog(d / "01-trials" / "trials.jsonl").read()]
+                 for d in (full, run)]
+    assert estimates[0] == estimates[1] and len(estimates[0]) == TRIALS["n"]
+    counts = [json.loads((d / "results.json").read_text())["studies"] for d in (full, run)]
+    assert counts[0]["00-bounds"]["results"]["renders"] == counts[1]["00-bounds"]["results"]["renders"] > 0
+    assert counts[0]["01-trials"]["results"]["bank_renders"] == counts[1]["01-trials"]["results"]["bank_renders"] > 0
+
+
+@pytest.mark.parametrize("name", ["results.json", "fingerprint.json", "01-trials/trials.jsonl"])
+def test_a_damaged_run_record_is_one_line_naming_the_file(two_studies, tmp_path, capsys, name):
+    """results.json or fingerprint.json cut short (as a copy or a disk error leaves them), or a line in the middle
+    of trials.jsonl damaged: `--resume` exits 2 with one error line naming the file, not a bare JSON message."""
+    import shutil
+
+    cfg, full, _ = two_studies
+    run = tmp_path / "run"
+    shutil.copytree(full, run)
+    damaged = run / name
+    raw = damaged.read_bytes()
+    damaged.write_bytes(raw[:len(raw) // 2] if name.endswith(".json") else raw.replace(b"\n", b"\n{\n", 1))
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")
+    assert rc == 2 and len(errors(err)) == 1 and str(damaged) in errors(err)[0], err
+
+
+def test_report_refuses_a_table_cut_short(two_studies, tmp_path, capsys):
+    """bounds.csv cut to its first rows (no torn line: a file truncated at a line's end): `nlosbench report`
+    exits 2 naming the file and the rows results.json says it has, instead of drawing from what is left."""
+    import shutil
+
+    _, full, _ = two_studies
+    run = tmp_path / "run"
+    shutil.copytree(full, run)
+    table = run / "00-bounds" / "bounds.csv"
+    rows = table.read_text().splitlines(keepends=True)
+    table.write_text("".join(rows[:4]))
+    rc, err = cli(capsys, "report", run)
+    assert rc == 2 and errors(err) == [f"nlosbench: error: {table}: has 3 rows, results.json says {len(rows) - 1}: "
+                                       f"a report from it would be wrong; resume the run (nlosbench run <its config> "
+                                       f"--out {run} --resume) to rebuild it"], err

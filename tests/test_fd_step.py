@@ -114,9 +114,13 @@ def test_vector_hcr_delta_to_zero_term_is_the_crlb_trace():
     J = torch.func.jacrev(m.clean)(t).reshape(-1, 2)
     F = (J.T @ J).numpy() / SIGMA**2
     (pt,) = BoundService(RenderBank(m), [nb.noise.AWGN(SIGMA)]).at([t.numpy()], 1, ("hcr", "crlb"), test_grid=5)
-    h = pt.bounds["hcr"]
-    assert 10 ** h.point == pytest.approx(np.trace(np.linalg.inv(F)), rel=2e-3)
+    h, c = pt.bounds["hcr"], pt.bounds["crlb"]
+    exact = np.trace(np.linalg.inv(F))
+    assert 10 ** h.point == pytest.approx(exact, rel=2e-3)
     assert h.terms.endswith("point: Δ → 0")
+    # the FD-smoothed F at the finest step is still 0.3 % low here (smooth curvature): the extrapolation to
+    # ξ → 0 keeps both lower ends at or below the exact CRLB
+    assert 10 ** c.lower <= exact * (1 + 1e-9) and 10 ** h.lower <= exact * (1 + 1e-9)
 
 
 def test_the_upper_end_is_open_whenever_a_tested_delta_is_unresolved():

@@ -22,7 +22,12 @@ TOP = {
                     "params": Field(list, None, "θ components studied (default: all)", items=str, nullable=True),
                     "fixed": Field(dict, {}, "values of the other parameters (default: their defaults)"),
                     "variant": Field(str, None, "Mitsuba variant (default: cuda_ad_rgb if usable, else llvm_ad_rgb)",
-                                     nullable=True)}),
+                                     nullable=True),
+                    "llvm_target": Field(str, None, "Dr.Jit's CPU code-generation target: native (the host's ISA) "
+                                                    "or portable (x86-64-v3 at width 4: the same kernels on any "
+                                                    "x86-64 CPU with AVX2; default: $NLOSBENCH_LLVM_TARGET, else "
+                                                    "native)",
+                                         choices=("native", "portable"), nullable=True)}),
     "noise": Field(list, [{"model": "awgn", "sigma": 0.1}], "noise models", items=NOISE),
     "executor": Field({"type": Field(str, "local", choices=("local", "serial", "dask")),
                        "workers": Field(int, 2, "local worker processes"),

@@ -1,7 +1,6 @@
 """report.md for a run directory, made only from saved files (config.yaml, results.json, study CSVs)."""
 from __future__ import annotations
 
-import json
 import platform
 from pathlib import Path
 
@@ -9,12 +8,20 @@ import yaml
 
 from .. import studies
 from ..io import write_text
+from . import outputs
+from .rundir import RunFolderError
 
 
 def make_report(run_dir: str | Path) -> Path:
+    """Write report.md; RunFolderError (one line naming the file) when results.json is damaged or a study's
+    table or record log holds less than results.json says (cut short: `--resume` rebuilds it)."""
     run_dir = Path(run_dir)
     cfg = yaml.safe_load((run_dir / "config.yaml").read_text())
-    results = json.loads((run_dir / "results.json").read_text())
+    results = outputs.load_results(run_dir / "results.json")
+    for sid, s in results["studies"].items():
+        for path, what in outputs.problems(run_dir / sid, s.get("outputs", {}), (".csv", ".json", ".jsonl"))[:1]:
+            raise RunFolderError(str(path), f"{what}: a report from it would be wrong; resume the run (nlosbench run "
+                                            f"<its config> --out {run_dir} --resume) to rebuild it")
     sc = cfg["scene"]
     noises = ", ".join(
         f"{n['model']} ({'σ = ' + str(n['sigma']) if n['model'] == 'awgn' else 'scale = ' + str(n['scale'])})"
@@ -39,6 +46,10 @@ def make_report(run_dir: str | Path) -> Path:
         "processes included, where it keeps one; else those of the main process).",
         "",
     ]
+    for r in results.get("resumed_anyway", []):
+        files = ", ".join(r["changed"]) or "the rendering code"
+        lines += [f"**Resumed across a code change** (`--resume-anyway`, {r['at']}): nlosbench {r['from']} → "
+                  f"{r['to']}, changed: {files}. Work finished before and after it is mixed in these results.", ""]
     for sid, s in results["studies"].items():
         mod = studies.get(s["type"])
         lines += [

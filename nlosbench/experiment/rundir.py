@@ -2,11 +2,16 @@
 changes its numbers (`fingerprint`), so that `--resume` continues exactly the run that was started.
 
 Fingerprint (fingerprint.json, written before any other file of the run): the resolved config without
-the keys that cannot change a number (`NUMBERLESS`), the model's content key (scene files' hash, defines,
-variant, integrator, bindings, pass size, Mitsuba and Dr.Jit versions; the analytic toys' settings), the
-versions of nlosbench, torch and numpy, and what each study's plan fixes beyond the config (its
-`Plan.fingerprint`, e.g. the trials study's `auto` gradients as resolved from a verdicts file). A resume
-whose fingerprint differs is refused with the first differing key, before anything is written.
+the keys that cannot change a number (`NUMBERLESS`), the model's content key (a hash over every file the
+scene loads, defines, variant, integrator, bindings, pass size, Mitsuba and Dr.Jit versions, and under
+`model.render` what else decides a render's bits: the LLVM target, libLLVM, the host's ISA; the analytic
+toys' settings), the components every render key holds (`forward.keys.environment`: the rendering code's
+hash, ...), the code (nlosbench's version and a hash of each of its installed source files), the versions
+of torch and numpy, and what each study's plan fixes beyond the config (its `Plan.fingerprint`, e.g. the
+trials study's `auto` gradients as resolved from a verdicts file). A resume whose fingerprint differs is
+refused with the first differing key, before anything is written (a different machine named as such); a
+difference in the code alone is refused naming the changed files unless the resume is asked for `anyway`
+(the CLI's --resume-anyway), which the run then records (results.json, report.md).
 
 Lock: an exclusive `fcntl.flock` on RUN/.lock, held for the whole run and released by the OS when the
 process ends in any way (kill -9 included): a second run or resume into a held folder is refused at
@@ -40,14 +45,40 @@ def fingerprint(cfg: dict, content_key: dict, plans: dict) -> dict:
     import numpy
     import torch
 
-    from .. import __version__
+    from .. import __version__, sources
+    from ..forward import keys
 
     numbers = {k: v for k, v in cfg.items() if k not in NUMBERLESS}
     extra = {sid: getattr(p, "fingerprint", None) for sid, p in plans.items()}
-    fp = {"config": numbers, "model": content_key,
-          "versions": {"nlosbench": __version__, "torch": torch.__version__, "numpy": numpy.__version__},
+    fp = {"config": numbers, "model": content_key, "render": keys.environment(),
+          "code": {"nlosbench": __version__, "source": sources.digest(),
+                   "files": {name: d[:16] for name, d in sources.digests().items()}},
+          "versions": {"torch": torch.__version__, "numpy": numpy.__version__},
           "plans": {sid: v for sid, v in extra.items() if v is not None}}
     return json.loads(json.dumps(fp, sort_keys=True, default=repr))
+
+
+def _without_code(fp: dict) -> dict:
+    """The fingerprint less its code parts ("code" and the render keys' "code" component)."""
+    out = {k: v for k, v in fp.items() if k != "code"}
+    if isinstance(out.get("render"), dict):
+        out["render"] = {k: v for k, v in out["render"].items() if k != "code"}
+    return out
+
+
+def code_change(old: dict, new: dict) -> dict | None:
+    """None when two fingerprints hold the same code; else {"from", "to": version + source hash,
+    "changed": the package files added, removed or edited}."""
+    was, now = old.get("code") or {}, new.get("code") or {}
+    if was == now and (old.get("render") or {}).get("code") == (new.get("render") or {}).get("code"):
+        return None
+    a, b = was.get("files") or {}, now.get("files") or {}
+    changed = sorted(n for n in set(a) | set(b) if a.get(n) != b.get(n))
+
+    def label(c: dict) -> str:
+        return f"{c.get('nlosbench', '?')} ({str(c.get('source', '?'))[:12]})"
+
+    return {"from": label(was), "to": label(now), "changed": changed}
 
 
 def first_difference(old, new, path: str = "") -> tuple[str, object, object] | None:
@@ -83,11 +114,13 @@ def holds_run(run_dir: Path) -> bool:
     return (run_dir / FINGERPRINT).exists() or (run_dir / "results.json").exists()
 
 
-def check(run_dir: Path, fp: dict, resume: bool) -> None:
+def check(run_dir: Path, fp: dict, resume: bool, anyway: bool = False) -> dict | None:
     """Refuse (RunFolderError, one line) a new run into a folder that holds one, or a resume whose
-    fingerprint differs from the folder's (naming the first differing key). Reads only."""
+    fingerprint differs from the folder's (naming the first differing key), or whose code differs (naming
+    the changed files) unless `anyway`. Returns the code change a resume `anyway` goes across (else None).
+    Reads only."""
     if not holds_run(run_dir):
-        return
+        return None
     if not resume:
         raise RunFolderError(str(run_dir), "already holds a run; pass --resume to continue it or --out for a new one")
     try:
@@ -98,13 +131,31 @@ def check(run_dir: Path, fp: dict, resume: bool) -> None:
     except ValueError as e:
         raise RunFolderError(str(run_dir / FINGERPRINT), f"unreadable ({e}); start a new run with another --out") \
             from None
-    d = first_difference(old, fp)
+    d = first_difference(_without_code(old), _without_code(fp))
+    parts = d[0].split(".") if d else []
+    if parts[:1] == ["model"] and "render" in parts:  # the machine (or a run from before it was recorded)
+        _, was, now = d
+        key = ".".join(parts[parts.index("render"):])
+        raise RunFolderError(str(run_dir), f"was rendered with {key} = {_short(was)}, "
+                                           f"this process has {_short(now)}, and renders differ in their last bits "
+                                           "between the two: resume where it was started (same CPU, scene.llvm_target "
+                                           "and versions), or use a new --out")
     if d:
         key, was, now = d
         key = key.removeprefix("config.")
-        raise RunFolderError(str(run_dir), f"was run with {key} = {_short(was)}, this config has {_short(now)}; "
-                                           "a resume needs the same config (only "
+        what = "the scene's files changed: " if key.startswith("model.") and key.endswith("scene") else ""
+        raise RunFolderError(str(run_dir), f"{what}was run with {key} = {_short(was)}, this config has "
+                                           f"{_short(now)}; a resume needs the same config (only "
                                            f"{', '.join(NUMBERLESS)} may differ): undo the change, or use a new --out")
+    change = code_change(old, fp)
+    if change and not anyway:
+        files = change["changed"]
+        named = ", ".join(files[:4]) + (f" and {len(files) - 4} more" if len(files) > 4 else "")
+        raise RunFolderError(str(run_dir), f"was run with nlosbench {change['from']}, this is {change['to']} "
+                                           f"(changed: {named or 'the rendering code'}); finished work would mix "
+                                           "with this code's: undo the change, use a new --out, or pass "
+                                           "--resume-anyway to continue and record it in the run")
+    return change
 
 
 def write_fingerprint(run_dir: Path, fp: dict) -> None:

@@ -8,13 +8,14 @@ folder that holds one, or a resume whose fingerprint differs, is refused). Any p
 (one line, key path, what was expected and what was given) and nothing has been written.
 
 `Run.execute` then holds the folder's lock (`rundir.RunLock`), writes fingerprint.json and config.yaml
-(resolved), runs each study (a resumed run skips finished studies; studies resume their own partial work
-from their record logs and the render store), writes results.json after every study and report.md.
+(resolved), runs each study (a resumed run skips finished studies whose outputs are all there and parse, as
+results.json lists them, and rebuilds the others with a warning; studies resume their own partial work from
+their record logs and the render store), writes results.json after every study and report.md.
 On Ctrl-C or an error the executor's workers are stopped at once (`abort`)."""
 from __future__ import annotations
 
-import json
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -26,11 +27,15 @@ from ..schema import ConfigError
 from ..studies import estimate
 from ..studies.context import RunContext
 from . import config as config_mod
-from . import rundir
+from . import outputs, rundir
 from .report import make_report
 
 #: an estimated time above this (seconds) needs `yes` (the CLI's --yes)
 CONFIRM_ABOVE = 3600.0
+
+
+class RebuildWarning(UserWarning):
+    """A resumed run found a finished study's outputs missing or damaged and runs that study again."""
 
 
 @dataclass
@@ -46,25 +51,39 @@ class Run:
     fingerprint: dict
     resume: bool = False
     notes: list = field(default_factory=list)
+    anyway: bool = False  # resume across a code change (--resume-anyway)
 
     def execute(self) -> Path:
         """Run every study into the folder (see the module docstring); returns the folder."""
         cfg, ctx, run_dir = self.cfg, self.ctx, self.dir
         results_path = run_dir / "results.json"
         with rundir.RunLock(run_dir):
-            rundir.check(run_dir, self.fingerprint, self.resume)  # again, now that no one else can write
+            change = rundir.check(run_dir, self.fingerprint, self.resume, self.anyway)  # again, now no one else writes
             try:
                 ctx.start()  # the executor (an unreachable Dask scheduler fails here, before any file is written)
                 rundir.write_fingerprint(run_dir, self.fingerprint)
                 write_text(run_dir / "config.yaml", yaml.safe_dump(cfg, sort_keys=False))
-                results = json.loads(results_path.read_text()) if self.resume and results_path.exists() \
+                results = outputs.load_results(results_path) if self.resume and results_path.exists() \
                     else {"studies": {}}
+                if change:
+                    ctx.log(f"resuming across a code change ({change['from']} → {change['to']}), as --resume-anyway "
+                            "asks; recorded in results.json and report.md")
+                    at = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+                    results.setdefault("resumed_anyway", []).append({**change, "at": at})
+                    write_json(results_path, results)
                 for study in cfg["studies"]:
                     sid = study["id"]
-                    if results["studies"].get(sid, {}).get("status") == "done":
-                        ctx.log(f"[{sid}] done already, skipped")
-                        continue
+                    done = results["studies"].get(sid, {})
+                    if done.get("status") == "done":
+                        bad = outputs.problems(run_dir / sid, done.get("outputs", {}))
+                        if not bad:
+                            ctx.log(f"[{sid}] done already, skipped")
+                            continue
+                        more = f" (and {len(bad) - 1} more of its files)" if len(bad) > 1 else ""
+                        warnings.warn(f"study {sid}: {bad[0][0]} {bad[0][1]}{more}; rebuilding the study from the "
+                                      "render store and its record logs", RebuildWarning, stacklevel=1)
                     ctx.log(f"[{sid}] running")
+                    ctx.bank.owner = sid  # renders it reads back from the store count for it if it made them
                     before, t0 = ctx.model.stats.snapshot(), time.perf_counter()
                     try:
                         summary = studies.get(study["type"]).run(ctx, study)
@@ -77,7 +96,8 @@ class Run:
                     results["studies"][sid] = {"type": study["type"], "status": "done", "results": summary,
                                                "seconds": time.perf_counter() - t0,
                                                "renders_in_process": spent.renders,
-                                               "render_seconds_in_process": spent.seconds}
+                                               "render_seconds_in_process": spent.seconds,
+                                               "outputs": outputs.manifest(run_dir / sid)}
                     write_json(results_path, results)
             except BaseException:
                 ctx.abort()
@@ -90,8 +110,9 @@ class Run:
 
 
 def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path | None = None, resume: bool = False,
-            quiet: bool = False, smoke: bool = False, yes: bool = False) -> Run:
-    """Check a run completely without writing anything (see the module docstring); ConfigError otherwise."""
+            quiet: bool = False, smoke: bool = False, yes: bool = False, anyway: bool = False) -> Run:
+    """Check a run completely without writing anything (see the module docstring); ConfigError otherwise.
+    `anyway`: a resume may go across a code change (recorded in the run)."""
     cfg = config_mod.load(config_path, overrides, smoke=smoke)
     ids = []
     for i, study in enumerate(cfg["studies"]):
@@ -108,6 +129,8 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
                                                   "to finish or stop it, or use another --out")
     if not resume:
         rundir.check(run_dir, {}, resume=False)
+    elif (run_dir / "results.json").is_file():
+        outputs.load_results(run_dir / "results.json")  # damaged: one line naming it, before the scene loads
     ctx = RunContext.create(cfg, run_dir, resume=resume, quiet=quiet)  # the scene: ConfigError if it cannot load
     plans, estimates = {}, {}
     for study in cfg["studies"]:
@@ -115,7 +138,7 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
         plans[study["id"]] = mod.plan(ctx, study)
         estimates[study["id"]] = mod.cost(ctx, study, plans[study["id"]])
     fp = rundir.fingerprint(cfg, ctx.model.content_key(), plans)
-    rundir.check(run_dir, fp, resume)
+    rundir.check(run_dir, fp, resume, anyway)
     rate = estimate.rate(ctx.model)
     total = sum(rate.seconds(e) for e in estimates.values())
     lines = [f"[{sid}] plan: {e.renders} renders, {e.samples:.3g} pixel-samples, ≈ {estimate.describe(rate.seconds(e))}"
@@ -129,7 +152,7 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
         raise ConfigError("--yes", f"this run is estimated at {estimate.describe(total)} ({samples:.3g} pixel-samples "
                                    f"at {rate.seconds_per_sample * 1e9:.3g} ns each), above "
                                    f"{estimate.describe(CONFIRM_ABOVE)}: pass --yes to run it, or try --smoke first")
-    return Run(cfg, run_dir, ctx, plans, estimates, total, fp, resume, lines)
+    return Run(cfg, run_dir, ctx, plans, estimates, total, fp, resume, lines, anyway)
 
 
 def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | None = None,

@@ -1,9 +1,12 @@
 """On-disk render cache: one file per render, keyed by a hash of everything that defines the image.
 
-Entry layout: 8-byte magic, 32-byte SHA-256 of the payload, payload = `np.save` of the float32 image.
-Writes go to a unique temporary file then `os.replace` (atomic on POSIX), so two processes writing
-the same key at once both leave a complete entry. A truncated or corrupt entry fails the checksum,
-is reported (a warning with its key, once), removed, and the caller re-renders.
+Entry layout: 8-byte magic, 32-byte SHA-256 of the payload, payload = 4-byte length + JSON header
+{"key": the render key's fields, "meta": what the writer adds, e.g. the renders it cost} + `np.save` of the
+float32 image. Writes go to a unique temporary file then `os.replace` (atomic on POSIX), so two processes
+writing the same key at once both leave a complete entry. A truncated or corrupt entry fails the checksum;
+an entry whose header holds another key (a valid file copied over another: a restore, a sync or dedup
+tool, merged folders) fails the key check. Either is reported (a warning with its key, once), removed,
+and the caller re-renders.
 
 The cache is best-effort: it never stops a run whose render succeeded. A folder that cannot be made,
 an entry that cannot be read, a write that fails (read-only folder, full disk) or a corrupt entry that
@@ -16,6 +19,7 @@ import hashlib
 import io
 import json
 import os
+import struct
 import warnings
 from pathlib import Path
 
@@ -23,18 +27,15 @@ import numpy as np
 import torch
 
 from ..io import atomic
+from .keys import RenderKey, canonical, render_key
 
-_MAGIC = b"NLOSRC01"
+__all__ = ["CacheWarning", "RenderCache", "RenderKey", "render_key"]
+
+_MAGIC = b"NLOSRC02"
 
 
 class CacheWarning(UserWarning):
     """The render cache could not read, write or clean an entry; the run goes on without it."""
-
-
-def render_key(**fields) -> str:
-    """Hex key from JSON-serialisable fields (θ is passed as a list of float64 repr strings)."""
-    blob = json.dumps(fields, sort_keys=True, default=repr).encode()
-    return hashlib.sha256(blob).hexdigest()
 
 
 class RenderCache:
@@ -62,8 +63,14 @@ class RenderCache:
     def _path(self, key: str) -> Path:
         return self.root / key[:2] / f"{key}.npc"
 
-    def get(self, key: str) -> torch.Tensor | None:
-        path = self._path(key)
+    def get(self, key: RenderKey) -> torch.Tensor | None:
+        """The image stored under `key`, or None (a miss; a corrupt entry or one of another key warns)."""
+        entry = self.read(key)
+        return None if entry is None else entry[0]
+
+    def read(self, key: RenderKey) -> tuple[torch.Tensor, dict] | None:
+        """(image, meta) stored under `key` with its key verified, or None (see `get`)."""
+        path = self._path(key.hex)
         try:
             raw = path.read_bytes()
         except FileNotFoundError:
@@ -73,36 +80,55 @@ class RenderCache:
             self.misses += 1
             self._warn("read", f"render cache {self.root}: cannot read {path} ({_why(e)}); rendering instead")
             return None
-        payload = raw[40:]
-        image = None
-        if raw[:8] == _MAGIC and hashlib.sha256(payload).digest() == raw[8:40]:
-            try:
-                image = torch.from_numpy(np.load(io.BytesIO(payload), allow_pickle=False))
-            except ValueError:  # a checksummed entry that is not an array: written by something else
-                image = None
-        if image is None:
+        entry, problem = _decode(raw)
+        if entry is not None and entry[2] != key.fields:
+            entry, problem = None, f": it holds the render of another key ({_differs(entry[2], key.fields)})"
+        if entry is None:
             self.corrupt += 1
             self.misses += 1
-            self._warn(f"corrupt {key}", f"render cache {self.root}: entry {key} is corrupt (checksum); re-rendering")
+            self._warn(f"corrupt {key.hex}", f"render cache {self.root}: entry {key.hex} is corrupt{problem}; "
+                                             "re-rendering")
             try:
                 path.unlink(missing_ok=True)
             except OSError as e:
-                self._warn(f"unlink {key}", f"render cache {self.root}: cannot delete the corrupt entry {path} "
-                                            f"({_why(e)}); it is ignored")
+                self._warn(f"unlink {key.hex}", f"render cache {self.root}: cannot delete the corrupt entry {path} "
+                                                f"({_why(e)}); it is ignored")
             return None
         self.hits += 1
-        return image
+        return entry[0], entry[1]
 
-    def put(self, key: str, image: torch.Tensor) -> None:
+    def put(self, key: RenderKey, image: torch.Tensor, **meta) -> None:
+        """Store `image` under `key`, the key's fields and `meta` (JSON values) in its checksummed payload."""
+        header = canonical({"key": key.fields, "meta": meta}).encode()
         buf = io.BytesIO()
         np.save(buf, image.detach().cpu().numpy().astype(np.float32), allow_pickle=False)
-        payload = buf.getvalue()
+        payload = struct.pack("<I", len(header)) + header + buf.getvalue()
         try:
-            with atomic(self._path(key)) as tmp:
+            with atomic(self._path(key.hex)) as tmp:
                 tmp.write_bytes(_MAGIC + hashlib.sha256(payload).digest() + payload)
         except OSError as e:
             self._warn("write", f"render cache {self.root}: cannot write ({_why(e)}); renders go on without "
                                 "being cached")
+
+
+def _decode(raw: bytes) -> tuple[tuple[torch.Tensor, dict, dict] | None, str]:
+    """((image, meta, key fields), '') from an entry's bytes, or (None, what is wrong with them)."""
+    payload = raw[40:]
+    if raw[:8] != _MAGIC or hashlib.sha256(payload).digest() != raw[8:40]:
+        return None, " (checksum)"
+    try:
+        (n,) = struct.unpack("<I", payload[:4])
+        header = json.loads(payload[4:4 + n])
+        image = torch.from_numpy(np.load(io.BytesIO(payload[4 + n:]), allow_pickle=False))
+        return (image, header["meta"], header["key"]), ""
+    except (ValueError, KeyError, TypeError, struct.error):  # checksummed, but not written by this code
+        return None, " (not a render entry)"
+
+
+def _differs(stored: dict, wanted: dict) -> str:
+    """The components (top-level names) in which two keys differ, e.g. 'seed, theta differ'."""
+    names = sorted(k for k in set(stored) | set(wanted) if stored.get(k) != wanted.get(k))
+    return ", ".join(names) + (" differs" if len(names) == 1 else " differ")
 
 
 def _why(e: OSError) -> str:

@@ -15,7 +15,6 @@ turns it off. What is frozen, what re-records and why the scene update is not fr
 """
 from __future__ import annotations
 
-import hashlib
 import re
 import warnings
 from pathlib import Path
@@ -26,9 +25,12 @@ import torch
 from .. import variant as _variant
 from ..params import ParamSpace
 from ..seeds import derive
+from . import llvm_target as _llvm_target
 from .bindings import GEOMETRY_KINDS, Binding, SceneBinder
+from .identity import render_identity
 from .model import ForwardModel, check_spp_seed
 from .passes import WAVEFRONT_LIMIT, FrozenRender, backend_of, freeze_default, pass_samples, split_spp
+from .scene_files import content_hash
 
 __all__ = ["MitsubaModel", "SceneError", "WAVEFRONT_LIMIT", "split_spp", "pruned_xml", "AD_INTEGRATORS"]
 
@@ -44,17 +46,6 @@ def _first_line(e: Exception) -> str:
     """The message of a Mitsuba error without its source location prefix ('[parser.cpp:1087] ')."""
     text = (str(e).strip().splitlines() or [type(e).__name__])[0]
     return re.sub(r"^\[[\w.]+:\d+\]\s*", "", text)
-
-
-def _scene_hash(path: Path) -> str:
-    """SHA-256 of a scene file and the files it references (meshes, textures, includes)."""
-    text = path.read_bytes()
-    h = hashlib.sha256(text)
-    for ref in sorted(set(re.findall(rb'(?:value|filename)="([^"$]+\.(?:obj|ply|serialized|exr|png|jpg|xml))"', text))):
-        f = path.parent / ref.decode()
-        if f.is_file():
-            h.update(f.read_bytes())
-    return h.hexdigest()
 
 
 def pruned_xml(scene_file: Path, remove: list[str]) -> str:
@@ -92,6 +83,9 @@ class MitsubaModel(ForwardModel):
     freeze: render passes through a `drjit.freeze`d `mi.render` (default: on unless the environment
     variable NLOSBENCH_FREEZE=0); False renders every pass traced, for debugging. Same images either way
     on the CPU (bit for bit).
+    llvm_target: Dr.Jit's LLVM code-generation target for this process, 'native' or 'portable' (default: the
+    one already fixed in this process, else $NLOSBENCH_LLVM_TARGET, else native); fixed once per process
+    (`llvm_target.pin`): a model asking for another one later raises TargetError.
     """
 
     #: scene loads in this process, across all models (tests check that θ changes never reload)
@@ -100,7 +94,8 @@ class MitsubaModel(ForwardModel):
     def __init__(self, name: str, scene_file: str | Path, params: list[dict], variant: str | None = None,
                  defines: dict | None = None, ad_integrator: dict | None = None,
                  max_pass_samples: int | None = None, cache=None, remove: list[str] | None = None,
-                 freeze: bool | None = None):
+                 freeze: bool | None = None, llvm_target: str | None = None):
+        self.llvm_target = _llvm_target.pin(llvm_target)  # before Mitsuba runs its first kernel
         self.variant = _variant.select(variant)
         import mitsuba as mi
 
@@ -140,7 +135,8 @@ class MitsubaModel(ForwardModel):
                 self.ad_defaults.setdefault(opt, int(found.group(1)))
         self._ad_cache: dict = {}
         self._applied: np.ndarray | None = None
-        self._hash = _scene_hash(self.scene_file)
+        # every file the scene loads (includes and $-named meshes too), as Mitsuba's parser finds them
+        self._hash = content_hash(self.scene_file, {k: str(v) for k, v in self.defines.items()}, self.variant)
         self._renderer = FrozenRender(freeze_default(freeze), label=f"scene {name!r}")
 
     @property
@@ -271,14 +267,17 @@ class MitsubaModel(ForwardModel):
         return out
 
     def content_key(self) -> dict:
-        """Everything besides (θ, spp, seed) that changes an image: scene files (hash), defines, removed
+        """Everything besides (θ, spp, seed) that changes an image: scene content (a hash over every file the
+        scene loads, `scene_files.content_hash`), defines, removed
         ids, variant, the primal integrator's settings, the bindings, the pass size (it decides the pass
-        split, hence the random numbers), and the Mitsuba and Dr.Jit versions. Freezing is not in it: the
-        frozen and traced paths give the same image (bit for bit on the CPU)."""
+        split, hence the random numbers), the Mitsuba and Dr.Jit versions, and under `render` what else decides
+        the bits (`identity.render_identity`: the LLVM target, libLLVM, the host's ISA). Freezing is not in it:
+        the frozen and traced paths give the same image (bit for bit on the CPU)."""
         import drjit as dr
         import mitsuba as mi
 
         key = {"scene": self._hash, "defines": self.defines, "variant": self.variant,
                "integrator": str(self.scene.integrator()), "params": [repr(b) for b in self.binder.bindings],
-               "max_pass_samples": self.max_pass_samples, "mitsuba": mi.__version__, "drjit": dr.__version__}
+               "max_pass_samples": self.max_pass_samples, "mitsuba": mi.__version__, "drjit": dr.__version__,
+               "render": render_identity()}
         return {**key, "remove": self.remove} if self.remove else key

@@ -7,11 +7,13 @@ Built in: the analytic toys `blob2d` and `edge1d` (torch, exact gradients) and e
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Callable
 from pathlib import Path
 
 import yaml
 
+from ..forward import llvm_target
 from ..forward.analytic import Blob2D, Edge1D
 from ..forward.model import ForwardModel
 
@@ -37,6 +39,19 @@ def available() -> list[str]:
     return sorted(set(_BUILTIN) | set(_specs()))
 
 
+def describe() -> dict[str, str]:
+    """name → one line: a spec's `description`, else the first sentence of the factory's docstring."""
+    specs = _specs()
+    out = {}
+    for name in available():
+        if name in _BUILTIN:
+            doc = " ".join((_BUILTIN[name].__doc__ or "").split())
+            out[name] = re.split(r"[.:]\s", doc, maxsplit=1)[0]
+        else:
+            out[name] = str((yaml.safe_load(specs[name].read_text()) or {}).get("description", ""))
+    return out
+
+
 def register(name: str, factory: Callable[..., ForwardModel]) -> None:
     """Add a scene factory (called with the options given to `get`)."""
     _BUILTIN[name] = factory
@@ -46,7 +61,8 @@ def load_spec(path: str | Path, **options) -> ForwardModel:
     """A MitsubaModel from a scene spec: `file` (XML, relative to the spec), `params`, optional
     `defines` (XML $-defaults such as res, max_depth), `ad_integrator`, `variant`, `remove` (element ids
     dropped from the scene before loading, e.g. [light_c] to see what the bound owes it), `max_pass_samples`
-    (a cap on the backend's pass size) and `freeze` (the frozen render path; default on). Options given here
+    (a cap on the backend's pass size), `freeze` (the frozen render path; default on) and `llvm_target`
+    (native | portable: Dr.Jit's CPU code-generation target). Options given here
     override the spec's top-level keys; `defines` are merged."""
     from ..forward.mitsuba_model import MitsubaModel
 
@@ -62,7 +78,8 @@ def load_spec(path: str | Path, **options) -> ForwardModel:
     return MitsubaModel(name=spec.get("name", path.stem), scene_file=path.parent / spec["file"], params=spec["params"],
                         variant=spec.get("variant"), defines={k: str(v) for k, v in defines.items()},
                         ad_integrator=spec.get("ad_integrator"), max_pass_samples=spec.get("max_pass_samples"),
-                        cache=spec.get("cache"), remove=spec.get("remove"), freeze=spec.get("freeze"))
+                        cache=spec.get("cache"), remove=spec.get("remove"), freeze=spec.get("freeze"),
+                        llvm_target=spec.get("llvm_target"))
 
 
 def smoke_options(name: str) -> dict:
@@ -93,8 +110,10 @@ def get(name: str, **options) -> ForwardModel:
 
 
 def build(spec: dict) -> ForwardModel:
-    """The forward model from a picklable spec {name, options, params, fixed, variant, cache}: loaded once
-    per process (workers call this in their initialiser), restricted to `params` when given."""
+    """The forward model from a picklable spec {name, options, params, fixed, variant, llvm_target, cache}:
+    loaded once per process (workers call this in their initialiser), restricted to `params` when given."""
+    if spec.get("llvm_target"):  # before the scene loads: its first kernel is compiled for the pinned target
+        llvm_target.pin(spec["llvm_target"])
     opts = dict(spec.get("options") or {})
     if spec.get("variant"):
         opts["variant"] = spec["variant"]

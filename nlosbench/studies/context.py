@@ -13,6 +13,7 @@ from .. import executors, scenes
 from .. import noise as noise_models
 from ..bank import RenderBank
 from ..bounds import BoundService
+from ..forward import llvm_target
 from ..forward.cache import RenderCache
 from ..forward.model import ForwardModel
 from ..schema import ConfigError
@@ -58,8 +59,12 @@ class RunContext:
     @classmethod
     def create(cls, cfg: dict, run_dir: Path, resume: bool = False, quiet: bool = False) -> RunContext:
         sc = cfg["scene"]
+        try:  # resolved here, so workers elsewhere (Dask) render with this process's choice, not their environment
+            target = llvm_target.requested(sc["llvm_target"])
+        except ValueError as e:
+            raise ConfigError("scene.llvm_target", str(e)) from None
         spec = {"name": sc["name"], "options": sc["options"], "params": sc["params"], "fixed": sc["fixed"],
-                "variant": sc["variant"], "cache": cfg["cache"]}
+                "variant": sc["variant"], "llvm_target": target, "cache": cfg["cache"]}
         noises = []
         for i, n in enumerate(cfg["noise"]):
             try:

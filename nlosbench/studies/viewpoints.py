@@ -142,12 +142,13 @@ def _viewpoint_task(model: ForwardModel, item: dict) -> tuple:
         fp = viewpoint_information(model, item["theta"], item["spp"], item["seed"], item["fd_step"],
                                    item["fd_rounds"], item["noises"], item["reduce"])
     maps = [fp.maps[k] for k in range(len(item["noises"]))]
+    renders = model.stats.since(before).renders
     rec = {"i": item["i"], "j": item["j"], "offset": item["offset"],
            "mean_fisher": [[float(np.mean(mp)) for mp in nm] for nm in maps],
-           "infinite_pixels": [[int(np.isinf(mp).sum()) for mp in nm] for nm in maps]}
+           "infinite_pixels": [[int(np.isinf(mp).sum()) for mp in nm] for nm in maps], "renders": renders}
     if item["keep"]:
         rec["images"] = (fp.L.numpy(), maps)
-    return (item["i"], item["j"]), rec, model.stats.since(before).renders
+    return (item["i"], item["j"]), rec, renders
 
 
 @dataclass(frozen=True)
@@ -209,7 +210,6 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         log.reset()
     done = {(rec["i"], rec["j"]): rec for rec in log.read()}
     saved = _saved_views(cfg["num"])
-    before = ctx.bank.renders
     items = [
         {
             "i": i,
@@ -263,7 +263,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         "units": list(m.params.units),
         "noises": [str(n) for n in ctx.noises],
         "spp": cfg["spp"],
-        "renders": ctx.bank.renders - before,
+        "renders": sum(rec["renders"] for rec in done.values()),  # every invocation's, from the records
         "infinite_cells": sum(r["infinite_pixels"] > 0 for r in rows),
     }
     return summary  # the heat maps: report() draws them from viewpoints.csv

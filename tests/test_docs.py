@@ -1,0 +1,71 @@
+"""The documentation's generated pages: the config-key reference holds every key of every study with its
+help, and the API page every public name (the Sphinx build itself runs in `make test`, after pytest)."""
+import importlib.util
+import inspect
+import re
+from pathlib import Path
+
+import pytest
+
+from nlosbench import studies
+from nlosbench.experiment.config import TOP, study_schema
+from nlosbench.schema import describe
+
+ROOT = Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("nlosbench_docs", ROOT / "docs" / "_ext" / "nlosbench_docs.py")
+docs_ext = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(docs_ext)
+
+
+def table_rows(page: str, heading: str) -> dict[str, list[str]]:
+    """key path → cells of the Markdown table under `## heading`."""
+    section = page.split(f"## {heading}\n", 1)[1].split("\n## ", 1)[0]
+    rows = [ln for ln in section.splitlines() if ln.startswith("| `")]
+    cells = [[c.strip() for c in re.split(r"(?<!\\)\|", ln)[1:-1]] for ln in rows]
+    return {c[0].strip("`"): c for c in cells}
+
+
+@pytest.mark.parametrize("study", studies.available())
+def test_the_config_reference_has_every_key_of_every_study_with_its_help(study):
+    rows = table_rows(docs_ext.config_page(), f"`type: {study}`")
+    keys = describe(study_schema(studies.get(study)))
+    assert list(rows) == [k.path for k in keys]
+    for k in keys:
+        help_cell = rows[k.path][3].replace("\\|", "|").replace("\\*", "*").replace("&lt;", "<")
+        assert help_cell == " ".join(k.help.split()), k.path
+
+
+def test_the_config_reference_has_the_top_level_keys():
+    rows = table_rows(docs_ext.config_page(), "Top level")
+    assert list(rows) == [k.path for k in describe(TOP)]
+    assert rows["executor.type"][1] == "string: one of local, serial, dask" and rows["seed"][2] == "`0`"
+
+
+def test_the_api_page_lists_every_public_name():
+    page = docs_ext.api_page()
+    import nlosbench
+
+    listed = set(re.findall(r"^   (\w+)$", page, re.M))
+    public = {n for n in nlosbench.__all__ if not inspect.ismodule(getattr(nlosbench, n))}
+    assert public and public <= listed
+    for module in ("nlosbench.bounds", "nlosbench.estimators", "nlosbench.noise"):
+        assert f".. currentmodule:: {module}" in page
+
+
+def test_the_guides_python_tour_runs_and_finds_the_ball():
+    """docs/guide/python.md's example, as a reader runs it (cornell_ball, CPU renders are bit-reproducible)."""
+    import math
+
+    from nlosbench.estimators.base import STATUSES
+
+    page = (ROOT / "docs" / "guide" / "python.md").read_text()
+    scope: dict = {}
+    exec(compile(re.search(r"```python\n(.*?)```", page, re.S).group(1), "python.md", "exec"), scope)
+    p, fit, bank = scope["p"], scope["fit"], scope["bank"]
+    assert abs(float(p.theta[0]) - 0.1) < 1e-12 and bank.renders >= 3 * 13  # "θ* = 0.1 m", "3 × 13 renders"
+    hcr, crlb = p.bounds["hcr"], p.bounds["crlb"]
+    assert hcr.log10 <= hcr.upper and crlb.lower <= crlb.log10 <= crlb.upper
+    assert "grid-limited" in scope["curve"].zzb[0].flags  # as the comment says
+    assert fit.status in STATUSES and fit.renders > 0
+    # one observation: the fit lands within 5 standard deviations the CRLB allows (seeded, so deterministic)
+    assert abs(float(fit.theta[0]) - 0.1) < 5 * math.sqrt(10 ** crlb.upper)
