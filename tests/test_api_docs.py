@@ -1,0 +1,84 @@
+"""The public API's docstrings, checked the way the documentation build checks them, in seconds.
+
+Every public name of `nlosbench`, `nb.bounds`, `nb.estimators` and `nb.noise` (their `__all__`), and every
+public method a class defines itself, passes numpydoc's validation for the checks `docs/conf.py` enables
+(GL08 a docstring, PR01/PR02 every parameter documented and none invented, RT01 a Returns section), with
+the same exclusions. `make docs` runs the same checks inside Sphinx, with warnings as errors; this test
+names every failure at once, before the slower site build. The docstrings' `>>>` examples run as doctests.
+"""
+from __future__ import annotations
+
+import doctest
+import importlib
+import importlib.util
+import inspect
+import re
+from pathlib import Path
+
+import pytest
+
+numpydoc_validate = pytest.importorskip("numpydoc.validate")
+
+ROOT = Path(__file__).resolve().parents[1]
+_spec = importlib.util.spec_from_file_location("nlosbench_docs", ROOT / "docs" / "_ext" / "nlosbench_docs.py")
+docs_ext = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(docs_ext)
+METHODS = (staticmethod, classmethod)
+MODULES = ("nlosbench", "nlosbench.bounds", "nlosbench.estimators", "nlosbench.noise")
+
+
+def _conf() -> dict:
+    """docs/conf.py's numpydoc settings (the checks and the exclusion patterns), read from the file."""
+    namespace: dict = {}
+    text = (ROOT / "docs" / "conf.py").read_text()
+    start = text.index("numpydoc_validation_checks")
+    end = text.index("}", text.index("numpydoc_validation_exclude")) + 1
+    exec(text[start:end], namespace)  # two literal assignments
+    return namespace
+
+
+def _objects() -> list[tuple[str, object]]:
+    """(fully qualified name, object) of the public names, as the API page lists them (`__all__`, else what
+    the module defines), and of each class's own public methods. Objects, not names: `nb.bounds.crlb` is
+    also a submodule's name, and numpydoc would load the module."""
+    out = []
+    for module in MODULES:
+        mod = importlib.import_module(module)
+        for name in docs_ext._public(mod):
+            obj = getattr(mod, name)
+            if inspect.ismodule(obj):
+                continue
+            out.append((f"{module}.{name}", obj))
+            if inspect.isclass(obj):
+                out += [(f"{module}.{name}.{m}", getattr(obj, m)) for m, v in vars(obj).items()
+                        if not m.startswith("_") and (inspect.isfunction(v) or isinstance(v, METHODS))]
+    return out
+
+
+def test_every_public_name_has_numpydoc_parameters_and_returns():
+    conf = _conf()
+    checks, exclude = conf["numpydoc_validation_checks"], [re.compile(p) for p in conf["numpydoc_validation_exclude"]]
+    failures = []
+    for name, obj in _objects():
+        if any(p.search(name) for p in exclude):
+            continue
+        doc = numpydoc_validate.get_doc_object(obj)
+        errors = [f"{code} {msg}" for code, msg in numpydoc_validate.validate(doc)["errors"] if code in checks]
+        if errors:
+            failures.append(f"{name}: " + "; ".join(errors))
+    assert not failures, f"{len(failures)} public names fail numpydoc validation:\n" + "\n".join(failures)
+
+
+@pytest.mark.parametrize("module", MODULES)
+def test_the_docstring_examples_run(module):
+    """Every `>>>` example in the public modules' docstrings (doctest, CPU)."""
+    mod = importlib.import_module(module)
+    flags = doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE
+    finder, runner = doctest.DocTestFinder(), doctest.DocTestRunner(optionflags=flags)
+    for name in docs_ext._public(mod):
+        obj = getattr(mod, name)
+        if inspect.ismodule(obj):
+            continue
+        for test in finder.find(obj, f"{module}.{name}", globs={"nb": importlib.import_module("nlosbench")}):
+            runner.run(test)
+    assert runner.failures == 0, f"{runner.failures} docstring example(s) failed in {module}"
