@@ -11,7 +11,21 @@ import torch
 
 @dataclass(frozen=True)
 class Param:
-    """One component of θ: `lower <= value <= upper`, in `units` (metres for positions and radii)."""
+    """One component of θ: `lower <= value <= upper`, in `units` (metres for positions and radii).
+
+    Parameters
+    ----------
+    name : str
+        The parameter's name, unique within its `ParamSpace`.
+    lower, upper : float
+        The box bounds of Θ along this component, in `units`; finite, lower < upper.
+    default : float
+        The value used when the parameter is held fixed, in `units`; inside [lower, upper].
+    units : str, default "m"
+        The units of the value (metres for positions and radii).
+    description : str, default ""
+        What the parameter is, for tables and plots.
+    """
 
     name: str
     lower: float
@@ -28,7 +42,19 @@ class Param:
 
 
 class ParamSpace:
-    """An ordered set of parameters; θ vectors follow this order."""
+    """An ordered set of parameters; θ vectors follow this order.
+
+    Parameters
+    ----------
+    params : sequence of Param
+        The parameters, in θ's order; at least one, names unique.
+
+    Examples
+    --------
+    >>> space = nb.ParamSpace([nb.Param("x", 0.0, 1.0, 0.5), nb.Param("r", 0.1, 0.3, 0.2)])
+    >>> space.names, len(space)
+    (('x', 'r'), 2)
+    """
 
     def __init__(self, params: Sequence[Param]):
         if not params:
@@ -55,17 +81,61 @@ class ParamSpace:
         return f"ParamSpace({body})"
 
     def index(self, name: str) -> int:
-        """Position of parameter `name` in θ; a clear error naming the known parameters otherwise."""
+        """Position of parameter `name` in θ; a clear error naming the known parameters otherwise.
+
+        Parameters
+        ----------
+        name : str
+            A parameter's name.
+
+        Returns
+        -------
+        int
+            Its index in θ.
+
+        Raises
+        ------
+        KeyError
+            If no parameter has that name (the message lists the known ones).
+        """
         try:
             return self.names.index(name)
         except ValueError:
             raise KeyError(f"unknown parameter {name!r}; this model has {list(self.names)}") from None
 
     def subset(self, names: Sequence[str]) -> ParamSpace:
+        """The space of the parameters `names` only, in the order given.
+
+        Parameters
+        ----------
+        names : sequence of str
+            Parameter names of this space.
+
+        Returns
+        -------
+        ParamSpace
+            A space of those parameters (same bounds, defaults and units).
+        """
         return ParamSpace([self.params[self.index(n)] for n in names])
 
     def validate(self, theta) -> np.ndarray:
-        """θ as float64 (P,), after checking its length, finiteness and Θ's bounds."""
+        """θ as float64 (P,), after checking its length, finiteness and Θ's bounds.
+
+        Parameters
+        ----------
+        theta : array_like or torch.Tensor
+            P values in parameter units (a tensor is detached and copied to the CPU).
+
+        Returns
+        -------
+        numpy.ndarray
+            θ, float64 (P,).
+
+        Raises
+        ------
+        ValueError
+            If θ has the wrong length, a non-finite value or a value outside Θ (each named).
+        """
         if isinstance(theta, torch.Tensor):
             theta = theta.detach().cpu().double().numpy()
         t = np.atleast_1d(np.asarray(theta, dtype=np.float64))
@@ -80,15 +150,58 @@ class ParamSpace:
         return t
 
     def contains(self, theta) -> bool:
+        """Whether θ lies in the box Θ (bounds included).
+
+        Parameters
+        ----------
+        theta : array_like
+            P values in parameter units.
+
+        Returns
+        -------
+        bool
+            True when every component is within its [lower, upper].
+        """
         t = np.asarray(theta, dtype=np.float64)
         return bool(np.all((t >= self.lower) & (t <= self.upper)))
 
     def sample_uniform(self, generator: np.random.Generator) -> np.ndarray:
-        """A uniform random point of Θ, float64 (P,)."""
+        """A uniform random point of Θ, float64 (P,).
+
+        Parameters
+        ----------
+        generator : numpy.random.Generator
+            The random source.
+
+        Returns
+        -------
+        numpy.ndarray
+            θ, float64 (P,), in parameter units.
+        """
         return generator.uniform(self.lower, self.upper)
 
     def grid(self, num: int) -> np.ndarray:
         """The tensor grid of `num` points per axis over Θ, ends included: (num^P, P) float64, the last
-        parameter varying fastest."""
+        parameter varying fastest.
+
+        Parameters
+        ----------
+        num : int
+            Points per axis (≥ 1).
+
+        Returns
+        -------
+        numpy.ndarray
+            The grid points, float64 (num^P, P), in parameter units.
+
+        Examples
+        --------
+        >>> space = nb.ParamSpace([nb.Param("x", 0.0, 1.0, 0.5), nb.Param("r", 0.1, 0.3, 0.2)])
+        >>> space.grid(2)
+        array([[0. , 0.1],
+               [0. , 0.3],
+               [1. , 0.1],
+               [1. , 0.3]])
+        """
         axes = [np.linspace(lo, hi, num) for lo, hi in zip(self.lower, self.upper, strict=True)]
         return np.array(list(itertools.product(*axes)), dtype=np.float64).reshape(-1, self.dim)
