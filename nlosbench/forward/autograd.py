@@ -31,8 +31,28 @@ def render(model: ForwardModel, theta, spp: int = 64, seed: int = 0, grad: str |
            **options) -> torch.Tensor:
     """L_θ (H, W, C) float32, differentiable w.r.t. θ (a torch tensor with requires_grad).
 
-    grad: "fd" | "ad" | "mixed" or a GradientSettings; options (step, rounds, crn, spp, ad, ad_params)
-    build the settings when grad is a string, e.g. `render(m, θ, 64, 0, grad="fd", step=0.005, rounds=4)`.
+    Concrete settings only: `nlosbench.render` resolves grad="auto" first, then calls this.
+
+    Parameters
+    ----------
+    model : ForwardModel
+        The scene.
+    theta : array_like or torch.Tensor
+        θ, P values in parameter units (a tensor with requires_grad to differentiate).
+    spp : int, default 64
+        Samples per pixel of the primal render.
+    seed : int, default 0
+        Render seed; gradient renders use seeds derived from it.
+    grad : {"fd", "ad", "mixed"} or GradientSettings, default "fd"
+        The gradient method, or complete settings.
+    **options
+        With a string `grad`, the other `GradientSettings` fields (step, rounds, crn, spp, ad, ad_params),
+        e.g. `render(m, θ, 64, 0, grad="fd", step=0.005, rounds=4)`.
+
+    Returns
+    -------
+    torch.Tensor
+        L_θ (H, W, C) float32, attached to θ's autograd graph.
     """
     if isinstance(grad, GradientSettings):
         if options:

@@ -28,14 +28,35 @@ METHODS = ("fd", "ad", "mixed", "auto")
 class GradientSettings:
     """How gradients are computed.
 
-    method: "fd", "ad", "mixed" or "auto"; step: FD step ξ per parameter (θ units; a float applies to
-    all); rounds: FD rounds averaged (independent seeds); crn: common random numbers across each
-    stencil (False draws an independent seed per render — the naive baseline); spp: samples per pixel
-    of gradient renders (None: the primal spp); ad: options for the AD integrator (type, max_depth,
-    ...); ad_params: with "mixed", the parameter indices differentiated by AD (the others by FD);
-    verdicts: with "auto", a `gradients` study's verdicts.json (or its folder) or a mapping
-    {parameter: Verdict}; None uses the prior. chosen: set when "auto" is resolved
-    (`nlosbench.diagnostics.resolve_gradient`): what it chose and why.
+    Parameters
+    ----------
+    method : {"fd", "ad", "mixed", "auto"}, default "fd"
+        Finite differences, AD, AD for `ad_params` and FD for the others, or a policy resolved above
+        the forward layer (`nlosbench.resolve_gradient`).
+    step : float or tuple of float, default 0.01
+        FD step ξ per parameter, in θ units; a float applies to all.
+    rounds : int, default 1
+        FD rounds averaged (independent seeds).
+    crn : bool, default True
+        Common random numbers across each stencil (False draws an independent seed per render — the
+        naive baseline).
+    spp : int, optional
+        Samples per pixel of gradient renders (None: the primal spp).
+    ad : dict, optional
+        Options for the AD integrator (type, max_depth, ...).
+    ad_params : tuple of int, default ()
+        With "mixed", the parameter indices differentiated by AD (the others by FD).
+    verdicts : str, os.PathLike, mapping or None, optional
+        With "auto", a `gradients` study's verdicts.json (or its folder) or a mapping
+        {parameter: Verdict}; None uses the prior.
+    chosen : str, default ""
+        Set when "auto" is resolved (`nlosbench.diagnostics.resolve_gradient`): what it chose and why.
+        Not compared.
+
+    Examples
+    --------
+    >>> nb.GradientSettings("fd", step=(0.01, 0.02)).steps(2)
+    array([0.01, 0.02])
     """
 
     method: str = "fd"
@@ -68,6 +89,18 @@ class GradientSettings:
                              f"got {type(self.verdicts).__name__}")
 
     def steps(self, dim: int) -> np.ndarray:
+        """The FD step ξ of each parameter.
+
+        Parameters
+        ----------
+        dim : int
+            The number of parameters P.
+
+        Returns
+        -------
+        numpy.ndarray
+            ξ, float64 (P,), in θ units (`step` broadcast).
+        """
         s = np.broadcast_to(np.asarray(self.step, dtype=np.float64), (dim,))
         return s.copy()
 

@@ -53,7 +53,17 @@ def check_spp_seed(spp: int, seed: int) -> tuple[int, int]:
 
 class ForwardModel(ABC):
     """A scene with a parameter space. `render(θ, spp, seed)` gives the same image for the same
-    arguments and independent rendering noise for different seeds."""
+    arguments and independent rendering noise for different seeds.
+
+    Parameters
+    ----------
+    name : str
+        The scene's name (in messages, keys and records).
+    params : ParamSpace
+        The parameter space Θ; θ vectors follow its order and units.
+    cache : RenderCache, str, os.PathLike or None, optional
+        An on-disk render cache, or the folder of one; None renders every time.
+    """
 
     name: str
     params: ParamSpace
@@ -73,12 +83,52 @@ class ForwardModel(ABC):
 
     @abstractmethod
     def jvp(self, theta, index: int, spp: int, seed: int, **ad) -> torch.Tensor:
-        """∂L/∂θ_index as an image (H, W, C) float32 (forward-mode AD, or exact)."""
+        """∂L/∂θ_index as an image (H, W, C) float32 (forward-mode AD, or exact).
+
+        Parameters
+        ----------
+        theta : array_like
+            θ, P values in parameter units.
+        index : int
+            The component of θ to differentiate along.
+        spp : int
+            Samples per pixel of the derivative render.
+        seed : int
+            Render seed (non-negative).
+        **ad
+            Options for the AD integrator (e.g. type, max_depth).
+
+        Returns
+        -------
+        torch.Tensor
+            The derivative image (H, W, C) float32, in image units per parameter unit.
+        """
 
     @abstractmethod
     def vjp(self, theta, grad_out: torch.Tensor, spp: int, seed: int, indices=None, **ad) -> np.ndarray:
         """Σ_ω grad_out(ω) ∂L(ω)/∂θ as float64 (P,) (reverse-mode AD, or exact); `indices` names the
-        components the caller needs (a model may use it to pick a cheaper method; all P are returned)."""
+        components the caller needs (a model may use it to pick a cheaper method; all P are returned).
+
+        Parameters
+        ----------
+        theta : array_like
+            θ, P values in parameter units.
+        grad_out : torch.Tensor
+            The image-space cotangent, shaped like the image (H, W, C).
+        spp : int
+            Samples per pixel of the derivative render.
+        seed : int
+            Render seed (non-negative).
+        indices : sequence of int, optional
+            The components of θ the caller needs; None: all.
+        **ad
+            Options for the AD integrator (e.g. type, max_depth).
+
+        Returns
+        -------
+        numpy.ndarray
+            The gradient, float64 (P,), per parameter unit.
+        """
 
     @abstractmethod
     def content_key(self) -> dict:
@@ -86,7 +136,35 @@ class ForwardModel(ABC):
 
     # -- shared behaviour --------------------------------------------------------------------
     def render(self, theta, spp: int, seed: int) -> torch.Tensor:
-        """L_θ as a float32 tensor (H, W, C); θ in the units of `params` (metres for positions)."""
+        """L_θ as a float32 tensor (H, W, C); θ in the units of `params` (metres for positions).
+
+        Validated, counted in `stats`, checked for NaN/Inf and read from or written to the cache.
+
+        Parameters
+        ----------
+        theta : array_like or torch.Tensor
+            θ, P values in parameter units, inside Θ.
+        spp : int
+            Samples per pixel (≥ 1).
+        seed : int
+            Render seed (≥ 0); the same arguments give the same image.
+
+        Returns
+        -------
+        torch.Tensor
+            The image (H, W, C) float32.
+
+        Raises
+        ------
+        RenderError
+            If the image has NaN or Inf values.
+
+        Examples
+        --------
+        >>> model = nb.scenes.get("blob2d")
+        >>> model.render(model.params.default, spp=4, seed=0).shape
+        torch.Size([24, 24, 1])
+        """
         t = self.params.validate(theta)
         spp, seed = check_spp_seed(spp, seed)
         key = None
@@ -106,6 +184,26 @@ class ForwardModel(ABC):
         return img
 
     def check_finite(self, img: torch.Tensor, theta, spp: int, seed: int, what: str) -> None:
+        """RenderError unless `img` is finite; the message names the scene, θ, spp and seed.
+
+        Parameters
+        ----------
+        img : torch.Tensor
+            The image (or derivative image) to check.
+        theta : array_like
+            θ it was rendered at, in parameter units.
+        spp : int
+            Its samples per pixel.
+        seed : int
+            Its render seed.
+        what : str
+            What was rendered, for the message (e.g. "render", "jvp").
+
+        Raises
+        ------
+        RenderError
+            If `img` has NaN or Inf values.
+        """
         if not bool(torch.isfinite(img).all()):
             n = int((~torch.isfinite(img)).sum())
             raise RenderError(
@@ -114,7 +212,20 @@ class ForwardModel(ABC):
             )
 
     def restrict(self, names, fixed: dict | None = None) -> ForwardModel:
-        """This model seen through parameters `names` only; the others held at `fixed` or their defaults."""
+        """This model seen through parameters `names` only; the others held at `fixed` or their defaults.
+
+        Parameters
+        ----------
+        names : sequence of str
+            The parameters left free, in the restricted θ's order.
+        fixed : dict, optional
+            {name: value} for held parameters, in parameter units; the others at their defaults.
+
+        Returns
+        -------
+        ForwardModel
+            A model of θ restricted to `names`; renders and stats go to this model.
+        """
         return Restricted(self, names, fixed)
 
     def __repr__(self) -> str:
