@@ -39,7 +39,16 @@ class CacheWarning(UserWarning):
 
 
 class RenderCache:
-    """Images (H, W, C) float32 stored under `root/ab/abcdef….npc`."""
+    """Images (H, W, C) float32 stored under `root/ab/abcdef….npc`.
+
+    Best-effort: a failure to make the folder, read, write or clean an entry is a `CacheWarning`, not an
+    error. Counters `hits`, `misses`, `corrupt` and `failures` say what happened.
+
+    Parameters
+    ----------
+    root : str or os.PathLike
+        The cache folder (made if missing).
+    """
 
     def __init__(self, root: str | os.PathLike):
         self.root = Path(root)
@@ -64,12 +73,34 @@ class RenderCache:
         return self.root / key[:2] / f"{key}.npc"
 
     def get(self, key: RenderKey) -> torch.Tensor | None:
-        """The image stored under `key`, or None (a miss; a corrupt entry or one of another key warns)."""
+        """The image stored under `key`, or None (a miss; a corrupt entry or one of another key warns).
+
+        Parameters
+        ----------
+        key : RenderKey
+            The render's key (`render_key`).
+
+        Returns
+        -------
+        torch.Tensor or None
+            The image (H, W, C) float32, or None on a miss.
+        """
         entry = self.read(key)
         return None if entry is None else entry[0]
 
     def read(self, key: RenderKey) -> tuple[torch.Tensor, dict] | None:
-        """(image, meta) stored under `key` with its key verified, or None (see `get`)."""
+        """(image, meta) stored under `key` with its key verified, or None (see `get`).
+
+        Parameters
+        ----------
+        key : RenderKey
+            The render's key (`render_key`).
+
+        Returns
+        -------
+        tuple of (torch.Tensor, dict) or None
+            The image (H, W, C) float32 and the `meta` it was stored with, or None on a miss.
+        """
         path = self._path(key.hex)
         try:
             raw = path.read_bytes()
@@ -98,7 +129,17 @@ class RenderCache:
         return entry[0], entry[1]
 
     def put(self, key: RenderKey, image: torch.Tensor, **meta) -> None:
-        """Store `image` under `key`, the key's fields and `meta` (JSON values) in its checksummed payload."""
+        """Store `image` under `key`, the key's fields and `meta` (JSON values) in its checksummed payload.
+
+        Parameters
+        ----------
+        key : RenderKey
+            The render's key (`render_key`).
+        image : torch.Tensor
+            The image (H, W, C), stored as float32.
+        **meta
+            JSON values stored with it (e.g. the renders it cost); `read` returns them.
+        """
         header = canonical({"key": key.fields, "meta": meta}).encode()
         buf = io.BytesIO()
         np.save(buf, image.detach().cpu().numpy().astype(np.float32), allow_pickle=False)
