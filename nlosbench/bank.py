@@ -137,10 +137,32 @@ class RenderBank:
     """Renders of one model for one run (see the module docstring): render sets by purpose (`at`,
     `jacobians_at`, `levels_at`), and the request-level `images`, `jacobians` and `map`.
 
-    executor: where renders run (default: serially in this process, with `model`); progress:
-    `progress(iterable, total, desc)` wrapping the results (e.g. RunContext.progress); memory_bytes: the
-    most image bytes kept in memory for reuse (least recently used dropped first); seed: the run's seed,
-    from which every render seed derives; store: an on-disk RenderCache for every result (resume)."""
+    `renders` counts the renders made for this bank (worker processes included; a render served from
+    memory or the model's disk cache counts 0).
+
+    Parameters
+    ----------
+    model : ForwardModel
+        The scene every request renders.
+    executor : Executor, optional
+        Where renders run (default: serially in this process, with `model`).
+    progress : callable, optional
+        `progress(iterable, total, desc)` wrapping the results (e.g. RunContext.progress); default: none.
+    memory_bytes : int, default 2**30
+        The most image bytes kept in memory for reuse (least recently used dropped first).
+    seed : int, default 0
+        The run's seed, from which every render seed derives.
+    store : RenderCache, optional
+        An on-disk cache for every result (resume); None keeps results in memory only.
+
+    Examples
+    --------
+    >>> bank = nb.RenderBank(nb.scenes.get("blob2d"), seed=1)
+    >>> bank.at([[0.4, 0.5], [0.6, 0.5]], spp=4, purpose="demo").shape
+    torch.Size([2, 24, 24, 1])
+    >>> bank.renders
+    2
+    """
 
     def __init__(self, model: ForwardModel, executor: Executor | None = None, progress: Callable | None = None,
                  memory_bytes: int = 1 << 30, seed: int = 0, store: RenderCache | None = None):
@@ -158,17 +180,74 @@ class RenderBank:
 
     # -- seeds and render sets ---------------------------------------------------------------------
     def seed(self, purpose: str, spp: int, theta=None, replicate: int = 0) -> int:
-        """The seed of θ in render set (purpose, spp, replicate); θ None: the set's common seed."""
+        """The seed of θ in render set (purpose, spp, replicate); θ None: the set's common seed.
+
+        Parameters
+        ----------
+        purpose : str
+            What the render set is for (e.g. "truth", "grid"); sets of different purposes never share seeds.
+        spp : int
+            Samples per pixel of the set.
+        theta : array_like, optional
+            θ in parameter units; None gives the seed every θ of the set shares (common random numbers).
+        replicate : int, default 0
+            The replicate of the set.
+
+        Returns
+        -------
+        int
+            A 32-bit render seed derived from the run's seed.
+        """
         idx = [int(spp), int(replicate)] + ([] if theta is None else [theta_key(theta)])
         return derive(self.run_seed, f"bank/{purpose}", *idx)
 
     def request(self, theta, spp: int, purpose: str, common: bool = False, replicate: int = 0) -> Request:
-        """The Request of θ in a render set (see `seed`)."""
+        """The Request of θ in a render set (see `seed`).
+
+        Parameters
+        ----------
+        theta : array_like
+            θ in parameter units.
+        spp : int
+            Samples per pixel.
+        purpose : str
+            The render set's purpose.
+        common : bool, default False
+            Give θ the set's common seed instead of one that depends on θ.
+        replicate : int, default 0
+            The replicate of the set.
+
+        Returns
+        -------
+        Request
+            (θ rounded to 1e-12 of its units, spp, seed).
+        """
         return Request.of(theta, spp, self.seed(purpose, spp, None if common else theta, replicate))
 
     def at(self, thetas, spp: int, purpose: str, common: bool = False, replicate: int = 0,
            desc: str | None = None) -> torch.Tensor:
-        """Images (N, H, W, C) float32 of thetas (N,) or (N, P) in render set (purpose, spp, replicate)."""
+        """Images (N, H, W, C) float32 of thetas (N,) or (N, P) in render set (purpose, spp, replicate).
+
+        Parameters
+        ----------
+        thetas : array_like
+            N points in parameter units, (N, P), or (N,) for a one-parameter model.
+        spp : int
+            Samples per pixel.
+        purpose : str
+            The render set's purpose.
+        common : bool, default False
+            Every θ gets the set's common seed (common random numbers across θ).
+        replicate : int, default 0
+            The replicate of the set.
+        desc : str, optional
+            The progress label (default: "<purpose> renders").
+
+        Returns
+        -------
+        torch.Tensor
+            The images (N, H, W, C) float32, in the order of `thetas`.
+        """
         return self.images([self.request(t, spp, purpose, common, replicate) for t in _points(thetas)],
                            desc or f"{purpose} renders")
 
@@ -177,7 +256,36 @@ class RenderBank:
                      ) -> torch.Tensor:
         """Jacobians (N, P, H, W, C) of thetas in render set (purpose + "-fd", spp, replicate): central FD with
         step ξ, R `rounds` averaged, every stencil with common random numbers inside it (with `common`
-        every θ shares the set's seed too); or method "ad" with integrator options `ad`."""
+        every θ shares the set's seed too); or method "ad" with integrator options `ad`.
+
+        Parameters
+        ----------
+        thetas : array_like
+            N points in parameter units, (N, P), or (N,) for a one-parameter model.
+        spp : int
+            Samples per pixel of each render.
+        step : float
+            FD step ξ, in parameter units.
+        purpose : str
+            The render set's purpose ("-fd" is appended).
+        common : bool, default False
+            Every θ gets the set's common seed.
+        replicate : int, default 0
+            The replicate of the set.
+        rounds : int, default 1
+            FD rounds averaged (independent seeds).
+        desc : str, optional
+            The progress label (default: "<purpose> FD Jacobians").
+        method : {"fd", "ad"}, default "fd"
+            Finite differences or forward-mode AD.
+        ad : dict, optional
+            AD integrator options (method "ad").
+
+        Returns
+        -------
+        torch.Tensor
+            The Jacobians (N, P, H, W, C) float32, image units per parameter unit.
+        """
         reqs = [JacobianRequest.of(t, spp, self.seed(purpose + "-fd", spp, None if common else t, replicate), step,
                                    rounds, method, ad) for t in _points(thetas)]
         return self.jacobians(reqs, desc or f"{purpose} FD Jacobians")
@@ -186,7 +294,28 @@ class RenderBank:
                   desc: str | None = None) -> torch.Tensor:
         """Renders (k, R, N, H, W, C) of thetas at k spp levels N_i × R replicates of N_i / R spp each:
         level i, replicate r is render set (purpose, N_i / R, r) — independent across levels and
-        replicates; with `common`, every θ of a (level, replicate) shares its seed."""
+        replicates; with `common`, every θ of a (level, replicate) shares its seed.
+
+        Parameters
+        ----------
+        thetas : array_like
+            N points in parameter units, (N, P), or (N,) for a one-parameter model.
+        levels : sequence of int
+            The k total spp levels N_i, each divisible by `replicates`.
+        replicates : int
+            R, the replicates per level.
+        purpose : str
+            The render sets' purpose.
+        common : bool, default False
+            Every θ of a (level, replicate) shares its seed.
+        desc : str, optional
+            The progress label (default: "<purpose> levels").
+
+        Returns
+        -------
+        torch.Tensor
+            The renders (k, R, N, H, W, C) float32.
+        """
         lv = check_spp(levels, replicates) // replicates
         pts = _points(thetas)
         reqs = [self.request(t, int(n), purpose, common, r) for n in lv for r in range(replicates) for t in pts]
@@ -232,7 +361,22 @@ class RenderBank:
     def map(self, fn: Callable, items: list, desc: str) -> Iterable[tuple[Hashable, object]]:
         """(tag, value) of a study's own render task `fn(model, item) → (tag, value, renders made)` over
         `items` through the executor, as they finish; renders are counted. For renders the bank's request
-        types cannot describe (e.g. a camera posed outside θ); nothing is kept in memory."""
+        types cannot describe (e.g. a camera posed outside θ); nothing is kept in memory.
+
+        Parameters
+        ----------
+        fn : callable
+            A module-level function `fn(model, item)` returning (tag, value, renders made).
+        items : list
+            The tasks' inputs.
+        desc : str
+            The progress label.
+
+        Yields
+        ------
+        tuple of (hashable, object)
+            (tag, value) of each task, in the order they finish.
+        """
         for tag, value, _ in self._tasks(fn, items, desc):
             yield tag, value
 
@@ -244,7 +388,20 @@ class RenderBank:
 
     # -- requests --------------------------------------------------------------------------------
     def images(self, requests: Sequence[Request], desc: str = "renders") -> torch.Tensor:
-        """Images (N, H, W, C) float32 for `requests`, in their order (repeated requests rendered once)."""
+        """Images (N, H, W, C) float32 for `requests`, in their order (repeated requests rendered once).
+
+        Parameters
+        ----------
+        requests : sequence of Request
+            The N renders.
+        desc : str, default "renders"
+            The progress label.
+
+        Returns
+        -------
+        torch.Tensor
+            The images (N, H, W, C) float32.
+        """
         out: dict[Request, torch.Tensor] = {}
         todo = []
         for r in dict.fromkeys(requests):
@@ -259,7 +416,20 @@ class RenderBank:
         return torch.stack([out[r] for r in requests])
 
     def jacobians(self, requests: Sequence[JacobianRequest], desc: str = "FD Jacobians") -> torch.Tensor:
-        """Jacobians (N, P, H, W, C) float32 for `requests`, in their order."""
+        """Jacobians (N, P, H, W, C) float32 for `requests`, in their order.
+
+        Parameters
+        ----------
+        requests : sequence of JacobianRequest
+            The N Jacobians.
+        desc : str, default "FD Jacobians"
+            The progress label.
+
+        Returns
+        -------
+        torch.Tensor
+            The Jacobians (N, P, H, W, C) float32.
+        """
         out: dict[JacobianRequest, torch.Tensor] = {}
         todo = []
         for r in dict.fromkeys(requests):
