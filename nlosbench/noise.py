@@ -25,7 +25,25 @@ from .binning import check_bin
 
 
 def to_float64(x, what: str = "input") -> torch.Tensor:
-    """`x` (tensor, numpy array or memmap, any float dtype) as a float64 torch tensor (same device)."""
+    """`x` (tensor, numpy array or memmap, any float dtype) as a float64 torch tensor (same device).
+
+    Parameters
+    ----------
+    x : torch.Tensor or array_like
+        The values (a tensor is detached).
+    what : str, default "input"
+        Its name, for the error message.
+
+    Returns
+    -------
+    torch.Tensor
+        `x` as float64, same shape.
+
+    Raises
+    ------
+    ValueError
+        If `x` is not numeric.
+    """
     if isinstance(x, torch.Tensor):
         return x.detach().to(torch.float64)
     try:
@@ -35,7 +53,20 @@ def to_float64(x, what: str = "input") -> torch.Tensor:
 
 
 def check_finite(x: torch.Tensor, what: str) -> None:
-    """Raise ValueError naming `what` if `x` holds NaN or ±Inf."""
+    """Raise ValueError naming `what` if `x` holds NaN or ±Inf.
+
+    Parameters
+    ----------
+    x : torch.Tensor
+        The values to check.
+    what : str
+        Their name, for the message (which also counts the NaN and Inf values and gives the first index).
+
+    Raises
+    ------
+    ValueError
+        If `x` holds NaN or ±Inf.
+    """
     bad = ~torch.isfinite(x)
     if bool(bad.any()):
         n_nan = int(torch.isnan(x).sum())
@@ -45,44 +76,144 @@ def check_finite(x: torch.Tensor, what: str) -> None:
 
 
 class NoiseModel(ABC):
-    """Observation model Y ~ p_L for an image of mean radiance L (shape *S, pixels independent)."""
+    """Observation model Y ~ p_L for an image of mean radiance L (shape *S, pixels independent).
+
+    Subclasses implement `sample`, `nll`, `chi2_exponent`, `gram_exponent` and `fisher`, and register
+    themselves with `register`.
+    """
 
     name: ClassVar[str] = ""
     #: chi2_exponent(L0, L1) == chi2_exponent(L1, L0) for every pair (pairwise λ then computes half)
     symmetric: ClassVar[bool] = False
 
     def validate(self, L: torch.Tensor, what: str) -> None:
-        """Raise ValueError naming `what` if `L` is not a valid mean image (default: finite)."""
+        """Raise ValueError naming `what` if `L` is not a valid mean image (default: finite).
+
+        Parameters
+        ----------
+        L : torch.Tensor
+            A mean image (*S), radiance units.
+        what : str
+            Its name, for the message.
+
+        Raises
+        ------
+        ValueError
+            If `L` is not a valid mean of this model.
+        """
         check_finite(L, what)
 
     @abstractmethod
     def sample(self, L: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-        """One noisy observation y of the image L, same shape and dtype, in radiance units."""
+        """One noisy observation y of the image L, same shape and dtype, in radiance units.
+
+        Parameters
+        ----------
+        L : torch.Tensor
+            The mean image (*S), radiance units.
+        generator : torch.Generator
+            The random source.
+
+        Returns
+        -------
+        torch.Tensor
+            y, shaped and typed like L.
+        """
 
     @abstractmethod
     def nll(self, y: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
-        """−log p_L(y) up to an L-independent constant: float64 scalar, differentiable in L."""
+        """−log p_L(y) up to an L-independent constant: float64 scalar, differentiable in L.
+
+        Parameters
+        ----------
+        y : torch.Tensor or array_like
+            An observation (*S), radiance units.
+        L : torch.Tensor
+            The mean image (*S), radiance units.
+
+        Returns
+        -------
+        torch.Tensor
+            The negative log-likelihood, float64 0-dim.
+        """
 
     @abstractmethod
     def chi2_exponent(self, L0, L1, check: bool = True) -> torch.Tensor:
         """λ = log(1 + χ²(p_L1 ‖ p_L0)), float64 ≥ 0 (+inf allowed).
 
-        L0: (*S); L1: (*B, *S) → λ of shape (*B) (0-dim without batch dims).
-        `check=False` skips input validation (for callers that validated once already)."""
+        Parameters
+        ----------
+        L0 : torch.Tensor or array_like
+            The reference mean image (*S), radiance units.
+        L1 : torch.Tensor or array_like
+            The alternative mean image(s) (*B, *S).
+        check : bool, default True
+            Validate the inputs; False skips it (for callers that validated once already).
+
+        Returns
+        -------
+        torch.Tensor
+            λ of shape (*B), float64 (0-dim without batch dims).
+        """
 
     @abstractmethod
     def gram_exponent(self, L0, Li, Lj) -> torch.Tensor:
         """log E_L0[ℓ_i ℓ_j] with ℓ = p_L / p_L0: Li (A, *S) or (*S), Lj (B, *S) or (*S) → (A, B)
-        (batch dims dropped where absent). The diagonal i = j equals `chi2_exponent`."""
+        (batch dims dropped where absent). The diagonal i = j equals `chi2_exponent`.
+
+        Parameters
+        ----------
+        L0 : torch.Tensor or array_like
+            The reference mean image (*S), radiance units.
+        Li : torch.Tensor or array_like
+            Mean images (A, *S) or (*S).
+        Lj : torch.Tensor or array_like
+            Mean images (B, *S) or (*S).
+
+        Returns
+        -------
+        torch.Tensor
+            The Gram exponents (A, B), float64 (+inf allowed).
+        """
 
     @abstractmethod
     def fisher(self, L, dL) -> torch.Tensor:
         """Per-pixel Fisher information, float64. dL = ∂L/∂θ with the shape of L → (*S);
-        dL of shape (P, *S) → (P, P, *S)."""
+        dL of shape (P, *S) → (P, P, *S).
+
+        Parameters
+        ----------
+        L : torch.Tensor or array_like
+            The mean image (*S), radiance units.
+        dL : torch.Tensor or array_like
+            ∂L/∂θ, (*S) for one parameter or (P, *S), radiance units per parameter unit.
+
+        Returns
+        -------
+        torch.Tensor
+            The information per pixel, float64 (*S) or (P, P, *S); summed over pixels it is the Fisher
+            matrix.
+        """
 
     def binned(self, b: int) -> NoiseModel:
         """The model of one b×b-binned pixel whose value is the mean of the block's b² independent
-        observations (radiance units; see `nlosbench.binning`). Models that support binning override this."""
+        observations (radiance units; see `nlosbench.binning`). Models that support binning override this.
+
+        Parameters
+        ----------
+        b : int
+            The bin size per side.
+
+        Returns
+        -------
+        NoiseModel
+            The binned pixel's noise model.
+
+        Raises
+        ------
+        NotImplementedError
+            If the model does not define binning.
+        """
         raise NotImplementedError(f"noise model {type(self).__name__} does not define binned(b)")
 
     def _inputs(self, check: bool, **arrays) -> list[torch.Tensor]:
@@ -96,11 +227,22 @@ class NoiseModel(ABC):
 class QuadraticNoise(NoiseModel):
     """Models with λ = Σ_ω w(L0)(L1 − L0)², log E[ℓ_i ℓ_j] = Σ_ω w(L0)(Li − L0)(Lj − L0) and
     per-pixel Fisher information w(L)(∂L/∂θ)². A pixel with infinite weight contributes 0 where the
-    difference (or derivative) is 0 and +inf otherwise — never NaN."""
+    difference (or derivative) is 0 and +inf otherwise — never NaN. Subclasses implement `weight`."""
 
     @abstractmethod
     def weight(self, L0: torch.Tensor) -> torch.Tensor:
-        """Per-pixel weight w(L0) ≥ 0, float64, broadcastable to L0 (+inf allowed)."""
+        """Per-pixel weight w(L0) ≥ 0, float64, broadcastable to L0 (+inf allowed).
+
+        Parameters
+        ----------
+        L0 : torch.Tensor
+            The mean image (*S), float64, radiance units.
+
+        Returns
+        -------
+        torch.Tensor
+            w(L0), float64, broadcastable to L0, in 1 / radiance².
+        """
 
     def _flat_weight(self, L0: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(finite weight with 0 at infinite entries, mask of infinite entries), both flat (N,)."""
@@ -109,6 +251,22 @@ class QuadraticNoise(NoiseModel):
         return torch.where(inf, torch.zeros_like(w), w), inf
 
     def chi2_exponent(self, L0, L1, check: bool = True) -> torch.Tensor:
+        """λ = Σ_ω w(L0)(L1 − L0)², float64 ≥ 0 (+inf where an infinite weight meets a difference).
+
+        Parameters
+        ----------
+        L0 : torch.Tensor or array_like
+            The reference mean image (*S), radiance units.
+        L1 : torch.Tensor or array_like
+            The alternative mean image(s) (*B, *S).
+        check : bool, default True
+            Validate the inputs; False skips it (for callers that validated once already).
+
+        Returns
+        -------
+        torch.Tensor
+            λ of shape (*B), float64 (0-dim without batch dims).
+        """
         L0, L1 = self._inputs(check, L0=L0, L1=L1)
         D, batch = _differences(L0, L1, "L1")
         wf, inf = self._flat_weight(L0)
@@ -119,6 +277,23 @@ class QuadraticNoise(NoiseModel):
         return lam.reshape(batch)
 
     def gram_exponent(self, L0, Li, Lj) -> torch.Tensor:
+        """log E_L0[ℓ_i ℓ_j] = Σ_ω w(L0)(Li − L0)(Lj − L0): Li (A, *S) or (*S), Lj (B, *S) or (*S) → (A, B)
+        (batch dims dropped where absent).
+
+        Parameters
+        ----------
+        L0 : torch.Tensor or array_like
+            The reference mean image (*S), radiance units.
+        Li : torch.Tensor or array_like
+            Mean images (A, *S) or (*S).
+        Lj : torch.Tensor or array_like
+            Mean images (B, *S) or (*S).
+
+        Returns
+        -------
+        torch.Tensor
+            The Gram exponents (A, B), float64 (+inf allowed).
+        """
         L0, Li, Lj = self._inputs(True, L0=L0, Li=Li, Lj=Lj)
         Di, bi = _differences(L0, Li, "Li")
         Dj, bj = _differences(L0, Lj, "Lj")
@@ -130,6 +305,20 @@ class QuadraticNoise(NoiseModel):
         return g.reshape(bi + bj)
 
     def fisher(self, L, dL) -> torch.Tensor:
+        """Per-pixel Fisher information w(L) ∂L/∂θ_i ∂L/∂θ_j, float64 (0 where the derivative is 0).
+
+        Parameters
+        ----------
+        L : torch.Tensor or array_like
+            The mean image (*S), radiance units.
+        dL : torch.Tensor or array_like
+            ∂L/∂θ, (*S) for one parameter or (P, *S), radiance units per parameter unit.
+
+        Returns
+        -------
+        torch.Tensor
+            The information per pixel, float64 (*S) or (P, P, *S).
+        """
         (L,) = self._inputs(True, L=L)
         dL = to_float64(dL, "dL")
         check_finite(dL, "dL")
@@ -155,7 +344,18 @@ _REGISTRY: dict[str, type[NoiseModel]] = {}
 
 
 def register(name: str) -> Callable[[type[NoiseModel]], type[NoiseModel]]:
-    """Class decorator adding a NoiseModel subclass to the registry under `name`."""
+    """Class decorator adding a NoiseModel subclass to the registry under `name`.
+
+    Parameters
+    ----------
+    name : str
+        The name `get` builds it by (also set as the class's `name`).
+
+    Returns
+    -------
+    callable
+        The decorator; it returns the class unchanged.
+    """
 
     def deco(cls: type[NoiseModel]) -> type[NoiseModel]:
         if not (isinstance(cls, type) and issubclass(cls, NoiseModel)):
@@ -168,7 +368,30 @@ def register(name: str) -> Callable[[type[NoiseModel]], type[NoiseModel]]:
 
 
 def get(name: str, **kw) -> NoiseModel:
-    """Build the registered noise model `name` with keyword parameters, e.g. get("awgn", sigma=0.1)."""
+    """Build the registered noise model `name` with keyword parameters, e.g. get("awgn", sigma=0.1).
+
+    Parameters
+    ----------
+    name : str
+        A registered name (see `available`).
+    **kw
+        The model's parameters (e.g. sigma for "awgn", scale for "poisson").
+
+    Returns
+    -------
+    NoiseModel
+        The model.
+
+    Raises
+    ------
+    ValueError
+        If no model is registered under `name`.
+
+    Examples
+    --------
+    >>> nb.noise.get("awgn", sigma=0.1)
+    AWGN(sigma=0.1)
+    """
     try:
         cls = _REGISTRY[name]
     except KeyError:
@@ -177,14 +400,36 @@ def get(name: str, **kw) -> NoiseModel:
 
 
 def available() -> list[str]:
-    """Names of the registered noise models."""
+    """Names of the registered noise models.
+
+    Returns
+    -------
+    list of str
+        The names, sorted.
+    """
     return sorted(_REGISTRY)
 
 
 @register("awgn")
 @dataclass(frozen=True)
 class AWGN(QuadraticNoise):
-    """Additive white Gaussian noise Y = L + ε, ε ~ N(0, σ²), σ in radiance units."""
+    """Additive white Gaussian noise Y = L + ε, ε ~ N(0, σ²), σ in radiance units.
+
+    Parameters
+    ----------
+    sigma : float
+        σ, the noise's standard deviation in radiance units (finite, > 0).
+
+    Examples
+    --------
+    λ = ‖L1 − L0‖² / σ² for each alternative image:
+
+    >>> import torch
+    >>> noise = nb.noise.AWGN(sigma=0.5)
+    >>> L0 = torch.zeros(2, 2)
+    >>> noise.chi2_exponent(L0, torch.stack([L0, L0 + 0.5]))
+    tensor([0., 4.], dtype=torch.float64)
+    """
 
     sigma: float
     symmetric: ClassVar[bool] = True  # λ = ‖L1 − L0‖² / σ²
@@ -194,19 +439,69 @@ class AWGN(QuadraticNoise):
             raise ValueError(f"AWGN sigma must be finite and > 0, got {self.sigma}")
 
     def weight(self, L0: torch.Tensor) -> torch.Tensor:
+        """w = 1/σ², the same for every pixel.
+
+        Parameters
+        ----------
+        L0 : torch.Tensor
+            The mean image (its device is used).
+
+        Returns
+        -------
+        torch.Tensor
+            1/σ², float64 0-dim.
+        """
         return torch.tensor(1.0 / self.sigma**2, dtype=torch.float64, device=L0.device)
 
     def binned(self, b: int) -> AWGN:
-        """Mean of b² pixels with independent N(0, σ²) noise: σ/b (the block's sum carries b·σ)."""
+        """Mean of b² pixels with independent N(0, σ²) noise: σ/b (the block's sum carries b·σ).
+
+        Parameters
+        ----------
+        b : int
+            The bin size per side.
+
+        Returns
+        -------
+        AWGN
+            AWGN with σ/b.
+        """
         return AWGN(self.sigma / check_bin(b))
 
     def sample(self, L: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """y = L + σε, ε standard normal per pixel.
+
+        Parameters
+        ----------
+        L : torch.Tensor
+            The mean image (*S), radiance units; finite.
+        generator : torch.Generator
+            The random source.
+
+        Returns
+        -------
+        torch.Tensor
+            y, shaped and typed like L.
+        """
         check_finite(L, "L")
         eps = torch.randn(L.shape, generator=generator, dtype=L.dtype, device=L.device)
         return L + self.sigma * eps
 
     def nll(self, y: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
-        """Σ (y − L)² / (2σ²)."""
+        """Σ (y − L)² / (2σ²).
+
+        Parameters
+        ----------
+        y : torch.Tensor or array_like
+            An observation (*S), radiance units.
+        L : torch.Tensor
+            The mean image (*S), radiance units.
+
+        Returns
+        -------
+        torch.Tensor
+            The negative log-likelihood up to a constant, float64 0-dim, differentiable in L.
+        """
         r = (torch.as_tensor(y).to(torch.float64) - L.to(torch.float64)) / self.sigma
         return 0.5 * (r * r).sum()
 
@@ -217,7 +512,19 @@ class Poisson(QuadraticNoise):
     """Photon counts K ~ Poisson(scale·L); `scale` = expected photons per unit radiance.
 
     Observations are reported in radiance units, y = K / scale (so E[y] = L, Var[y] = L / scale).
-    The bound depends on `scale`: λ = scale·Σ(L1 − L0)²/L0 (exact for Poisson)."""
+    The bound depends on `scale`: λ = scale·Σ(L1 − L0)²/L0 (exact for Poisson).
+
+    Parameters
+    ----------
+    scale : float
+        Expected photons per unit radiance (finite, > 0).
+
+    Examples
+    --------
+    >>> import torch
+    >>> nb.noise.Poisson(scale=100.0).chi2_exponent(torch.ones(4), torch.full((4,), 1.5))
+    tensor(100., dtype=torch.float64)
+    """
 
     scale: float
 
@@ -226,27 +533,91 @@ class Poisson(QuadraticNoise):
             raise ValueError(f"Poisson scale must be finite and > 0, got {self.scale}")
 
     def validate(self, L: torch.Tensor, what: str) -> None:
+        """Raise ValueError naming `what` unless `L` is finite and ≥ 0.
+
+        Parameters
+        ----------
+        L : torch.Tensor
+            A mean image (*S), radiance units.
+        what : str
+            Its name, for the message.
+
+        Raises
+        ------
+        ValueError
+            If `L` holds NaN, Inf or negative values.
+        """
         check_finite(L, what)
         neg = int((L < 0).sum())
         if neg:
             raise ValueError(f"{what} has {neg} negative values; a Poisson mean must be >= 0")
 
     def weight(self, L0: torch.Tensor) -> torch.Tensor:
+        """w(L0) = scale / L0 (+inf where L0 = 0).
+
+        Parameters
+        ----------
+        L0 : torch.Tensor
+            The mean image (*S), float64, radiance units.
+
+        Returns
+        -------
+        torch.Tensor
+            w, float64 (*S).
+        """
         return self.scale / L0  # +inf where L0 = 0
 
     def binned(self, b: int) -> Poisson:
         """Counts of b² pixels summed (a b² larger pixel): Poisson(scale·Σ L) = b²·scale photons per unit
-        of the block's mean radiance."""
+        of the block's mean radiance.
+
+        Parameters
+        ----------
+        b : int
+            The bin size per side.
+
+        Returns
+        -------
+        Poisson
+            Poisson with scale·b².
+        """
         return Poisson(self.scale * check_bin(b) ** 2)
 
     def sample(self, L: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """y = K / scale with counts K ~ Poisson(scale·L) per pixel.
+
+        Parameters
+        ----------
+        L : torch.Tensor
+            The mean image (*S), radiance units; finite, ≥ 0.
+        generator : torch.Generator
+            The random source.
+
+        Returns
+        -------
+        torch.Tensor
+            y, shaped and typed like L, in radiance units.
+        """
         self.validate(L, "L")
         counts = torch.poisson(self.scale * L.to(torch.float64), generator=generator)
         return (counts / self.scale).to(L.dtype)
 
     def nll(self, y: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
         """scale·Σ (L − y·log L), i.e. −log p up to a constant; y = 0 pixels add scale·L even at
-        L = 0 (finite value and gradient), y > 0 at L = 0 gives +inf."""
+        L = 0 (finite value and gradient), y > 0 at L = 0 gives +inf.
+
+        Parameters
+        ----------
+        y : torch.Tensor or array_like
+            An observation (*S), radiance units (counts / scale).
+        L : torch.Tensor
+            The mean image (*S), radiance units.
+
+        Returns
+        -------
+        torch.Tensor
+            The negative log-likelihood up to a constant, float64 0-dim, differentiable in L.
+        """
         y = torch.as_tensor(y).to(torch.float64)
         L = L.to(torch.float64)
         safe = torch.where(y > 0, L, torch.ones_like(L))
