@@ -26,7 +26,21 @@ _REGISTERED: dict[str, Callable[..., Estimator]] = {}
 
 
 def register(name: str, factory: Callable[..., Estimator]) -> None:
-    """Add an estimator factory (called with the options given to `get`) under `name`."""
+    """Add an estimator factory (called with the options given to `get`) under `name`.
+
+    Parameters
+    ----------
+    name : str
+        The name `get` builds it by; it takes precedence over a built-in or plug-in of that name.
+    factory : callable
+        Called with the options given to `get`; returns an object with a `fit` method (usually an
+        `Estimator` subclass).
+
+    Raises
+    ------
+    TypeError
+        If `factory` is not callable.
+    """
     if not callable(factory):
         raise TypeError(f"estimator factory for {name!r} is not callable: {factory!r}")
     _REGISTERED[name] = factory
@@ -37,12 +51,36 @@ def _entry_points() -> dict:
 
 
 def available() -> list[str]:
-    """Names accepted by `get`: built-ins, `register`ed factories and installed entry points."""
+    """Names accepted by `get`: built-ins, factories added by `register` and installed entry points.
+
+    Returns
+    -------
+    list of str
+        The names, sorted.
+    """
     return sorted(set(_BUILTIN) | set(_REGISTERED) | set(_entry_points()))
 
 
 def factory(name: str) -> Callable[..., Estimator]:
-    """The factory registered under `name`; KeyError (with a close match) for an unknown name."""
+    """The factory registered under `name`; KeyError (with a close match) for an unknown name.
+
+    Parameters
+    ----------
+    name : str
+        An estimator's name (see `available`).
+
+    Returns
+    -------
+    callable
+        The factory (a registered one first, then a built-in, then an installed entry point).
+
+    Raises
+    ------
+    KeyError
+        If no estimator has that name.
+    ImportError
+        If the entry-point plug-in of that name fails to load.
+    """
     if name in _REGISTERED:
         return _REGISTERED[name]
     if name in _BUILTIN:
@@ -60,7 +98,30 @@ def factory(name: str) -> Callable[..., Estimator]:
 
 
 def get(name: str, **options) -> Estimator:
-    """Build the estimator `name` with its options, e.g. get("mle-adam", lr=0.05, iterations=100)."""
+    """Build the estimator `name` with its options, e.g. get("mle-adam", lr=0.05, iterations=100).
+
+    Parameters
+    ----------
+    name : str
+        An estimator's name (see `available`).
+    **options
+        The estimator's options (its constructor's keywords).
+
+    Returns
+    -------
+    Estimator
+        The estimator (an object with a `fit` method).
+
+    Raises
+    ------
+    ValueError
+        If the factory rejects the options.
+
+    Examples
+    --------
+    >>> nb.estimators.get("gauss-newton", spp=16).spp
+    16
+    """
     make = factory(name)
     try:
         est = make(**options)
@@ -72,7 +133,13 @@ def get(name: str, **options) -> Estimator:
 
 
 def describe() -> dict[str, str]:
-    """name → one line: what it is, then when it is valid (for `nlosbench list estimators`)."""
+    """name → one line: what it is, then when it is valid (for `nlosbench list estimators`).
+
+    Returns
+    -------
+    dict of str to str
+        Per available estimator, the first line of its docstring and its `valid_when`.
+    """
     out = {}
     for name in available():
         try:

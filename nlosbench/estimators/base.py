@@ -38,7 +38,17 @@ STATUSES = ("converged", "stalled", "step-rejected", "budget", "max-iterations")
 class BankGrid:
     """Renders the run made already at a θ grid: thetas (G, P), images (G, H, W, C) float32, their spp.
     They never share a seed with an observation's mean (the bank's TRUTH set), so fitting to them does
-    not fit the observation's own rendering noise."""
+    not fit the observation's own rendering noise.
+
+    Parameters
+    ----------
+    thetas : numpy.ndarray
+        The G grid points, (G, P) in parameter units.
+    images : torch.Tensor
+        Their renders, (G, H, W, C) float32.
+    spp : int
+        Samples per pixel of the renders.
+    """
 
     thetas: np.ndarray
     images: torch.Tensor
@@ -49,10 +59,32 @@ class BankGrid:
 class Problem:
     """An estimation problem: observations y ~ noise(model.render(θ*)), θ* ∈ model.params.
 
-    gradient: how estimators that need ∂L/∂θ get it (forward.GradientSettings: FD with CRN, AD, mixed,
-    or auto — resolved here, once per model, by `diagnostics.resolve_gradient`);
-    seed: seed for renders that are the same for every fit (derive it from the experiment seed);
-    bank: grid renders an estimator may use without rendering (e.g. a profile-likelihood start)."""
+    Parameters
+    ----------
+    model : ForwardModel
+        The scene; its parameter space is Θ.
+    noise : NoiseModel
+        The observation noise.
+    gradient : GradientSettings, optional
+        How estimators that need ∂L/∂θ get it (FD with CRN, AD, mixed, or auto — resolved here, once per
+        model, by `nlosbench.resolve_gradient`); default FD.
+    seed : int, default 0
+        Seed for renders that are the same for every fit (derive it from the experiment seed).
+    bank : BankGrid, optional
+        Grid renders an estimator may use without rendering (e.g. a profile-likelihood start).
+
+    Examples
+    --------
+    A grid search on the analytic blob, from a noiseless observation:
+
+    >>> import numpy as np
+    >>> model = nb.scenes.get("blob2d")
+    >>> problem = nb.estimators.Problem(model, nb.noise.AWGN(sigma=0.01))
+    >>> y = model.render([0.4, 0.6], spp=64, seed=0)
+    >>> est = nb.estimators.get("grid-search", num=7, spp=16).fit(problem, y, rng=np.random.default_rng(0))
+    >>> est.theta.round(3), est.status
+    (array([0.4, 0.6]), 'converged')
+    """
 
     model: ForwardModel
     noise: NoiseModel
@@ -68,16 +100,51 @@ class Problem:
         return self.model.params
 
     def nll(self, y: torch.Tensor, L: torch.Tensor) -> torch.Tensor:
-        """−log p_L(y) (float64 scalar, differentiable in L) under the Poisson policy (module docstring)."""
+        """−log p_L(y) (float64 scalar, differentiable in L) under the Poisson policy (module docstring).
+
+        Parameters
+        ----------
+        y : torch.Tensor
+            The observation (H, W, C), radiance units.
+        L : torch.Tensor
+            A model image (H, W, C), radiance units (floored at `POISSON_FLOOR` photons for Poisson noise).
+
+        Returns
+        -------
+        torch.Tensor
+            The negative log-likelihood up to a constant, float64 0-dim.
+        """
         return self.noise.nll(y, floored(self, L))
 
     def to_unit(self, theta) -> np.ndarray:
-        """θ → u = (θ − lower) / (upper − lower) ∈ [0, 1]^P (Θ scaled to the unit box)."""
+        """θ → u = (θ − lower) / (upper − lower) ∈ [0, 1]^P (Θ scaled to the unit box).
+
+        Parameters
+        ----------
+        theta : array_like
+            θ (P,) in parameter units.
+
+        Returns
+        -------
+        numpy.ndarray
+            u, float64 (P,).
+        """
         p = self.params
         return (np.asarray(theta, dtype=np.float64) - p.lower) / (p.upper - p.lower)
 
     def from_unit(self, u) -> np.ndarray:
-        """u ∈ [0, 1]^P → θ (float64 (P,)), clipped to Θ against rounding."""
+        """u ∈ [0, 1]^P → θ (float64 (P,)), clipped to Θ against rounding.
+
+        Parameters
+        ----------
+        u : array_like
+            A point of the unit box, (P,).
+
+        Returns
+        -------
+        numpy.ndarray
+            θ, float64 (P,) in parameter units.
+        """
         p = self.params
         return np.clip(p.lower + np.asarray(u, dtype=np.float64) * (p.upper - p.lower), p.lower, p.upper)
 
@@ -85,7 +152,17 @@ class Problem:
 @dataclass(frozen=True)
 class Budget:
     """Limits on one fit (None: no limit). renders counts primal renders plus AD gradient passes;
-    an estimator checks the limits before each iteration, so it may overshoot by one iteration."""
+    an estimator checks the limits before each iteration, so it may overshoot by one iteration.
+
+    Parameters
+    ----------
+    iterations : int, optional
+        The most iterations (caps the estimator's own count).
+    renders : int, optional
+        The most primal renders plus AD gradient passes.
+    seconds : float, optional
+        The most wall-clock seconds.
+    """
 
     iterations: int | None = None
     renders: int | None = None
@@ -98,17 +175,53 @@ class Budget:
                 raise ValueError(f"budget {k} must be > 0 or None, got {v!r}")
 
     def cap(self, iterations: int) -> int:
-        """An estimator's own iteration count, capped by this budget."""
+        """An estimator's own iteration count, capped by this budget.
+
+        Parameters
+        ----------
+        iterations : int
+            The estimator's iteration count.
+
+        Returns
+        -------
+        int
+            min(iterations, the budget's iterations).
+        """
         return iterations if self.iterations is None else min(iterations, int(self.iterations))
 
 
 @dataclass
 class Estimate:
-    """Result of one fit. theta: θ̂ float64 (P,); renders / grad_passes / samples / seconds: work done
-    during the fit (from the model's counters; cached renders cost nothing); status: how it stopped (one
-    of STATUSES); converged: status == "converged" (`reason` says which rule stopped it); final_loss: the
-    last negative log-likelihood evaluated; trace: one dict per iteration {iteration, loss, theta,
-    renders, seconds} with cumulative renders and seconds."""
+    """Result of one fit. Work is measured from the model's counters (cached renders cost nothing).
+
+    Parameters
+    ----------
+    theta : numpy.ndarray
+        θ̂, float64 (P,) in parameter units.
+    iterations : int
+        Iterations done.
+    converged : bool
+        status == "converged" (`reason` says which rule stopped it).
+    reason : str
+        Why the fit stopped.
+    status : str
+        How it stopped, one of STATUSES ("converged", "stalled", "step-rejected", "budget",
+        "max-iterations").
+    renders : int
+        Primal renders during the fit.
+    grad_passes : int
+        AD gradient passes during the fit.
+    samples : int
+        Pixel samples rendered during the fit.
+    seconds : float
+        Wall-clock seconds of the fit.
+    final_loss : float
+        The last negative log-likelihood evaluated.
+    init : numpy.ndarray
+        The start θ, float64 (P,).
+    trace : list of dict, optional
+        One dict per iteration {iteration, loss, theta, renders, seconds}, renders and seconds cumulative.
+    """
 
     theta: np.ndarray
     iterations: int
@@ -125,7 +238,15 @@ class Estimate:
 
 
 class Tracker:
-    """Budget and trace bookkeeping for one fit (handed to `Estimator._fit`)."""
+    """Budget and trace bookkeeping for one fit (handed to `Estimator._fit`).
+
+    Parameters
+    ----------
+    model : ForwardModel
+        The model whose counters measure the fit's work (from now on).
+    budget : Budget
+        The fit's limits.
+    """
 
     def __init__(self, model: ForwardModel, budget: Budget):
         self.model = model
@@ -135,13 +256,33 @@ class Tracker:
         self.trace: list[dict] = []
 
     def used(self) -> RenderStats:
+        """The model's work since the fit started.
+
+        Returns
+        -------
+        RenderStats
+            Renders, gradient passes, samples and render seconds since the start.
+        """
         return self.model.stats.since(self.start)
 
     def seconds(self) -> float:
+        """Wall-clock seconds since the fit started.
+
+        Returns
+        -------
+        float
+            The elapsed seconds.
+        """
         return time.perf_counter() - self.t0
 
     def exhausted(self) -> str | None:
-        """Why the budget is used up (render or time limit), or None."""
+        """Why the budget is used up (render or time limit), or None.
+
+        Returns
+        -------
+        str or None
+            The reason (e.g. "render budget (100) used"), or None while the fit may go on.
+        """
         b = self.budget
         u = self.used()
         if b.renders is not None and u.renders + u.grad_passes >= b.renders:
@@ -151,6 +292,17 @@ class Tracker:
         return None
 
     def record(self, iteration: int, loss: float, theta: np.ndarray) -> None:
+        """Append one iteration to the trace, with the renders and seconds used so far.
+
+        Parameters
+        ----------
+        iteration : int
+            The iteration's number.
+        loss : float
+            Its negative log-likelihood.
+        theta : numpy.ndarray
+            Its θ (P,), in parameter units.
+        """
         u = self.used()
         self.trace.append({"iteration": int(iteration), "loss": float(loss), "theta": [float(v) for v in theta],
                            "renders": u.renders + u.grad_passes, "seconds": self.seconds()})
@@ -158,7 +310,22 @@ class Tracker:
 
 @dataclass
 class Outcome:
-    """What `_fit` returns: θ̂, iterations done, how it stopped (one of STATUSES) and why, final loss."""
+    """What `_fit` returns: θ̂, iterations done, how it stopped (one of STATUSES) and why, final loss.
+
+    Parameters
+    ----------
+    theta : numpy.ndarray
+        θ̂ (P,), in parameter units.
+    iterations : int
+        Iterations done.
+    status : str
+        How the fit stopped, one of STATUSES (True / False, the 0.1 API, read as "converged" /
+        "max-iterations").
+    reason : str
+        Why it stopped.
+    final_loss : float
+        The last negative log-likelihood evaluated.
+    """
 
     theta: np.ndarray
     iterations: int
@@ -187,9 +354,30 @@ class Estimator(ABC):
             budget: Budget = Budget()) -> Estimate:
         """θ̂ from the observation y (same shape as a render, radiance units).
 
-        init: start θ (P,) in Θ, or None for a uniform random start drawn from `rng` (ignored with
-        start "profile");
-        rng: a numpy Generator seeded from the experiment seed (starts and render seeds come from it)."""
+        Parameters
+        ----------
+        problem : Problem
+            The model, noise model and gradient settings.
+        y : torch.Tensor or array_like
+            The observation (H, W, C), radiance units; finite.
+        init : array_like, optional
+            Start θ (P,) in Θ, or None for a uniform random start drawn from `rng` (ignored with start
+            "profile").
+        rng : numpy.random.Generator
+            Seeded from the experiment seed (starts and render seeds come from it); required.
+        budget : Budget, optional
+            Limits on the fit; default none.
+
+        Returns
+        -------
+        Estimate
+            θ̂, how the fit stopped and the work it took.
+
+        Raises
+        ------
+        TypeError
+            If `rng` is not a numpy Generator.
+        """
         if not isinstance(rng, np.random.Generator):
             raise TypeError("rng must be a numpy Generator seeded from a derived seed "
                             "(e.g. np.random.default_rng(nlosbench.seeds.derive(seed, purpose, i)))")

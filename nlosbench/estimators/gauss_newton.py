@@ -21,9 +21,22 @@ from .base import Estimator, Outcome, Problem, Tracker, check_start, finite_or_r
 class GaussNewton(Estimator):
     """Fisher scoring / Gauss–Newton with Levenberg–Marquardt damping, Fisher matrix from the bounds module.
 
-    iterations: maximum iterations; spp: samples per pixel of every render; damping: initial μ
-    (relative to diag F); tol: converged when the accepted step moves every component of θ by less
-    than tol × Θ's width; max_tries: damping increases per iteration before giving up."""
+    Parameters
+    ----------
+    iterations : int, default 30
+        Maximum iterations.
+    spp : int, default 512
+        Samples per pixel of every render.
+    damping : float, default 1e-3
+        Initial μ (relative to diag F).
+    tol : float, default 1e-6
+        Converged when the accepted step moves every component of θ by less than tol × Θ's width.
+    max_tries : int, default 10
+        Damping increases per iteration before giving up (status "step-rejected").
+    start : {"given", "profile"}, default "given"
+        Start at `init` (or a uniform random point), or at the profile-likelihood minimum over the
+        problem's bank grid.
+    """
 
     name = "gauss-newton"
     valid_when = ("The image is smooth in θ near θ̂, θ is identifiable (non-singular Fisher matrix) and the "

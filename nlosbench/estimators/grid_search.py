@@ -26,10 +26,23 @@ class _OutOfBudget(Exception):
 class GridSearch(Estimator):
     """Profile likelihood on a cached grid of renders over Θ, refined locally (Brent / Powell).
 
-    num: grid points per parameter (num^P renders, cached per process); spp: spp of the grid renders;
-    refine: refine around the grid minimum (else θ̂ is the grid point); refine_spp: spp of refinement
-    renders (default: spp); refine_evals: maximum refinement renders; xtol: the refinement's θ tolerance
-    in units of Θ's width; max_grid: refuse grids with more points than this."""
+    Parameters
+    ----------
+    num : int, default 65
+        Grid points per parameter, ≥ 2 (num^P renders, cached per process).
+    spp : int, default 1024
+        Samples per pixel of the grid renders.
+    refine : bool, default True
+        Refine around the grid minimum (else θ̂ is the grid point).
+    refine_spp : int, optional
+        Samples per pixel of refinement renders (default: `spp`).
+    refine_evals : int, default 150
+        Maximum refinement renders.
+    xtol : float, default 1e-4
+        The refinement's θ tolerance, in units of Θ's width.
+    max_grid : int, default 100000
+        Refuse grids with more points than this.
+    """
 
     name = "grid-search"
     valid_when = ("Any likelihood shape (multimodal, kinked at hard edges or occlusions, flat regions) as long "
@@ -52,7 +65,23 @@ class GridSearch(Estimator):
         self._grids: dict[str, tuple[np.ndarray, list[torch.Tensor]]] = {}
 
     def grid(self, problem: Problem) -> tuple[np.ndarray, list[torch.Tensor]]:
-        """(θ grid (G, P), renders) for this problem, rendered on first use and cached."""
+        """(θ grid (G, P), renders) for this problem, rendered on first use and cached.
+
+        Parameters
+        ----------
+        problem : Problem
+            The problem (its model, parameter space and seed key the cache).
+
+        Returns
+        -------
+        tuple of (numpy.ndarray, list of torch.Tensor)
+            The grid (G, P) float64 in parameter units, G = num^P, and its G renders (H, W, C) float32.
+
+        Raises
+        ------
+        ValueError
+            If num^P exceeds `max_grid`.
+        """
         p = problem.params
         G = self.num ** p.dim
         if G > self.max_grid:

@@ -45,17 +45,34 @@ def spp_schedule(spp) -> tuple[tuple[float, int], ...]:
 class AdamMLE(Estimator):
     """Maximum likelihood by Adam on θ through nb.render (FD or AD gradients of the NLL).
 
-    lr: Adam step size in units of Θ's width (0.05: about 5 % of the range per step at first);
-    iterations: maximum iterations; spp: int or schedule [[fraction, spp], ...] (paper: 512 then 1024);
-    lr_schedule: constant | cosine | exponential, decaying to lr·lr_final at the last iteration;
-    tol, patience: converged when every component of u moved less than tol (fraction of Θ's width)
-    for `patience` consecutive iterations while the learning rate is still at least STALL of its start
-    (later, the schedule made the steps small: status "stalled"); start: "given" or "profile" (the
-    profile-likelihood minimum over the problem's bank grid); betas: Adam's moment decay rates. The
-    defaults (0.5, 0.99) rather than torch's (0.9, 0.999): the NLL's gradient shrinks by orders of magnitude
-    between a far start and θ̂, and a long second-moment memory then freezes the steps near θ̂ while heavy momentum
-    overshoots (on blob2d at high SNR, (0.9, 0.999) ends at ≈ 5 × CRLB after 100 iterations,
-    (0.5, 0.99) at the CRLB after ≈ 30)."""
+    Parameters
+    ----------
+    lr : float, default 0.05
+        Adam step size in units of Θ's width (0.05: about 5 % of the range per step at first).
+    iterations : int, default 200
+        Maximum iterations.
+    spp : int or sequence of [fraction, spp], default ((0.0, 512), (0.5, 1024))
+        Samples per pixel, constant or a schedule [[fraction of the iterations, spp], ...] starting at
+        fraction 0 (paper: 512 then 1024).
+    lr_schedule : {"constant", "cosine", "exponential"}, default "cosine"
+        The learning rate's decay, to lr·lr_final at the last iteration.
+    lr_final : float, default 1e-3
+        The final learning rate as a fraction of `lr`, in (0, 1].
+    tol : float, default 1e-4
+        Converged when every component of u moved less than tol (fraction of Θ's width) for `patience`
+        consecutive iterations while the learning rate is still at least STALL of its start (later, the
+        schedule made the steps small: status "stalled").
+    patience : int, default 3
+        The consecutive iterations of `tol`.
+    betas : tuple of float, default (0.5, 0.99)
+        Adam's moment decay rates. Not torch's (0.9, 0.999): the NLL's gradient shrinks by orders of
+        magnitude between a far start and θ̂, and a long second-moment memory then freezes the steps near
+        θ̂ while heavy momentum overshoots (on blob2d at high SNR, (0.9, 0.999) ends at ≈ 5 × CRLB after
+        100 iterations, (0.5, 0.99) at the CRLB after ≈ 30).
+    start : {"given", "profile"}, default "given"
+        Start at `init` (or a uniform random point), or at the profile-likelihood minimum over the
+        problem's bank grid.
+    """
 
     name = "mle-adam"
     valid_when = ("The NLL is smooth near θ̂ and the start lies in the basin of the global optimum (a "
@@ -87,7 +104,20 @@ class AdamMLE(Estimator):
         self.start = check_start(self.name, start)
 
     def lr_factor(self, k: int, n: int) -> float:
-        """Learning-rate multiplier at iteration k of n (1 at the start, lr_final at the end)."""
+        """Learning-rate multiplier at iteration k of n (1 at the start, lr_final at the end).
+
+        Parameters
+        ----------
+        k : int
+            The iteration, 0 to n − 1.
+        n : int
+            The number of iterations.
+
+        Returns
+        -------
+        float
+            The factor applied to `lr`.
+        """
         x = k / max(n - 1, 1)
         if self.lr_schedule == "constant":
             return 1.0
@@ -96,7 +126,20 @@ class AdamMLE(Estimator):
         return self.lr_final**x
 
     def spp_at(self, k: int, n: int) -> int:
-        """spp of iteration k of n under the schedule."""
+        """spp of iteration k of n under the schedule.
+
+        Parameters
+        ----------
+        k : int
+            The iteration, 0 to n − 1.
+        n : int
+            The number of iterations.
+
+        Returns
+        -------
+        int
+            Samples per pixel of that iteration's render.
+        """
         return [s for frac, s in self.spp if k >= frac * n][-1]
 
     def _fit(

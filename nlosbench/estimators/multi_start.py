@@ -16,8 +16,17 @@ from .base import Budget, Estimator, Outcome, Problem, Tracker, nll, render_seed
 class MultiStart(Estimator):
     """A local estimator from several starts, keeping the fit with the lowest NLL.
 
-    base, options: the estimator run from each start and its options; starts: the given start, then
-    uniform random points of Θ; spp: spp of the common render on which the candidates' NLL is compared."""
+    Parameters
+    ----------
+    base : str, default "mle-adam"
+        The estimator run from each start (not "multi-start").
+    starts : int, default 4
+        The number of starts: the given start, then uniform random points of Θ.
+    options : dict, optional
+        The base estimator's options.
+    spp : int, default 1024
+        Samples per pixel of the common render on which the candidates' NLL is compared.
+    """
 
     name = "multi-start"
     valid_when = ("Multimodal likelihoods (hard edges, NLOS, weak signal far from θ*) where a local estimator "
