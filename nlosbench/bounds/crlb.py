@@ -12,7 +12,31 @@ from nlosbench.noise import NoiseModel, to_float64
 
 def fisher_matrix(L, J, noise: NoiseModel) -> np.ndarray:
     """Fisher information (P, P) float64 of θ from the image L (*S) and its Jacobian J = ∂L/∂θ
-    (P, *S) (or (*S) for scalar θ). Units: 1 / (parameter units)²."""
+    (P, *S) (or (*S) for scalar θ). Units: 1 / (parameter units)².
+
+    Parameters
+    ----------
+    L : torch.Tensor or array_like of shape (*S)
+        The noise-free image at θ, radiance units.
+    J : torch.Tensor or array_like of shape (P, *S) or (*S)
+        Its Jacobian ∂L/∂θ, radiance per parameter unit; the shape of L for a scalar θ (P = 1).
+    noise : NoiseModel
+        The observation model (its per-pixel Fisher information is summed over pixels).
+
+    Returns
+    -------
+    ndarray of shape (P, P)
+        F_jk = Σ_ω (per-pixel information of θ_j, θ_k), float64, 1/(parameter units)².
+
+    Examples
+    --------
+    L(θ) = θ·g, so J = g; AWGN with σ = 3 and ‖g‖² = 9 gives F = ‖g‖²/σ² = 1.
+
+    >>> import torch
+    >>> g = torch.tensor([1.0, 2.0, 2.0])
+    >>> nb.bounds.fisher_matrix(g, g, nb.noise.AWGN(3.0))
+    array([[1.]])
+    """
     J = to_float64(J, "J")
     if J.shape == np.shape(L):
         J = J[None]
@@ -24,10 +48,25 @@ def fisher_matrix(L, J, noise: NoiseModel) -> np.ndarray:
 class CRLBResult:
     """Cramér–Rao bound from a Fisher matrix F (P, P).
 
-    component: (P,) CRLB of each θ_j = (F⁻¹)_jj (units²), +inf where θ_j is not identifiable;
-    trace: Σ component, the bound on the MSE of the vector; F_inv: F⁻¹, or the pseudo-inverse on the
-    identifiable part when F is singular; cond: condition number of F scaled to unit diagonal
-    (units-free; +inf when singular); singular + reason say which parameters are not identifiable."""
+    Returned by `crlb`; each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    component : ndarray of shape (P,)
+        CRLB of each θ_j = (F⁻¹)_jj (parameter units²), +inf where θ_j is not identifiable.
+    trace : float
+        Σ component, the bound on the MSE of the vector θ (units²).
+    F : ndarray of shape (P, P)
+        The Fisher matrix, 1/(parameter units)².
+    F_inv : ndarray of shape (P, P)
+        F⁻¹, or the pseudo-inverse on the identifiable part when F is singular.
+    cond : float
+        Condition number of F scaled to unit diagonal (units-free; +inf when singular).
+    singular : bool
+        Some parameter is not identifiable.
+    reason : str
+        Which parameters are not identifiable and why ("" when none).
+    """
 
     component: np.ndarray
     trace: float
@@ -42,7 +81,30 @@ def crlb(F, rcond: float = 1e-12) -> CRLBResult:
     """CRLB from a symmetric positive semi-definite Fisher matrix F (P, P) (or a scalar).
 
     F is scaled to unit diagonal, then eigenvalues ≤ rcond·max are treated as zero; a parameter with
-    F_jj = 0 (no effect on the image) or a component in that null space gets CRLB = +inf."""
+    F_jj = 0 (no effect on the image) or a component in that null space gets CRLB = +inf.
+
+    Parameters
+    ----------
+    F : array_like of shape (P, P), or float
+        The Fisher information, 1/(parameter units)² (e.g. from `fisher_matrix`): finite, symmetric, with
+        a non-negative diagonal.
+    rcond : float, optional
+        Relative eigenvalue threshold below which the scaled F counts as singular.
+
+    Returns
+    -------
+    CRLBResult
+        Per-component bounds (parameter units²), their trace, F⁻¹ and what is not identifiable.
+
+    Examples
+    --------
+    >>> r = nb.bounds.crlb([[4.0, 1.0], [1.0, 2.0]])
+    >>> r.component
+    array([0.28571429, 0.57142857])
+    >>> r = nb.bounds.crlb([[4.0, 0.0], [0.0, 0.0]])
+    >>> r.component, r.reason
+    (array([0.25,  inf]), 'θ[1] has no effect on the image (F[1,1] = 0)')
+    """
     F = np.atleast_2d(as_numpy(F))
     P = F.shape[0]
     if F.shape != (P, P) or not np.isfinite(F).all():
@@ -77,8 +139,26 @@ def crlb(F, rcond: float = 1e-12) -> CRLBResult:
 
 def crlb_log10(L, J, noise: NoiseModel) -> tuple[np.ndarray, str]:
     """log10 CRLB per parameter (P,) from an image L (*S) and its Jacobian J (P, *S), and a flag.
+
     Infinite Fisher information (a Poisson pixel rendered as exactly 0 whose neighbours are not) gives
-    −inf, flagged; a singular F gives +inf for the non-identifiable components, flagged."""
+    −inf, flagged; a singular F gives +inf for the non-identifiable components, flagged.
+
+    Parameters
+    ----------
+    L : torch.Tensor or array_like of shape (*S)
+        The noise-free image at θ.
+    J : torch.Tensor or array_like of shape (P, *S) or (*S)
+        Its Jacobian ∂L/∂θ.
+    noise : NoiseModel
+        The observation model.
+
+    Returns
+    -------
+    log10 : ndarray of shape (P,)
+        log10 of the CRLB of each parameter (units²).
+    flag : str
+        Why some entries are ±inf ("" when none is).
+    """
     F = fisher_matrix(L, J, noise)
     if not np.all(np.isfinite(F)):
         return np.full(F.shape[0], -np.inf), "infinite Fisher information (Poisson pixel with L = 0 that changes)"
@@ -94,7 +174,28 @@ def crlb_from_hcr_limit(L0, L_alt, deltas, noise: NoiseModel, n_points: int = 3,
     Method: the information per unit offset λ(Δ)/Δ² = F + aΔ + bΔ² + … is smooth in the signed Δ;
     a polynomial of `degree` is fitted by least squares to the `n_points` smallest |Δ| (with finite
     λ) and evaluated at Δ = 0 (Richardson extrapolation when n_points = degree + 1), giving F̂ and
-    CRLB = 1/F̂. L0 (*S), L_alt (K, *S), deltas (K,) in parameter units."""
+    CRLB = 1/F̂.
+
+    Parameters
+    ----------
+    L0 : torch.Tensor or array_like of shape (*S)
+        The noise-free image at θ*.
+    L_alt : torch.Tensor or array_like of shape (K, *S)
+        The images at θ* + Δ_k.
+    deltas : array_like of shape (K,)
+        Offsets Δ_k in parameter units (scalar θ only).
+    noise : NoiseModel
+        The observation model.
+    n_points : int, optional
+        How many of the smallest |Δ| enter the fit.
+    degree : int, optional
+        Degree of the polynomial in Δ (lowered to n_points − 1 when fewer points are usable).
+
+    Returns
+    -------
+    CRLBResult
+        The CRLB 1/F̂ (units²); unresolved (+inf, with a reason) when the extrapolated F̂ ≤ 0.
+    """
     d = as_numpy(deltas)
     if d.ndim != 1:
         raise ValueError(f"crlb_from_hcr_limit needs scalar θ: deltas of shape (K,), got {d.shape}")

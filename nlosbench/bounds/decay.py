@@ -28,7 +28,16 @@ from nlosbench.bounds.inexact import check_levels
 def pixel_variances(renders) -> np.ndarray:
     """Unbiased per-pixel variance (ddof = 1) over repeats → (k, *S) float64.
 
-    renders: (k, R, *S) — R ≥ 2 independent renders (distinct seeds) at each of k spp levels."""
+    Parameters
+    ----------
+    renders : torch.Tensor or array_like of shape (k, R, *S)
+        R ≥ 2 independent renders (distinct seeds) at each of k spp levels.
+
+    Returns
+    -------
+    ndarray of shape (k, *S)
+        The per-pixel variance at each level, float64 (radiance units²): the input of `decay_check`.
+    """
     X = as_numpy(renders)
     if X.ndim < 3 or X.shape[1] < 2:
         raise ValueError(f"need renders (k, R, *S) with R >= 2 repeats per level, got shape {X.shape}")
@@ -39,11 +48,37 @@ def pixel_variances(renders) -> np.ndarray:
 class DecayResult:
     """Distribution of the fitted decay rate over random weightings.
 
-    p: median p_opt, the measured rate; p_opt: (n_weights,) best p of each weighting; p_grid: (G,);
-    fit_error: (G,) mean over weightings of the relative squared error ‖γ − C_p N^−p‖² / ‖γ‖²;
-    mean/std/mode/q05/q95: of p_opt (mode = most frequent grid value); at_edge: fraction of p_opt on
-    the ends of p_grid (widen it when large); gamma_example (k,) with c_example: γ(N) of the first
-    weighting and C at p; far_from_one: |p − 1| > tolerance; warning: the message ("" if none)."""
+    Returned by `decay_check`; each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    levels : ndarray of int, shape (k,)
+        The spp levels N.
+    p : float
+        Median p_opt: the measured rate.
+    p_opt : ndarray of shape (n_weights,)
+        The best p of each weighting.
+    p_grid : ndarray of shape (G,)
+        The grid of p searched.
+    fit_error : ndarray of shape (G,)
+        Mean over weightings of the relative squared error ‖γ − C_p N^−p‖² / ‖γ‖² at each grid p.
+    mean, std : float
+        Mean and standard deviation of p_opt.
+    mode : float
+        The most frequent grid value of p_opt.
+    q05, q95 : float
+        The 5 % and 95 % quantiles of p_opt.
+    at_edge : float
+        Fraction of p_opt on the ends of p_grid (widen it when large).
+    gamma_example : ndarray of shape (k,)
+        γ(N) of the first weighting.
+    c_example : float
+        Its least-squares C at p.
+    far_from_one : bool
+        |p − 1| > tolerance.
+    warning : str
+        The message warned ("" if none).
+    """
 
     levels: np.ndarray
     p: float
@@ -66,10 +101,47 @@ def decay_check(variances, levels: Sequence[int], n_weights: int = 10_000, l_max
                 p_grid: tuple[float, float, float] = (0.5, 1.5, 0.001), seed: int = 0,
                 tolerance: float = 0.1) -> DecayResult:
     """Fit γ(N) = C_p N^(−p) for `n_weights` random weightings W ~ U[0, l_max] of the per-pixel
-    variances (k, *S) at spp `levels` (k,) (at least 2 distinct); p over p_grid = (start, stop, step)
-    (the paper: (0.85, 1.15, 0.001); the default is wider so that p = 0.8 is found). Warns
-    (RuntimeWarning) when the median p_opt is farther than `tolerance` from 1 or more than 5 % of the
-    p_opt sit on the grid ends. `seed` drives the weights (derive it)."""
+    variances, and return the distribution of the best p.
+
+    Warns (RuntimeWarning) when the median p_opt is farther than `tolerance` from 1 or more than 5 % of
+    the p_opt sit on the grid ends.
+
+    Parameters
+    ----------
+    variances : array_like of shape (k, *S)
+        Per-pixel variances at each spp level (finite, ≥ 0), e.g. the variance over R ≥ 2 repeats,
+        renders.var(axis=1, ddof=1) for renders (k, R, *S).
+    levels : sequence of int
+        The spp levels N (k,), at least 2 distinct.
+    n_weights : int, optional
+        The number of random weightings.
+    l_max : float, optional
+        The weights' upper end (> 0); it scales γ and C_p only, not p_opt.
+    p_grid : (float, float, float), optional
+        (start, stop, step) of the grid of p searched (the paper: (0.85, 1.15, 0.001); the default is
+        wider so that p = 0.8 is found).
+    seed : int, optional
+        Drives the random weights (derive it).
+    tolerance : float, optional
+        How far from 1 the median p may be before a warning.
+
+    Returns
+    -------
+    DecayResult
+        The measured rate p (median p_opt) and the distribution of p_opt; `p` can be passed as the
+        `power` of `inexact_hcr`.
+
+    Examples
+    --------
+    Variances that fall exactly as 1/N give p = 1:
+
+    >>> import numpy as np
+    >>> levels = np.array([8, 16, 32, 64])
+    >>> V = np.random.default_rng(0).uniform(0.5, 2.0, 100) / levels[:, None]
+    >>> r = nb.bounds.decay_check(V, levels, n_weights=200)
+    >>> r.p, r.warning
+    (1.0, '')
+    """
     lv = check_levels(levels).astype(np.float64)
     V = as_numpy(variances)
     if V.shape[:1] != lv.shape or V.ndim < 2:

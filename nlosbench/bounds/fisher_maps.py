@@ -13,9 +13,33 @@ from nlosbench.noise import NoiseModel, to_float64
 def fisher_maps(L, J, noise: NoiseModel, reduce: str = "sum") -> np.ndarray:
     """Fisher information of each parameter per pixel → (P, H, W) float64, 1/(parameter units)².
 
-    L: image (H, W, C) or (H, W); J = ∂L/∂θ: (P, *L.shape) or L.shape (P = 1). The per-channel
-    information w(L)·(∂L/∂θ_j)² is summed (`reduce="sum"`: the map sums to F_jj) or averaged
-    (`"mean"`) over channels."""
+    The per-channel information w(L)·(∂L/∂θ_j)² is summed (`reduce="sum"`: the map sums to F_jj) or
+    averaged (`"mean"`) over channels.
+
+    Parameters
+    ----------
+    L : torch.Tensor or array_like of shape (H, W, C) or (H, W)
+        The noise-free image, radiance units.
+    J : torch.Tensor or array_like of shape (P, H, W, C), (P, H, W) or the shape of L
+        J = ∂L/∂θ, one image per parameter (the shape of L: P = 1).
+    noise : NoiseModel
+        The observation model (its per-pixel Fisher information).
+    reduce : {"sum", "mean"}, optional
+        How the channels are combined.
+
+    Returns
+    -------
+    ndarray of shape (P, H, W)
+        The information about each θ_j per pixel, float64, 1/(parameter units)².
+
+    Examples
+    --------
+    >>> import torch
+    >>> L = torch.ones(2, 2, 3)
+    >>> m = nb.bounds.fisher_maps(L, 0.5 * L, nb.noise.AWGN(0.5))
+    >>> m.shape, float(m.sum())
+    ((1, 2, 2), 12.0)
+    """
     if reduce not in ("sum", "mean"):
         raise ValueError(f"reduce must be 'sum' or 'mean', got {reduce!r}")
     L = to_float64(L)
@@ -32,9 +56,31 @@ def fisher_maps(L, J, noise: NoiseModel, reduce: str = "sum") -> np.ndarray:
 
 def save_fisher_maps(maps: np.ndarray, names: Sequence[str], outdir: str | Path, prefix: str = "fisher",
                      units: Sequence[str] | None = None, where: str = "") -> list[Path]:
-    """Write each map (P, H, W) as `{prefix}_{name}.exr` (float32 data) and a log-scale PNG titled with
-    the parameter and `where` (e.g. "θ = 0.79 m, AWGN(sigma=0.025)"), its colour bar in 1/units² of the
-    parameter (`units`, one per name); returns the written paths."""
+    """Write each map (P, H, W) as `{prefix}_{name}.exr` (float32 data) and a log-scale PNG.
+
+    Each PNG is titled with the parameter and `where` (e.g. "θ = 0.79 m, AWGN(sigma=0.025)"), its colour
+    bar in 1/units² of the parameter.
+
+    Parameters
+    ----------
+    maps : ndarray of shape (P, H, W)
+        Per-pixel Fisher information, e.g. from `fisher_maps`, 1/(parameter units)².
+    names : sequence of str
+        One name per parameter (P), used in the file names and titles.
+    outdir : str or Path
+        The folder written to.
+    prefix : str, optional
+        The file-name prefix.
+    units : sequence of str, optional
+        The unit of each parameter, for the colour bar (default: "(name unit)").
+    where : str, optional
+        A second title line saying where the maps were taken ("" for none).
+
+    Returns
+    -------
+    list of Path
+        The written paths, an EXR and a PNG per parameter.
+    """
     from nlosbench import io
 
     maps = as_numpy(maps)

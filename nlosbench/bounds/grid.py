@@ -19,10 +19,38 @@ from nlosbench.noise import NoiseModel, to_float64
 def pairwise_lambda(renders, noise: NoiseModel, chunk_bytes: int = 256 * 2**20) -> np.ndarray:
     """λ[i, j] = noise.chi2_exponent(renders[i], renders[j]) for all pairs → (G, G) float64.
 
-    renders: (G, *S) torch tensor (any device) or numpy array / memmap, any float dtype.
-    chunk_bytes: float64 working memory per block (a block of columns and its differences).
     For a symmetric noise model (AWGN) only j > i is computed, about half the work.
-    Raises ValueError naming the render when one holds NaN/Inf (or is invalid for the model)."""
+
+    Parameters
+    ----------
+    renders : torch.Tensor or ndarray of shape (G, *S)
+        One noise-free render per grid point: a torch tensor (any device) or a numpy array / memmap, any
+        float dtype (cast to float64 one block at a time).
+    noise : NoiseModel
+        The observation model whose χ² exponent is taken.
+    chunk_bytes : int, optional
+        float64 working memory per block (a block of columns and its differences), in bytes.
+
+    Returns
+    -------
+    ndarray of shape (G, G)
+        λ[i, j] = log(1 + χ²(p_θj ‖ p_θi)), float64, with θ* = θ_i and test point θ_j (0 on the diagonal).
+
+    Raises
+    ------
+    ValueError
+        Naming the render when one holds NaN/Inf (or is invalid for the model).
+
+    Examples
+    --------
+    >>> import numpy as np, torch
+    >>> g = torch.tensor([1.0, 2.0, 2.0])
+    >>> renders = torch.stack([t * g for t in (0.0, 0.5, 1.0)])
+    >>> nb.bounds.pairwise_lambda(renders, nb.noise.AWGN(3.0))
+    array([[0.  , 0.25, 1.  ],
+           [0.25, 0.  , 0.25],
+           [1.  , 0.25, 0.  ]])
+    """
     G = len(renders)
     X = renders.reshape(G, -1)
     N = X.shape[1]
@@ -50,9 +78,32 @@ def pairwise_lambda(renders, noise: NoiseModel, chunk_bytes: int = 256 * 2**20) 
 class HCRCurve:
     """HCR bound at every grid point θ_i over Δ = θ_j − θ_i, j ≠ i (units: parameter units²).
 
-    Arrays are indexed by i: `log10`, `value` (G,); `delta` (G,) or (G, P), NaN where no Δ is usable;
-    `index` (G,) argmax render j (−1 if none); `at_edge`, `unresolved`, `reason` as in HCRResult;
-    `component_log10` (G, P); `lam` (G, G) the χ² exponents used."""
+    Returned by `hcr_curve`. Arrays are indexed by the grid point i; each parameter below is stored as
+    the attribute of the same name.
+
+    Parameters
+    ----------
+    thetas : ndarray of shape (G,) or (G, P)
+        The grid, parameter units.
+    log10 : ndarray of shape (G,)
+        log10 of the bound at each θ_i (exact; −inf where no Δ is usable).
+    value : ndarray of shape (G,)
+        The bound at each θ_i, parameter units² (may underflow to 0).
+    delta : ndarray of shape (G,) or (G, P)
+        The Δ at the sup, NaN where no Δ is usable.
+    index : ndarray of int, shape (G,)
+        The maximising render j (−1 if none).
+    at_edge : ndarray of object, shape (G,)
+        "smallest", "largest" or None per θ_i, as in `HCRResult`.
+    unresolved : ndarray of bool, shape (G,)
+        Some test point has λ ≤ 0, as in `HCRResult`.
+    reason : list of str
+        Per θ_i, as in `HCRResult`.
+    component_log10 : ndarray of shape (G, P)
+        log10 per-component bounds on Var(θ̂_j).
+    lam : ndarray of shape (G, G)
+        The χ² exponents used, λ[i, j] with θ* = θ_i.
+    """
 
     thetas: np.ndarray
     log10: np.ndarray
@@ -69,8 +120,20 @@ class HCRCurve:
 def hcr_curve_from_lambda(lam, thetas, lower=None, upper=None) -> HCRCurve:
     """HCR curve from a (G, G) matrix λ[i, j] (e.g. `pairwise_lambda`, or bias-corrected λ̂).
 
-    thetas: (G,) or (G, P) grid; lower/upper: scalar or (P,) limits of the parameter space Θ —
-    θ_j outside is not used as a test point."""
+    Parameters
+    ----------
+    lam : array_like of shape (G, G)
+        λ[i, j] with θ* = θ_i and test point θ_j.
+    thetas : array_like of shape (G,) or (G, P)
+        The grid, parameter units.
+    lower, upper : float or array_like of shape (P,), optional
+        Limits of the parameter space Θ: θ_j outside is not used as a test point. None: no limit.
+
+    Returns
+    -------
+    HCRCurve
+        The HCR bound (parameter units²) at every grid point.
+    """
     lam = as_numpy(lam)
     T = as_numpy(thetas)
     G = T.shape[0]
@@ -99,5 +162,37 @@ def hcr_curve_from_lambda(lam, thetas, lower=None, upper=None) -> HCRCurve:
 def hcr_curve(renders, thetas, noise: NoiseModel, lower=None, upper=None,
               chunk_bytes: int = 256 * 2**20) -> HCRCurve:
     """HCR curve from grid renders (G, *S) at thetas (G,) or (G, P): every render serves as θ* and
-    as a test point for all others (G renders, never G²)."""
+    as a test point for all others (G renders, never G²).
+
+    Parameters
+    ----------
+    renders : torch.Tensor or ndarray of shape (G, *S)
+        One noise-free render per grid point (tensor on any device, or a numpy array / memmap).
+    thetas : array_like of shape (G,) or (G, P)
+        The grid, parameter units.
+    noise : NoiseModel
+        The observation model.
+    lower, upper : float or array_like of shape (P,), optional
+        Limits of the parameter space Θ: θ_j outside is not used as a test point. None: no limit.
+    chunk_bytes : int, optional
+        float64 working memory per block of `pairwise_lambda`, in bytes.
+
+    Returns
+    -------
+    HCRCurve
+        The HCR bound (parameter units²) at every grid point, and the λ matrix used.
+
+    Examples
+    --------
+    L(θ) = θ·g under AWGN with F = 1: every grid point's sup is at its nearest neighbour, Δ = ±0.5.
+
+    >>> import numpy as np, torch
+    >>> g = torch.tensor([1.0, 2.0, 2.0])
+    >>> thetas = np.linspace(0.0, 2.0, 5)
+    >>> c = nb.bounds.hcr_curve(torch.stack([t * g for t in thetas]), thetas, nb.noise.AWGN(3.0))
+    >>> c.value.round(4)
+    array([0.8802, 0.8802, 0.8802, 0.8802, 0.8802])
+    >>> c.delta
+    array([ 0.5, -0.5, -0.5, -0.5, -0.5])
+    """
     return hcr_curve_from_lambda(pairwise_lambda(renders, noise, chunk_bytes), thetas, lower, upper)

@@ -40,12 +40,42 @@ class HCRResult:
     """HCR bound over a set of K test offsets Δ_k (parameter units; bounds in units²).
 
     `value` = sup_k ‖Δ_k‖²/(exp(λ_k) − 1) over the usable Δ (0 < λ < ∞, Δ ≠ 0, inside the bounds);
-    it may underflow to 0 but `log10` stays exact. `functional` is log10 f_k for every k: −inf where
-    Δ_k gives no bound (λ = +inf, Δ = 0, outside [lower, upper]), +inf where λ_k ≤ 0 with Δ_k ≠ 0
-    (the render did not change: unresolved, `unresolved` is set). `at_edge` is "smallest" or
-    "largest" when the sup sits at the smallest/largest |Δ| on its side of θ* (by ‖Δ‖ over all
-    Δ for vector θ), else None. Per-component bounds Δ_kj²/(exp(λ_k) − 1) are in `component_*`
-    (P = 1 for scalar θ, equal to the total)."""
+    it may underflow to 0 but `log10` stays exact. Returned by `hcr` and `hcr_from_lambda`; each
+    parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    value : float
+        The bound sup_k ‖Δ_k‖²/(exp(λ_k) − 1), parameter units² (0 where it underflows or no Δ is usable).
+    log10 : float
+        log10 of the bound, exact even where `value` underflows; −inf when no Δ is usable.
+    delta : float or ndarray of shape (P,) or None
+        The Δ at the sup (a float for scalar θ); None when no Δ is usable.
+    index : int
+        Index k of that Δ among the K offsets; −1 when none is usable.
+    functional : ndarray of shape (K,)
+        log10 f_k = log10 ‖Δ_k‖²/(exp(λ_k) − 1) for every k: −inf where Δ_k gives no bound (λ = +inf,
+        Δ = 0, outside [lower, upper]), +inf where λ_k ≤ 0 with Δ_k ≠ 0 (the render did not change:
+        unresolved, `unresolved` is set).
+    lam : ndarray of shape (K,)
+        The χ² exponents λ_k used, float64.
+    usable : ndarray of bool, shape (K,)
+        The Δ_k that enter the sup (0 < λ_k < ∞, Δ_k ≠ 0, inside the bounds).
+    at_edge : {"smallest", "largest"} or None
+        "smallest" or "largest" when the sup sits at the smallest/largest |Δ| on its side of θ* (by ‖Δ‖
+        over all Δ for vector θ): a finer or wider Δ grid may raise the bound; else None.
+    unresolved : bool
+        Some Δ ≠ 0 inside the bounds has λ ≤ 0 (an infinite functional).
+    reason : str
+        Why the bound is what it is (no usable Δ, sup at an edge, unresolved Δ); "" when nothing to say.
+    component_value : ndarray of shape (P,)
+        Per-component bounds on Var(θ̂_j), max_k Δ_kj²/(exp(λ_k) − 1), units² (P = 1 for scalar θ, equal
+        to the total).
+    component_log10 : ndarray of shape (P,)
+        log10 of `component_value`, exact.
+    component_index : ndarray of int, shape (P,)
+        Index k of the maximising Δ per component; −1 where none.
+    """
 
     value: float
     log10: float
@@ -65,8 +95,35 @@ class HCRResult:
 def hcr_from_lambda(lam, deltas, lower=None, upper=None) -> HCRResult:
     """HCR bound from χ² exponents.
 
-    lam: (K,) λ_k (float64, +inf allowed, ≤ 0 means unresolved); deltas: (K,) or (K, P) offsets
-    Δ_k in parameter units; lower/upper: scalar or (P,) limits on Δ (offsets outside are skipped)."""
+    For an unbiased estimator, MSE(θ̂) ≥ sup_k ‖Δ_k‖²/(exp(λ_k) − 1), evaluated in the log domain (see
+    the module docstring).
+
+    Parameters
+    ----------
+    lam : array_like of shape (K,)
+        λ_k = log(1 + χ²(p_θ*+Δ_k ‖ p_θ*)), float64; +inf allowed (that Δ gives no bound), ≤ 0 means
+        unresolved. NaN or −inf is an error.
+    deltas : array_like of shape (K,) or (K, P)
+        Offsets Δ_k in parameter units.
+    lower, upper : float or array_like of shape (P,), optional
+        Limits on Δ (e.g. Θ − θ*): offsets outside [lower, upper] are skipped. None: no limit.
+
+    Returns
+    -------
+    HCRResult
+        The bound (parameter units²) with its exact log10, the maximising Δ, per-component bounds and
+        flags (`at_edge`, `unresolved`, `reason`).
+
+    Examples
+    --------
+    A model with λ(Δ) = F·Δ² and F = 1 (CRLB = 1): the sup is at the smallest Δ tested, below the CRLB.
+
+    >>> import numpy as np
+    >>> deltas = np.array([0.25, 0.5, 1.0])
+    >>> r = nb.bounds.hcr_from_lambda(deltas**2, deltas)
+    >>> round(r.value, 4), r.delta, r.at_edge
+    (0.9691, 0.25, 'smallest')
+    """
     lam = as_numpy(lam).reshape(-1)
     d = as_numpy(deltas)
     K = lam.size
@@ -141,5 +198,36 @@ def _edge(D: np.ndarray, norm2: np.ndarray, valid: np.ndarray, k: int, scalar: b
 def hcr(L0, L_alt, deltas, noise: NoiseModel, lower=None, upper=None) -> HCRResult:
     """HCR bound at θ* from its image L0 (*S) and images L_alt (K, *S) at θ* + Δ_k.
 
-    deltas: (K,) or (K, P) in parameter units; lower/upper: limits on Δ (e.g. Θ − θ*)."""
+    λ_k = noise.chi2_exponent(L0, L_alt[k]), then `hcr_from_lambda`.
+
+    Parameters
+    ----------
+    L0 : torch.Tensor or array_like of shape (*S)
+        The noise-free image at θ*, radiance units (any float dtype and device).
+    L_alt : torch.Tensor or array_like of shape (K, *S)
+        The images at θ* + Δ_k.
+    deltas : array_like of shape (K,) or (K, P)
+        Offsets Δ_k in parameter units.
+    noise : NoiseModel
+        The observation model (e.g. `nlosbench.noise.AWGN`, `nlosbench.noise.Poisson`).
+    lower, upper : float or array_like of shape (P,), optional
+        Limits on Δ (e.g. Θ − θ*): offsets outside are skipped. None: no limit.
+
+    Returns
+    -------
+    HCRResult
+        The bound on the MSE (parameter units²) with its exact log10; see `hcr_from_lambda`.
+
+    Examples
+    --------
+    L(θ) = θ·g under AWGN with σ = 3 and ‖g‖² = 9: F = ‖g‖²/σ² = 1 per unit θ².
+
+    >>> import numpy as np, torch
+    >>> g = torch.tensor([1.0, 2.0, 2.0])
+    >>> deltas = np.array([0.25, 0.5, 1.0])
+    >>> L_alt = torch.stack([(1.0 + d) * g for d in deltas])
+    >>> r = nb.bounds.hcr(g, L_alt, deltas, nb.noise.AWGN(3.0))
+    >>> round(r.value, 4), r.delta
+    (0.9691, 0.25)
+    """
     return hcr_from_lambda(noise.chi2_exponent(L0, L_alt), deltas, lower, upper)

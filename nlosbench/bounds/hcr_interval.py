@@ -42,12 +42,37 @@ from nlosbench.bounds.ustat import UStat, t_quantile
 class HCRInterval:
     """log10 ends of the HCR (units²) with the terms that set them ("Δ = 0.03", "Δ → 0", or "none").
 
-    point/lower/upper: log10 of the point estimate, the lower end (quote it) and the upper end (+inf: open);
-    level: the confidence level of each end; replicates: R; estimate_only: R < 3; unresolved: the Δ (rows of
-    `deltas`) whose λ_L ≤ 0, which open the upper end; crlb: log10 of the CRLB term alone (1/F̂ or trace F̂⁻¹)
-    with its ends (crlb_lower, crlb_upper, over every FD stage); lower_note: why the lower end is not a
-    confidence limit ("" when it is); step_flags: the FD step's flags; point_loo: (R,) log10 point estimate
-    without replicate k (empty when R < 3)."""
+    Returned by `hcr_interval`; each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    point : float
+        log10 of the point estimate.
+    lower : float
+        log10 of the lower end (quote it): a one-sided lower confidence limit at `level`.
+    upper : float
+        log10 of the upper end (+inf: open).
+    point_term, lower_term, upper_term : str
+        The term that sets each (e.g. "Δ = +0.03", "Δ → 0", "unresolved Δ", "none").
+    level : float
+        The confidence level of each end.
+    replicates : int
+        R, the replicates the statistics come from.
+    estimate_only : bool
+        R < 3: no standard error, both ends are the point estimate.
+    crlb : float
+        log10 of the CRLB term alone (1/F̂ or trace F̂⁻¹), units².
+    crlb_lower, crlb_upper : float
+        Its ends (over every FD stage).
+    unresolved : list, optional
+        The Δ (rows of `deltas`) whose λ_L ≤ 0, which open the upper end.
+    lower_note : str, optional
+        Why the lower end is not a confidence limit ("" when it is).
+    step_flags : tuple of str, optional
+        The FD step's flags.
+    point_loo : ndarray of shape (R,), optional
+        log10 point estimate without replicate k (empty when R < 3).
+    """
 
     point: float
     lower: float
@@ -68,6 +93,7 @@ class HCRInterval:
 
     @property
     def flags(self) -> tuple[str, ...]:
+        """Short tags: estimate-only, unresolved-delta, upper-unbounded, ends-crossed, then the FD step's."""
         out = []
         if self.estimate_only:
             out.append("estimate-only")
@@ -100,10 +126,38 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat | StepFisher, level: float = 
                  upper=None) -> HCRInterval:
     """The HCR interval at θ* (see the module docstring).
 
-    lam: U-statistic of λ over K offsets (est, se: (K,)); deltas: (K,) or (K, P) in parameter units;
-    fisher: the Fisher information of the Δ → 0 term, a StepFisher (every FD stage, with the step check) or
-    one UStat of F (est, se: (P, P); loo (R, P, P) for a vector θ; no step check); lower/upper: limits on Δ
-    (Θ − θ*): offsets outside are left out."""
+    Parameters
+    ----------
+    lam : UStat
+        U-statistic of λ over K offsets (est, se: (K,); loo: (R, K)), e.g. `u_statistic` of the
+        replicate-difference Grams or one row of `pairwise_ustat`.
+    deltas : array_like of shape (K,) or (K, P)
+        Offsets Δ_k, parameter units.
+    fisher : UStat or StepFisher
+        The Fisher information of the Δ → 0 term: a `fd_step.StepFisher` (every FD stage, with the step
+        check; the bound service builds it) or one UStat of F (est, se: (P, P); loo (R, P, P) for a vector
+        θ; no step check), 1/(parameter units)².
+    level : float, optional
+        One-sided confidence of each end, in (0, 1) (Bonferroni over the K tested Δ and the Δ → 0 term).
+    lower, upper : float or array_like of shape (P,), optional
+        Limits on Δ (Θ − θ*): offsets outside are left out. None: no limit.
+
+    Returns
+    -------
+    HCRInterval
+        log10 point estimate and ends of the HCR (parameter units²), with the terms that set them.
+
+    Examples
+    --------
+    λ(Δ) = F·Δ² with F = 1 (CRLB = 1), estimated from R = 10 replicates: the Δ → 0 term sets every end.
+
+    >>> import numpy as np
+    >>> lam = nb.bounds.UStat(np.array([0.25, 1.0]), np.array([0.01, 0.02]), np.empty((0, 2)), 10)
+    >>> F = nb.bounds.UStat(np.array([[1.0]]), np.array([[0.05]]), np.empty((0, 1, 1)), 10)
+    >>> iv = nb.bounds.hcr_interval(lam, np.array([0.5, 1.0]), F)
+    >>> round(iv.lower, 3), iv.point, round(iv.upper, 3), iv.lower_term
+    (-0.051, 0.0, 0.058, 'Δ → 0')
+    """
     d = np.asarray(deltas, dtype=np.float64)
     D = d.reshape(d.shape[0], -1)
     K, P = D.shape

@@ -49,7 +49,20 @@ from nlosbench.noise import NoiseModel, QuadraticNoise, check_finite, to_float64
 
 
 def check_levels(levels: Sequence[int], replicates: int = 1) -> np.ndarray:
-    """`check_spp`, and at least 2 distinct values: the line λ + C/N^p needs two."""
+    """`check_spp`, and at least 2 distinct values: the line λ + C/N^p needs two.
+
+    Parameters
+    ----------
+    levels : sequence of int
+        spp levels N_i.
+    replicates : int, optional
+        R: each level must split into R replicates of N_i/R spp.
+
+    Returns
+    -------
+    ndarray of int, shape (k,)
+        The levels, checked.
+    """
     lv = check_spp(levels, replicates)
     if np.unique(lv).size < 2:
         raise ValueError(f"levels {lv.tolist()}: the fit λ̃ = λ + C/N^p needs at least 2 distinct spp levels "
@@ -66,13 +79,28 @@ def quadratic(noise: NoiseModel) -> QuadraticNoise:
 
 
 def replicate_grams(X0, XD, weight_image, noise: NoiseModel) -> np.ndarray:
-    """Gram matrices (K, R, R) float64 of replicate differences, G_rs = Σ_ω w D_r D_s with
-    D_r = XD[r, k] − X0[r] (direct differences in float64, XD taken to float64 one Δ at a time) and
-    w = noise.weight(weight_image).
+    """Gram matrices (K, R, R) float64 of replicate differences, G_rs = Σ_ω w D_r D_s.
 
-    X0: (R, *S) replicates at θ*; XD: (R, K, *S) replicates at θ*+Δ_k; weight_image: (*S).
-    A Δ whose difference is non-zero at a pixel of infinite weight (Poisson, L0 = 0) gets G = +inf
-    (λ = +inf: that Δ gives no bound), as in `noise.chi2_exponent`."""
+    D_r = XD[r, k] − X0[r] (direct differences in float64, XD taken to float64 one Δ at a time) and
+    w = noise.weight(weight_image). A Δ whose difference is non-zero at a pixel of infinite weight
+    (Poisson, L0 = 0) gets G = +inf (λ = +inf: that Δ gives no bound), as in `noise.chi2_exponent`.
+
+    Parameters
+    ----------
+    X0 : torch.Tensor or array_like of shape (R, *S)
+        Replicates at θ*.
+    XD : torch.Tensor or array_like of shape (R, K, *S)
+        Replicates at θ*+Δ_k.
+    weight_image : torch.Tensor or array_like of shape (*S)
+        The image the noise weight is taken at (the θ* render).
+    noise : NoiseModel
+        A quadratic noise model (λ = Σ_ω w(L0)(L1 − L0)²: AWGN, Poisson); others raise TypeError.
+
+    Returns
+    -------
+    ndarray of shape (K, R, R)
+        The Gram matrix of each Δ, float64.
+    """
     noise = quadratic(noise)
     X0, Lw = to_float64(X0, "X0"), to_float64(weight_image, "weight_image")
     XD = XD if isinstance(XD, torch.Tensor) else torch.as_tensor(np.asarray(XD))
@@ -107,10 +135,22 @@ def lambda_from_grams(G: np.ndarray) -> np.ndarray:
 class LambdaFit:
     """Weighted least-squares fit of λ̃^(N_i) = λ + C/N_i^p over the levels, per Δ.
 
-    lam: λ̂ (…) — ≤ 0 is *unresolved* (kept, never clipped), +inf where some level has λ̃ = +inf;
-    C: the bias coefficient (λ units × spp^p); se: standard error of λ̂ from the weighted residuals
-    (NaN for k = 2 levels, where the line passes through both points); power: p;
-    noise_dominated: C/N_max^p > λ̂ — even at the highest level rendering noise outweighs the signal."""
+    The `fit` of an `InexactHCR`; each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    lam : ndarray of shape (…)
+        λ̂ — ≤ 0 is *unresolved* (kept, never clipped), +inf where some level has λ̃ = +inf.
+    C : ndarray of shape (…)
+        The bias coefficient (λ units × spp^p); NaN where λ̂ = +inf.
+    se : ndarray of shape (…)
+        Standard error of λ̂ from the weighted residuals (NaN for k = 2 levels, where the line passes
+        through both points).
+    power : float
+        The decay rate p used.
+    noise_dominated : ndarray of bool, shape (…)
+        C/N_max^p > λ̂ — even at the highest level rendering noise outweighs the signal.
+    """
 
     lam: np.ndarray
     C: np.ndarray
@@ -121,8 +161,22 @@ class LambdaFit:
 
 def fit_lambda(lam_levels, levels: Sequence[int], power: float = 1.0) -> LambdaFit:
     """Fit λ̃ = λ + C/N^p by weighted least squares with weights N_i^p (the inverse of the O(N^−p)
-    variance of λ̃). lam_levels: (k, …) λ̃ at each level (extra dims: Δ, resamples, …);
-    levels: (k,) spp, at least 2 distinct; power: p > 0 (1 for a path tracer, or `decay_check(...).p`)."""
+    variance of λ̃).
+
+    Parameters
+    ----------
+    lam_levels : array_like of shape (k, …)
+        λ̃ at each level (extra dims: Δ, resamples, …); +inf allowed, NaN and −inf are errors.
+    levels : sequence of int
+        The spp levels (k,), at least 2 distinct.
+    power : float, optional
+        p > 0 (1 for a path tracer, or `decay_check(...).p`).
+
+    Returns
+    -------
+    LambdaFit
+        λ̂, C, the standard error of λ̂ and the noise-dominated flags, each of shape (…).
+    """
     lv = check_levels(levels).astype(np.float64)
     if not (np.isfinite(power) and power > 0):
         raise ValueError(f"power p must be finite and > 0, got {power}")
@@ -159,13 +213,42 @@ class InexactHCR:
     """HCR at one θ* from inexact renders: HCR_Neff (direct, one render set at N_eff) and HCR-hat
     (from λ̂) over the same Δ set; the interval [HCR_Neff, HCR-hat] in log10 (units²).
 
-    lam_levels (k, K): λ̃ per level and Δ; lam_eff (K,): λ̃ at N_eff; fit: the λ̂ fit;
-    hcr_neff, hcr_hat: HCRResult (hcr_hat.unresolved when some λ̂ ≤ 0); width: log10 HCR-hat −
-    log10 HCR_Neff in decades (negative: the ends crossed, `inverted`); ci_neff, ci_hat: bootstrap
-    intervals (log10) at `confidence` — the observed value plus the resamples' spread around their
-    median (`_spread_interval`), NaN without bootstrap; boot_unresolved: fraction
-    of resamples whose HCR-hat was unresolved; samples_levels, samples_eff: spp spent per image by
-    each method (Σ N_i, N_eff)."""
+    Returned by `inexact_hcr`; each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    levels : ndarray of int, shape (k,)
+        Total spp per level.
+    n_eff : int
+        N_eff, the spp of the direct render set.
+    deltas : ndarray of shape (K,) or (K, P)
+        The offsets Δ, parameter units.
+    lam_levels : ndarray of shape (k, K)
+        λ̃ per level and Δ.
+    lam_eff : ndarray of shape (K,)
+        λ̃ at N_eff.
+    fit : LambdaFit
+        The λ̂ fit over the levels.
+    hcr_neff : HCRResult
+        HCR_Neff, from `lam_eff`.
+    hcr_hat : HCRResult
+        HCR-hat, from the fitted λ̂ (`hcr_hat.unresolved` when some λ̂ ≤ 0).
+    width : float
+        log10 HCR-hat − log10 HCR_Neff, in decades (negative: the ends crossed).
+    inverted : bool
+        width < 0.
+    confidence : float
+        The level of the bootstrap intervals.
+    ci_neff, ci_hat : ndarray of shape (2,)
+        Bootstrap intervals (log10) at `confidence` — the observed value plus the resamples' spread
+        around their median (`_spread_interval`), NaN without bootstrap.
+    n_boot : int
+        The number of bootstrap resamples (0: none).
+    boot_unresolved : float
+        Fraction of resamples whose HCR-hat was unresolved (NaN without bootstrap).
+    samples_levels, samples_eff : int
+        spp spent per image by each method (Σ N_i, N_eff).
+    """
 
     levels: np.ndarray
     n_eff: int
@@ -189,13 +272,42 @@ class InexactHCR:
 def inexact_hcr(X0, XD, deltas, levels: Sequence[int], noise: NoiseModel, X0_eff, XD_eff, n_eff: int,
                 lower=None, upper=None, power: float = 1.0, bootstrap: int = 0, confidence: float = 0.9,
                 seed: int = 0) -> InexactHCR:
-    """HCR_Neff, HCR-hat and their bootstrap intervals at one θ*.
+    """HCR_Neff, HCR-hat and their bootstrap intervals at one θ* (see the module docstring).
 
-    X0: (k, R, *S) θ* replicates per level; XD: (k, R, K, *S) θ*+Δ_k replicates; deltas: (K,) or
-    (K, P) parameter units; levels: (k,) total spp per level (R replicates of N_i/R each);
-    X0_eff: (R, *S), XD_eff: (R, K, *S) the N_eff set (R replicates of n_eff/R spp); lower/upper:
-    limits on Δ as in `hcr`; power: decay rate p of the fit; bootstrap: resamples over the
-    replicates (0: none; needs R ≥ 2); seed: the bootstrap's random stream (derive it)."""
+    Parameters
+    ----------
+    X0 : torch.Tensor or array_like of shape (k, R, *S)
+        θ* replicates per level (R replicates of N_i/R spp each).
+    XD : torch.Tensor or array_like of shape (k, R, K, *S)
+        θ*+Δ_k replicates per level.
+    deltas : array_like of shape (K,) or (K, P)
+        Offsets Δ_k, parameter units.
+    levels : sequence of int
+        Total spp per level (k,), at least 2 distinct, each divisible into the R replicates.
+    noise : NoiseModel
+        A quadratic noise model (AWGN, Poisson).
+    X0_eff : torch.Tensor or array_like of shape (R, *S)
+        The N_eff set at θ* (R replicates of n_eff/R spp).
+    XD_eff : torch.Tensor or array_like of shape (R, K, *S)
+        The N_eff set at θ*+Δ_k.
+    n_eff : int
+        N_eff, the spp of the N_eff set (recorded; equal budget: N_eff ≈ Σ N_i).
+    lower, upper : float or array_like of shape (P,), optional
+        Limits on Δ as in `hcr`. None: no limit.
+    power : float, optional
+        Decay rate p of the fit λ̃ = λ + C/N^p (1 for a path tracer, or `decay_check(...).p`).
+    bootstrap : int, optional
+        Half-sample resamples over the replicates (0: none; needs R ≥ 2).
+    confidence : float, optional
+        Level of the bootstrap intervals, in (0, 1).
+    seed : int, optional
+        The bootstrap's random stream (derive it).
+
+    Returns
+    -------
+    InexactHCR
+        HCR_Neff and HCR-hat (parameter units²), the λ̂ fit, and the bootstrap intervals (log10).
+    """
     X0, X0_eff = to_float64(X0, "X0"), to_float64(X0_eff, "X0_eff")
     # the Δ renders stay in their dtype: `replicate_grams` takes them to float64 one Δ at a time
     XD, XD_eff = (x if isinstance(x, torch.Tensor) else torch.as_tensor(np.asarray(x)) for x in (XD, XD_eff))
@@ -247,13 +359,26 @@ def inexact_hcr(X0, XD, deltas, levels: Sequence[int], noise: NoiseModel, X0_eff
 
 
 def half_sample_lambda(G: np.ndarray, masks: np.ndarray) -> np.ndarray:
-    """Resampled λ̃* (B, …) from Grams G (…, R, R) and subset masks (B, …', R) with m ones each
-    (half-samples: m = ⌊R/2⌋; …' = the leading dims of G without the Δ axis, broadcast over Δ).
+    """Resampled λ̃* (B, …) from Grams G (…, R, R) and half-sample subset masks.
 
     λ̃_S = 1_SᵀG1_S/m² is λ̃ of the mean of the replicates in S. Its deviation from its exact mean over
     all subsets, E_S λ̃_S = [(m/R) tr G + m(m−1)/(R(R−1)) (1ᵀG1 − tr G)]/m², scaled by √(m/(R−m))
     (the delete-d jackknife factor), is added to the observed λ̃ = 1ᵀG1/R²: E*[λ̃*] = λ̃ exactly, and
-    Var*(λ̃*) ≈ Var(λ̃) for the mean-linear part."""
+    Var*(λ̃*) ≈ Var(λ̃) for the mean-linear part.
+
+    Parameters
+    ----------
+    G : ndarray of shape (…, R, R)
+        Gram matrices of replicate differences (`replicate_grams`).
+    masks : ndarray of bool, shape (B, …', R)
+        Subset masks with m ones each (half-samples: m = ⌊R/2⌋; …' = the leading dims of G without the
+        Δ axis, broadcast over Δ).
+
+    Returns
+    -------
+    ndarray of shape (B, …)
+        The resampled λ̃* (+inf where G is).
+    """
     R = G.shape[-1]
     m = int(masks.sum(axis=-1).flat[0])
     if R < 2 or not np.all(masks.sum(axis=-1) == m) or not 0 < m < R:

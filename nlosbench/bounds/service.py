@@ -69,15 +69,47 @@ PURPOSE = "bounds"
 
 @dataclass(frozen=True)
 class Bound:
-    """One bound (parameter units²). log10 is exact even where the value underflows; −inf: no usable
-    test point, +inf: no resolved information (see `flags`, `reason`). lower/upper/point: log10 ends and
-    estimate of an interval bound (None where the kind has none); level: the one-sided confidence of each
-    end; terms: which term set each end; delta: the Δ at the sup (HCR family); flags: short tags
-    (sup-at-smallest-delta, sup-at-largest-delta, unresolved, unresolved-delta, no-bound, estimate-only,
-    upper-unbounded, ends-crossed, singular, fd-step-not-converged, fd-step-diverging, zero-pixels=N,
-    grid-limited, plug-in); extra: details; loo: (R,) log10 point estimate without each replicate set (hcr,
-    crlb with R ≥ 3; else empty), for jackknifes of quantities that pair two bounds from the same replicate
-    sets; lower_note / upper_note: why that end is not a confidence limit ("" when it is one)."""
+    """One bound (parameter units²), as every study reports it; frozen.
+
+    log10 is exact even where the value underflows; −inf: no usable test point, +inf: no resolved
+    information (see `flags`, `reason`). Each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    kind : str
+        Which bound: "hcr", "crlb", "hcr_neff", "hcr_hat", "barankin" or "zzb" (see the module docstring).
+    log10 : float
+        log10 of the value to quote (for an interval kind, its lower end).
+    delta : tuple of float, optional
+        The Δ at the sup (HCR family); None where the kind has none.
+    flags : tuple of str, optional
+        Short tags: sup-at-smallest-delta, sup-at-largest-delta, unresolved, unresolved-delta, no-bound,
+        estimate-only, upper-unbounded, ends-crossed, singular, fd-step-not-converged, fd-step-diverging,
+        zero-pixels=N, grid-limited, plug-in, noise-dominated.
+    reason : str, optional
+        What the value is and why it is flagged.
+    lower, upper, point : float, optional
+        log10 ends and estimate of an interval bound (None where the kind has none; upper +inf: open).
+    level : float, optional
+        The one-sided confidence of each end (None without one).
+    terms : str, optional
+        Which term set each end (e.g. "lower: Δ → 0; upper: Δ = +0.1; point: Δ → 0").
+    extra : dict, optional
+        Details (e.g. Barankin's number of points, the ZZB's prior variance).
+    loo : ndarray of shape (R,), optional
+        log10 point estimate without each replicate set (hcr, crlb with R ≥ 3; else empty), for
+        jackknifes of quantities that pair two bounds from the same replicate sets.
+    lower_note, upper_note : str, optional
+        Why that end is not a confidence limit ("" when it is one).
+
+    Examples
+    --------
+    >>> b = nb.bounds.Bound("crlb", -2.0, flags=("singular",))
+    >>> b.value
+    0.01
+    >>> b.columns()["crlb_flags"]
+    'singular'
+    """
 
     kind: str
     log10: float
@@ -100,8 +132,15 @@ class Bound:
         return _exp10(self.log10)
 
     def columns(self) -> dict:
-        """Flat CSV cells: log10_<kind>, then (where present) <kind>_lower/_upper/_point/_level/_terms, with an
-        interval <kind>_lower_note/_upper_note, and <kind>_delta (JSON), <kind>_flags, <kind>_reason."""
+        """Flat CSV cells of this bound.
+
+        Returns
+        -------
+        dict
+            log10_<kind>, then (where present) <kind>_lower/_upper/_point/_level/_terms, with an interval
+            <kind>_lower_note/_upper_note, and <kind>_delta (JSON), <kind>_flags (comma-separated),
+            <kind>_reason.
+        """
         out = {f"log10_{self.kind}": self.log10}
         for name in ("lower", "upper", "point", "level"):
             if getattr(self, name) is not None:
@@ -121,7 +160,21 @@ def _exp10(lg: float) -> float:
 
 @dataclass
 class BoundPoint:
-    """Every bound asked for at one θ for one noise model: noise index and name, θ (P,), {kind: Bound}."""
+    """Every bound asked for at one θ for one noise model.
+
+    Each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    noise_index : int
+        The noise model's index in the service.
+    noise : str
+        Its name (str of the model).
+    theta : ndarray of shape (P,)
+        The parameter point, parameter units.
+    bounds : dict of str to Bound
+        {kind: Bound}.
+    """
 
     noise_index: int
     noise: str
@@ -129,7 +182,18 @@ class BoundPoint:
     bounds: dict[str, Bound]
 
     def row(self, names: Sequence[str]) -> dict:
-        """A CSV row: noise, θ per parameter, then every bound's columns."""
+        """A CSV row: noise, θ per parameter, then every bound's columns.
+
+        Parameters
+        ----------
+        names : sequence of str
+            The parameter names (P), for the theta_<name> columns.
+
+        Returns
+        -------
+        dict
+            noise_index, noise, theta_<name> per parameter, then `Bound.columns` of every bound.
+        """
         out = {"noise_index": self.noise_index, "noise": self.noise,
                **{f"theta_{n}": float(v) for n, v in zip(names, self.theta, strict=True)}}
         for b in self.bounds.values():
@@ -139,8 +203,20 @@ class BoundPoint:
 
 @dataclass
 class Curve:
-    """A bound curve: a BoundPoint per (noise, θ), noise-major, and per noise index the ZZB over the
-    grid's range (None with `zzb_reason` when the grid is not uniform or θ is not scalar)."""
+    """A bound curve over a 1-D grid, returned by `BoundService.curve`.
+
+    Each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    points : list of BoundPoint
+        A BoundPoint per (noise, θ), noise-major.
+    zzb : dict of int to Bound or None
+        Per noise index, the ZZB over the grid's range (None when the grid is not uniform, θ is not scalar
+        or the ZZB was not asked for).
+    zzb_reason : str, optional
+        Why there is no ZZB ("" when there is one or it was not asked for).
+    """
 
     points: list[BoundPoint]
     zzb: dict[int, Bound | None]
@@ -149,10 +225,24 @@ class Curve:
 
 @dataclass
 class FisherPoint:
-    """Per-pixel Fisher information at one θ: the render L (H, W, C), the mean FD Jacobian J (P, H, W, C)
-    over R independent rounds and, per noise index, the unbiased per-pixel maps (P, H, W) (1/units²; they
-    can be negative where rendering noise dominates; they sum to the unbiased F_jj) and the CRLB per
-    parameter (a Bound with its interval)."""
+    """Per-pixel Fisher information at one θ, returned by `BoundService.fisher`.
+
+    Each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    theta : ndarray of shape (P,)
+        The parameter point, parameter units.
+    L : torch.Tensor of shape (H, W, C)
+        The render at θ (also the Poisson weight image).
+    J : torch.Tensor of shape (P, H, W, C)
+        The mean FD Jacobian over R independent rounds (at the finest step tried).
+    maps : dict of int to ndarray of shape (P, H, W)
+        Per noise index, the unbiased per-pixel maps (1/units²; they can be negative where rendering noise
+        dominates; they sum to the unbiased F_jj).
+    crlb : dict of int to list of Bound
+        Per noise index, the CRLB of each parameter (P Bounds with their intervals).
+    """
 
     theta: np.ndarray
     L: torch.Tensor
@@ -231,8 +321,19 @@ def axis_offsets(params, theta: np.ndarray, count: int, step: float) -> np.ndarr
 
 
 class BoundService:
-    """Bounds from the render bank `bank` for the noise models `noises` (index → model, or a list), with
-    one-sided confidence `level` for every interval end."""
+    """Bounds from a render bank for a set of noise models (see the module docstring).
+
+    Parameters
+    ----------
+    bank : RenderBank
+        The run's render bank (`nlosbench.RenderBank`): it renders, caches and seeds every render set, and
+        its model's parameter space Θ bounds every Δ.
+    noises : dict of int to NoiseModel, or sequence of NoiseModel
+        The noise models (index → model; a list is indexed 0, 1, …). Bounds from replicated renders need
+        quadratic models (AWGN, Poisson).
+    level : float, optional
+        One-sided confidence of every interval end, in (0, 1).
+    """
 
     def __init__(self, bank: RenderBank, noises: dict[int, NoiseModel] | Sequence[NoiseModel], level: float = 0.95):
         if not 0 < level < 1:
@@ -247,7 +348,27 @@ class BoundService:
 
     # -- render sets -----------------------------------------------------------------------------------
     def replicates(self, points, spp: int, seeds: str, R: int, desc: str = "bound renders") -> torch.Tensor:
-        """Renders (R, N, *S) of points (N, P) in the R replicate sets (see the module docstring)."""
+        """Renders (R, N, *S) of points (N, P) in the R replicate sets (see the module docstring).
+
+        Parameters
+        ----------
+        points : array_like of shape (N, P) or (N,)
+            The parameter points, parameter units.
+        spp : int
+            Samples per pixel of each render.
+        seeds : {"common", "independent"}
+            "common": every θ of a replicate shares its seed (common random numbers across θ);
+            "independent": a seed per θ.
+        R : int
+            The number of replicate sets (replicate r = 0 … R−1 of purpose "bounds").
+        desc : str, optional
+            Progress label.
+
+        Returns
+        -------
+        torch.Tensor of shape (R, N, *S)
+            The renders, float32 (as the bank returns them).
+        """
         _check(seeds, R)
         pts = np.asarray(points, dtype=np.float64).reshape(-1, self.params.dim)
         return torch.stack([self.bank.at(pts, spp, PURPOSE, seeds == "common", r, desc=f"{desc} (replicate {r})")
@@ -351,16 +472,55 @@ class BoundService:
     def curve(self, thetas, spp: int, seeds: str = "common", replicates: int = 3, crlb: bool = True,
               barankin: bool = False, zzb: bool = True, prior=None, noises=None, fd_step: float | None = None,
               gradient: str = "fd", ad: dict | None = None, check_step: bool = True, step_tol: float = 0.1) -> Curve:
-        """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders: the HCR interval (test points:
-        the other grid points inside Θ, and Δ → 0), the CRLB, the paper's HCR_Neff, optionally Barankin, and
-        on a uniform grid the ZZB over the grid's range (`prior`: a density on the grid, default uniform).
-        The Δ → 0 term's Jacobian: FD from the grid neighbours (fd_step None with common seeds: no extra render;
-        the step h checked against 2h, with the one-sided neighbour differences as variants), FD at θ ± ξ (with
-        independent seeds ξ defaults to the grid's smallest spacing; 2R renders per θ, checked against ξ/2 with
-        2R more unless `check_step` is off), or with gradient "ad" Mitsuba AD with integrator options `ad`.
-        A curve does not refine its step further (`at` does, for the θ a study quotes): where the check does
-        not show F converged within 1 + `step_tol`, the Δ → 0 ends are labelled. Poisson weights come from
-        one independent render per grid θ. A BoundPoint per (noise, θ), noise-major."""
+        """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders.
+
+        The HCR interval (test points: the other grid points inside Θ, and Δ → 0), the CRLB, the paper's
+        HCR_Neff, optionally Barankin, and on a uniform grid the ZZB over the grid's range. The Δ → 0
+        term's Jacobian: FD from the grid neighbours (fd_step None with common seeds: no extra render; the
+        step h checked against 2h, with the one-sided neighbour differences as variants), FD at θ ± ξ (with
+        independent seeds ξ defaults to the grid's smallest spacing; 2R renders per θ, checked against ξ/2
+        with 2R more unless `check_step` is off), or with gradient "ad" Mitsuba AD with integrator options
+        `ad`. A curve does not refine its step further (`at` does, for the θ a study quotes): where the
+        check does not show F converged within 1 + `step_tol`, the Δ → 0 ends are labelled. Poisson
+        weights come from one independent render per grid θ.
+
+        Parameters
+        ----------
+        thetas : array_like of shape (G,)
+            At least 3 increasing grid points of the (scalar) parameter, parameter units.
+        spp : int
+            Samples per pixel of each replicate render.
+        seeds : {"common", "independent"}, optional
+            Common random numbers across θ within a replicate, or a seed per θ.
+        replicates : int, optional
+            R ≥ 2 independent replicates per grid point (≥ 3 for confidence limits).
+        crlb : bool, optional
+            Report the CRLB.
+        barankin : bool, optional
+            Report the plug-in Barankin bound.
+        zzb : bool, optional
+            Report the ZZB (uniform grids only).
+        prior : array_like of shape (G,), optional
+            The ZZB's prior density on the grid; None: uniform.
+        noises : iterable of int, optional
+            The noise indices (keys of the service's `noises`) to compute bounds for; None: every model.
+        fd_step : float, optional
+            FD step ξ in parameter units; None: the grid neighbours (common seeds) or the grid's smallest
+            spacing (independent seeds).
+        gradient : {"fd", "ad"}, optional
+            How the Δ → 0 term's Jacobian is computed.
+        ad : dict, optional
+            Integrator options for gradient "ad".
+        check_step : bool, optional
+            With explicit FD stencils, also render at ξ/2 to check the step.
+        step_tol : float, optional
+            Relative tolerance of the step check (0.1: F within 10 %).
+
+        Returns
+        -------
+        Curve
+            A BoundPoint per (noise, θ), noise-major, and the ZZB per noise index.
+        """
         if self.params.dim != 1:
             raise ValueError(f"a bound curve needs one parameter; the model has {list(self.params.names)}")
         T = np.asarray(thetas, dtype=np.float64).reshape(-1)
@@ -452,12 +612,46 @@ class BoundService:
            replicates: int = 3, test_grid: int = 21, offsets: int = 4, fd_step: float = 0.01,
            levels: Sequence[int] = (1024, 2048), noises=None, step_tol: float = 0.1,
            max_halvings: int = 3) -> list[BoundPoint]:
-        """Every bound in `want` (hcr, crlb, hcr_neff, barankin, hcr_hat) at each θ* (T, P), a BoundPoint per
-        (noise, θ*), noise-major. Test Δ: a `test_grid`^P grid over Θ (shared by every θ*, points equal to
-        θ* skipped) and the offsets ±ξ·2^k (k < `offsets`) along each axis; the Δ → 0 term and the CRLB
-        from FD rounds at step ξ, halved (with the same seeds) until F is shown to have stopped rising within
-        1 + `step_tol`, at most `max_halvings` times (`fd_step`); HCR-hat fits λ over the spp `levels`.
-        "hcr" also reports the paper's hcr_neff. Poisson weights come from one independent render per θ*."""
+        """Every bound in `want` (hcr, crlb, hcr_neff, barankin, hcr_hat) at each θ* (T, P).
+
+        Test Δ: a `test_grid`^P grid over Θ (shared by every θ*, points equal to θ* skipped) and the
+        offsets ±ξ·2^k (k < `offsets`) along each axis; the Δ → 0 term and the CRLB from FD rounds at step
+        ξ, halved (with the same seeds) until F is shown to have stopped rising within 1 + `step_tol`, at
+        most `max_halvings` times (`fd_step`); HCR-hat fits λ over the spp `levels`. "hcr" also reports the
+        paper's hcr_neff. Poisson weights come from one independent render per θ*.
+
+        Parameters
+        ----------
+        thetas : array_like of shape (T, P) or (T,)
+            The points θ*, parameter units.
+        spp : int
+            Samples per pixel of each replicate render.
+        want : sequence of str, optional
+            The kinds to compute, from "hcr", "crlb", "hcr_neff", "barankin" (scalar θ only), "hcr_hat".
+        seeds : {"common", "independent"}, optional
+            Common random numbers across θ within a replicate, or a seed per θ.
+        replicates : int, optional
+            R ≥ 2 independent replicates of every render set (≥ 3 for confidence limits).
+        test_grid : int, optional
+            Points per axis of the grid of test points over Θ.
+        offsets : int, optional
+            Number of axis offsets ±ξ·2^k per side and axis.
+        fd_step : float, optional
+            The first FD step ξ, parameter units (also the base of the axis offsets).
+        levels : sequence of int, optional
+            spp levels of the HCR-hat fit (at least 2 distinct).
+        noises : iterable of int, optional
+            The noise indices (keys of the service's `noises`) to compute bounds for; None: every model.
+        step_tol : float, optional
+            Relative tolerance of the step check (0.1: F within 10 %).
+        max_halvings : int, optional
+            The most halvings of ξ, in [0, 12].
+
+        Returns
+        -------
+        list of BoundPoint
+            A BoundPoint per (noise, θ*), noise-major, with a Bound per kind asked for.
+        """
         known = {"hcr", "crlb", "hcr_neff", "barankin", "hcr_hat"}
         bad = sorted(set(want) - known)
         if bad:
@@ -524,11 +718,37 @@ class BoundService:
     # -- Fisher information ------------------------------------------------------------------------------
     def fisher(self, thetas, spp: int, fd_step: float = 0.01, rounds: int = 3, reduce: str = "sum",
                noises=None, step_tol: float = 0.1, max_halvings: int = 3) -> list[FisherPoint]:
-        """Unbiased per-pixel Fisher information maps and the CRLB per parameter at each θ (T, P): a render
-        (purpose "fisher", the Poisson weight image) and `rounds` independent central-FD Jacobians (common
-        random numbers inside each stencil; purpose "fisher-fd", replicate r) per θ at step ξ, halved with the
-        same seeds until F has stopped rising within 1 + `step_tol` (at most `max_halvings` times); maps and
-        bounds from the finest step."""
+        """Unbiased per-pixel Fisher information maps and the CRLB per parameter at each θ (T, P).
+
+        Per θ: a render (purpose "fisher", the Poisson weight image) and `rounds` independent central-FD
+        Jacobians (common random numbers inside each stencil; purpose "fisher-fd", replicate r) at step ξ,
+        halved with the same seeds until F has stopped rising within 1 + `step_tol` (at most
+        `max_halvings` times); maps and bounds from the finest step.
+
+        Parameters
+        ----------
+        thetas : array_like of shape (T, P) or (T,)
+            The parameter points, parameter units.
+        spp : int
+            Samples per pixel of each render.
+        fd_step : float, optional
+            The first FD step ξ, parameter units.
+        rounds : int, optional
+            R ≥ 2 independent FD rounds (≥ 3 for confidence limits).
+        reduce : {"sum", "mean"}, optional
+            How each map combines the channels (sum: the map sums to F_jj).
+        noises : iterable of int, optional
+            The noise indices (keys of the service's `noises`) to compute maps for; None: every model.
+        step_tol : float, optional
+            Relative tolerance of the step check (0.1: F within 10 %).
+        max_halvings : int, optional
+            The most halvings of ξ, in [0, 12].
+
+        Returns
+        -------
+        list of FisherPoint
+            One per θ: the render, the mean Jacobian, and per noise index the maps and CRLBs.
+        """
         if rounds < 2:
             raise ValueError(f"an unbiased Fisher information needs >= 2 independent FD rounds, got {rounds}")
         if reduce not in ("sum", "mean"):
@@ -566,10 +786,43 @@ class BoundService:
     def interval(self, thetas, deltas, levels: Sequence[int], n_eff: int, replicates: int, power: float = 1.0,
                  bootstrap: int = 0, confidence: float = 0.9, boot_seed: int = 0, seeds: str = "independent",
                  noises=None) -> list[tuple[BoundPoint, InexactHCR]]:
-        """The paper's [HCR_Neff, HCR-hat] at each scalar θ* from render sets of every θ* and θ* + Δ (Δ inside
-        Θ): k spp levels × R replicates (purpose "inexact-levels") and R replicates at N_eff (purpose
-        "inexact-neff"); a render serves every θ* that uses it. Returns (BoundPoint with hcr_neff and
-        hcr_hat, the full InexactHCR) per (noise, θ*), noise-major. `boot_seed` drives the bootstrap."""
+        """The paper's [HCR_Neff, HCR-hat] at each scalar θ* (see `inexact_hcr`).
+
+        From render sets of every θ* and θ* + Δ (Δ inside Θ): k spp levels × R replicates (purpose
+        "inexact-levels") and R replicates at N_eff (purpose "inexact-neff"); a render serves every θ* that
+        uses it.
+
+        Parameters
+        ----------
+        thetas : array_like of shape (T,)
+            The points θ* of the (scalar) parameter, parameter units.
+        deltas : array_like of shape (K,)
+            Offsets Δ (0 and those that leave Θ are dropped per θ*).
+        levels : sequence of int
+            Total spp per level (at least 2 distinct), each divisible by `replicates`.
+        n_eff : int
+            N_eff, the spp of the direct render set (equal budget: N_eff ≈ Σ N_i), divisible by `replicates`.
+        replicates : int
+            R replicates of each render set (N/R spp each).
+        power : float, optional
+            Decay rate p of the fit λ̃ = λ + C/N^p.
+        bootstrap : int, optional
+            Half-sample bootstrap resamples (0: none).
+        confidence : float, optional
+            Level of the bootstrap intervals, in (0, 1).
+        boot_seed : int, optional
+            Drives the bootstrap (a stream per noise model and θ* is derived from it).
+        seeds : {"independent", "common"}, optional
+            A seed per θ, or common random numbers across θ within a (level, replicate).
+        noises : iterable of int, optional
+            The noise indices (keys of the service's `noises`) to compute bounds for; None: every model.
+
+        Returns
+        -------
+        list of (BoundPoint, InexactHCR)
+            Per (noise, θ*), noise-major: a BoundPoint with the hcr_neff and hcr_hat Bounds, and the full
+            InexactHCR.
+        """
         if self.params.dim != 1:
             raise ValueError(f"the HCR interval needs one parameter; the model has {list(self.params.names)}")
         _check(seeds, replicates)
@@ -592,8 +845,27 @@ class BoundService:
 
     def interval_renders(self, thetas, deltas, levels: Sequence[int], replicates: int,
                          seeds: str = "independent") -> torch.Tensor:
-        """The level renders (k, R, Q, H, W, C) of `interval`'s render points (from the bank: no new
-        renders once `interval` ran), e.g. for the 1/N decay check."""
+        """The level renders of `interval`'s render points (no new renders once `interval` ran), e.g. for
+        the 1/N decay check.
+
+        Parameters
+        ----------
+        thetas : array_like of shape (T,)
+            The points θ*, as given to `interval`.
+        deltas : array_like of shape (K,)
+            The offsets Δ, as given to `interval`.
+        levels : sequence of int
+            Total spp per level, as given to `interval`.
+        replicates : int
+            R, as given to `interval`.
+        seeds : {"independent", "common"}, optional
+            As given to `interval`.
+
+        Returns
+        -------
+        torch.Tensor of shape (k, R, Q, H, W, C)
+            The renders of the Q unique render points (θ* and θ* + Δ inside Θ) at each level and replicate.
+        """
         points, _ = interval_points(thetas, deltas, self.params.lower[0], self.params.upper[0])
         return self.bank.levels_at(points, levels, replicates, "inexact-levels", seeds == "common")
 

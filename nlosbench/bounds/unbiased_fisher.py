@@ -44,11 +44,25 @@ from nlosbench.noise import QuadraticNoise, check_finite, to_float64
 class UnbiasedFisher:
     """F̂ (P, P) float64 from R independent FD Jacobians, with its jackknife standard error.
 
-    F: the U-statistic (units: 1/(parameter units)²); se: jackknife SE of each entry (P, P), NaN when R = 2;
-    rounds: R; leave_one_out: F̂ without round k (R, P, P) (empty for R = 2); single: each round's own
-    plug-in (single-pair) estimate Σ w J̃_r J̃_rᵀ (R, P, P), biased high — for comparison only;
-    pixel_map: the unbiased per-pixel information of each parameter (P, *S) (diagonal terms; noisy,
-    may be negative), sums to diag(F)."""
+    Returned by `unbiased_fisher`; each parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    F : ndarray of shape (P, P)
+        The U-statistic F̂ (units: 1/(parameter units)²); may be ≤ 0 or indefinite where rendering noise
+        dominates (reported, not clipped).
+    se : ndarray of shape (P, P)
+        Jackknife SE of each entry, NaN when R = 2.
+    rounds : int
+        R, the number of independent FD rounds.
+    leave_one_out : ndarray of shape (R, P, P)
+        F̂ without round k (empty for R = 2).
+    single : ndarray of shape (R, P, P)
+        Each round's own plug-in (single-pair) estimate Σ w J̃_r J̃_rᵀ, biased high — for comparison only.
+    pixel_map : ndarray of shape (P, *S)
+        The unbiased per-pixel information of each parameter (diagonal terms; noisy, may be negative);
+        sums to diag(F).
+    """
 
     F: np.ndarray
     se: np.ndarray
@@ -63,17 +77,42 @@ class UnbiasedFisher:
         return self.single.mean(axis=0) - self.F
 
     def quantile(self, level: float = 0.95) -> float:
-        """Two-sided Student-t quantile with R − 1 degrees of freedom for a `level` interval (R = 5: 2.78)."""
+        """Two-sided Student-t quantile with R − 1 degrees of freedom for a `level` interval (R = 5: 2.78).
+
+        Parameters
+        ----------
+        level : float, optional
+            The two-sided confidence level, in (0, 1).
+
+        Returns
+        -------
+        float
+            The quantile z, so that F̂ ± z·SE is the `level` interval.
+        """
         from scipy import stats
 
         return float(stats.t.ppf(0.5 + level / 2, self.rounds - 1))
 
     def crlb_interval(self, level: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(CRLB, lower, upper) per component (P,), units². CRLB = diag(F̂⁻¹) (+inf where F̂ is not
-        positive definite). With z the Student-t quantile for `level` (R − 1 degrees of freedom): for P = 1
-        the interval is [1/(F̂ + z·SE), 1/(F̂ − z·SE)] (upper end +inf when F̂ − z·SE ≤ 0), the CRLBs at the
-        ends of F̂'s interval; for P > 1, CRLB ± z·(jackknife SE of the CRLB from the leave-one-out F̂s).
-        NaN ends when R = 2 (no SE)."""
+        """(CRLB, lower, upper) per component (P,), units².
+
+        CRLB = diag(F̂⁻¹) (+inf where F̂ is not positive definite). With z the Student-t quantile for
+        `level` (R − 1 degrees of freedom): for P = 1 the interval is [1/(F̂ + z·SE), 1/(F̂ − z·SE)] (upper
+        end +inf when F̂ − z·SE ≤ 0), the CRLBs at the ends of F̂'s interval; for P > 1, CRLB ± z·(jackknife
+        SE of the CRLB from the leave-one-out F̂s). NaN ends when R = 2 (no SE).
+
+        Parameters
+        ----------
+        level : float, optional
+            The two-sided confidence level, in (0, 1).
+
+        Returns
+        -------
+        crlb : ndarray of shape (P,)
+            diag(F̂⁻¹), parameter units².
+        lower, upper : ndarray of shape (P,)
+            The interval's ends, parameter units².
+        """
         P = self.F.shape[0]
         value = _crlb(self.F)
         if self.rounds < 3:
@@ -102,13 +141,39 @@ def _crlb(F: np.ndarray) -> np.ndarray:
 def unbiased_fisher(J, weight, L=None) -> UnbiasedFisher:
     """The U-statistic F̂ from R ≥ 2 independent FD Jacobians.
 
-    J: (R, P, *S) float (any float dtype; tensor or array): round r's central-FD Jacobian of the image
-    (pixels × channels *S) for each of the P parameters, every round from its own seeds (common random
-    numbers only inside each ±ξ pair). weight: a quadratic noise model (`nlosbench.noise.AWGN`: 1/σ²;
-    `Poisson`: scale/L, which needs `L`) or a per-pixel weight array broadcastable to *S (≥ 0, finite).
-    L: (*S) mean image for a noise model whose weight depends on it; it must not come from the rounds'
-    renders (use an independent, high-spp render). Computed in float64 from direct products
-    J̃_r·J̃_s (no norms): G_rs = Σ_ω w J̃_r J̃_sᵀ, F̂ = Σ_{r≠s} G_rs / (R(R−1)), symmetrised."""
+    Computed in float64 from direct products J̃_r·J̃_s (no norms): G_rs = Σ_ω w J̃_r J̃_sᵀ,
+    F̂ = Σ_{r≠s} G_rs / (R(R−1)), symmetrised.
+
+    Parameters
+    ----------
+    J : torch.Tensor or array_like of shape (R, P, *S)
+        Round r's central-FD Jacobian of the image (pixels × channels, shape S) for each of the P
+        parameters, any float dtype; every round from its own seeds (common random numbers only inside
+        each ±ξ pair).
+    weight : QuadraticNoise or array_like
+        A quadratic noise model (`nlosbench.noise.AWGN`: 1/σ²; `Poisson`: scale/L, which needs `L`) or a
+        per-pixel weight array broadcastable to the image shape S (≥ 0, finite).
+    L : torch.Tensor or array_like of shape (*S), optional
+        Mean image for a noise model whose weight depends on it; it must not come from the rounds'
+        renders (use an independent, high-spp render). Only with a noise model.
+
+    Returns
+    -------
+    UnbiasedFisher
+        F̂ (P, P) in 1/(parameter units)², its jackknife SE, the leave-one-outs, the biased single-pair
+        estimates and the per-pixel map.
+
+    Examples
+    --------
+    Four rounds of a noisy Jacobian of L(θ) = θ·g under AWGN with F = 1:
+
+    >>> import numpy as np
+    >>> g = np.array([1.0, 2.0, 2.0])
+    >>> J = (g + 0.1 * np.random.default_rng(0).standard_normal((4, 3)))[:, None]
+    >>> u = nb.bounds.unbiased_fisher(J, nb.noise.AWGN(3.0))
+    >>> u.F.round(3), u.se.round(3)
+    (array([[1.001]]), array([[0.021]]))
+    """
     J = to_float64(J, "J")
     check_finite(J, "J")
     if J.ndim < 3:

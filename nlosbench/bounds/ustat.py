@@ -31,9 +31,24 @@ import numpy as np
 
 @dataclass
 class UStat:
-    """est (*T): the U-statistic; se (*T): its standard error (NaN for R = 2); loo (R, *T): the estimate
-    without replicate k (empty for R = 2); replicates: R; df (*T): degrees of freedom of the SE (None:
-    R − 1, the replicate jackknife's)."""
+    """A U-statistic over R independent replicates, with its standard error and leave-one-out values.
+
+    Returned by `u_statistic` and `pairwise_ustat`, read by `hcr_interval` and `zzb_interval`; each
+    parameter below is stored as the attribute of the same name.
+
+    Parameters
+    ----------
+    est : ndarray of shape (*T)
+        The U-statistic (unbiased; may be ≤ 0 where the signal is below the rendering noise).
+    se : ndarray of shape (*T)
+        Its standard error (NaN for R = 2).
+    loo : ndarray of shape (R, *T)
+        The estimate without replicate k (empty for R = 2).
+    replicates : int
+        R.
+    df : ndarray of shape (*T) or None, optional
+        Degrees of freedom of the SE (None: R − 1, the replicate jackknife's).
+    """
 
     est: np.ndarray
     se: np.ndarray
@@ -49,8 +64,33 @@ class UStat:
 
 
 def u_statistic(G: np.ndarray) -> UStat:
-    """The U-statistic and its jackknife from Grams G (R, R, *T) (G_rs = Σ_ω w D_r D_s, any trailing
-    shape *T, e.g. (K,) offsets or (P, P) parameter pairs), float64."""
+    """The U-statistic and its jackknife from Grams G (R, R, *T).
+
+    est = Σ_{r≠s} G_rs / (R(R−1)), unbiased for Σ_ω w d²; the SE is the delete-one jackknife over
+    replicates, with R − 1 degrees of freedom.
+
+    Parameters
+    ----------
+    G : array_like of shape (R, R, *T)
+        G_rs = Σ_ω w D_r D_s over R ≥ 2 replicates, with any trailing shape (*T), e.g. (K,) offsets or
+        (P, P) parameter pairs; taken to float64.
+
+    Returns
+    -------
+    UStat
+        est (*T), se (*T) (NaN for R = 2), loo (R, *T) (empty for R = 2), replicates R.
+
+    Examples
+    --------
+    Four replicates of a scalar D_r with mean 1: est is unbiased for d² = 1, the plug-in D̄² carries
+    the noise.
+
+    >>> import numpy as np
+    >>> D = np.array([1.1, 0.9, 1.2, 0.8])
+    >>> u = nb.bounds.u_statistic(np.outer(D, D))
+    >>> round(float(u.est), 4), round(float(u.se), 4)
+    (0.9917, 0.1828)
+    """
     G = np.asarray(G, dtype=np.float64)
     R = G.shape[0]
     if G.ndim < 2 or G.shape[1] != R or R < 2:
@@ -132,11 +172,34 @@ def pixel_ustat(X, weights, chunk_bytes: int = 256 * 2**20) -> UStat:
 
 
 def pairwise_ustat(X, weights, chunk_bytes: int = 256 * 2**20) -> UStat:
-    """U-statistics of Σ_ω w_i (X_r[j] − X_r[i])² over R replicates for every pair of G points: est (G, G)
-    (diagonal 0), se and df (G, G) as in `pixel_ustat` (independent pixels), loo (R, G, G).
+    """U-statistics of Σ_ω w_i (X_r[j] − X_r[i])² over R replicates for every pair of G points.
 
-    X: (R, G, N) float (replicate r of point i, pixels flattened); weights: a scalar, an (N,) array, or
-    (G, N) (row i weights the pairs (i, j), e.g. scale / L_i for Poisson). Differences are direct (float64)."""
+    est (G, G) (diagonal 0), se and df (G, G) as in `pixel_ustat` (independent pixels: per-pixel jackknife
+    variances summed, Satterthwaite's degrees of freedom), loo (R, G, G). Differences are direct (float64).
+
+    Parameters
+    ----------
+    X : array_like of shape (R, G, N)
+        Replicate r of point i, pixels flattened (any float dtype).
+    weights : float or array_like of shape (N,) or (G, N)
+        The per-pixel weight: a scalar (AWGN 1/σ²), an (N,) array, or (G, N) where row i weights the pairs
+        (i, j) (e.g. scale / L_i for Poisson).
+    chunk_bytes : int, optional
+        float64 working memory per block, in bytes.
+
+    Returns
+    -------
+    UStat
+        est, se, df (G, G) and loo (R, G, G) (empty for R = 2): for weights 1/σ², λ[i, j] with θ* = θ_i.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> X = np.random.default_rng(0).normal(size=(5, 3, 100)) + np.array([0.0, 0.1, 0.2])[:, None]
+    >>> u = nb.bounds.pairwise_ustat(X, 1.0)
+    >>> u.est.shape, u.loo.shape, float(u.est[0, 0])
+    ((3, 3), (5, 3, 3), 0.0)
+    """
     X = np.asarray(X)
     R, G, N = X.shape
     W = np.broadcast_to(np.asarray(weights, dtype=np.float64), (G, N)) if np.ndim(weights) else None
