@@ -17,6 +17,7 @@ is gone — killed with SIGKILL included — so no worker outlives the run (`_in
 """
 from __future__ import annotations
 
+import errno
 import json
 import multiprocessing
 import os
@@ -174,6 +175,38 @@ def _check_workers(workers) -> int:
     return int(workers)
 
 
+class SharedMemoryError(OSError):
+    """/dev/shm is full or too small for the tensors passed between the run and its pool workers."""
+
+
+#: the one line of a full /dev/shm: what it is and how to fix it
+SHM_FULL = ("shared memory (/dev/shm) is full or too small: torch passes the images between the run and its pool "
+            "workers through it; mount a larger /dev/shm (Docker: --shm-size=2g; Kubernetes: an emptyDir with medium: "
+            "Memory at /dev/shm) or set executor.type: serial (no worker processes)")
+
+
+def _shm_full(e: BaseException) -> bool:
+    """Whether `e` says shared memory ran out: torch's `unable to allocate shared memory` / `unable to write to
+    file </torch_...>` (a RuntimeError, raised here or in a worker) or ENOSPC creating the pool's semaphores and
+    queues (an OSError naming no file or a file in /dev/shm)."""
+    text = str(e)
+    if isinstance(e, OSError):
+        return e.errno == errno.ENOSPC and (e.filename is None or str(e.filename).startswith("/dev/shm"))
+    return isinstance(e, RuntimeError) and ("shared memory" in text or "/dev/shm" in text
+                                            or ("</torch_" in text and "No space left" in text))
+
+
+@contextmanager
+def _shared_memory_errors() -> Iterator[None]:
+    """A full /dev/shm becomes a `SharedMemoryError` saying so (`SHM_FULL`); any other error passes."""
+    try:
+        yield
+    except (RuntimeError, OSError) as e:
+        if _shm_full(e):
+            raise SharedMemoryError(SHM_FULL) from e
+        raise
+
+
 class LocalPoolExecutor(Executor):
     """A pool of `workers` spawned processes, each loading the scene once (on its first task) and
     using `threads` CPU threads for torch and Dr.Jit (default: cores / workers). At most
@@ -185,9 +218,13 @@ class LocalPoolExecutor(Executor):
         self._pool: ProcessPoolExecutor | None = None
 
     def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_init_worker, initargs=(os.getpid(),))
+        with _shared_memory_errors():
+            if self._pool is None:
+                self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                                 initializer=_init_worker, initargs=(os.getpid(),))
+            yield from self._results(fn, items)
+
+    def _results(self, fn: Callable, items: Iterable) -> Iterator:
         pending, queue = set(), iter(items)
         try:
             while True:

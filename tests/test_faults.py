@@ -710,3 +710,94 @@ def test_report_refuses_a_table_cut_short(two_studies, tmp_path, capsys):
     assert rc == 2 and errors(err) == [f"nlosbench: error: {table}: has 3 rows, results.json says {len(rows) - 1}: "
                                        f"a report from it would be wrong; resume the run (nlosbench run <its config> "
                                        f"--out {run} --resume) to rebuild it"], err
+
+
+# -- the small ones: a study id, a damaged rate, a record log that cannot be written, a full /dev/shm -------------
+@pytest.mark.parametrize("sid", ["../escape", "a/b", "/abs", "..", ".", "", "a\\b"])
+def test_a_study_id_that_is_not_a_plain_name_is_refused(tmp_path, capsys, sid):
+    """A study `id` is the study's folder in the run directory: one with a path separator, `..`, `.` or empty
+    (which would write outside the run folder, or into it) is exit 2 at config time, one line naming
+    `studies[0].id`, nothing written (neither the run folder nor the folder the id points at)."""
+    run = tmp_path / "out" / "run"
+    rc, err = cli(capsys, "run", config(tmp_path, EDGE, [{**BOUNDS, "id": sid}]), "--out", run, "--quiet")
+    assert rc == 2 and errors(err) == [f"nlosbench: error: studies[0].id: expected a plain name (no path separator, "
+                                       f"not '.' or '..', not empty), got {sid!r}"], err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "escape").exists()
+
+
+@pytest.mark.parametrize("bad", [float("nan"), 0.0, -1e-9, float("inf"), "fast"])
+def test_a_damaged_rate_is_measured_again_so_the_hour_guard_holds(tmp_path, capsys, monkeypatch, bad):
+    """~/.cache/nlosbench/rates.json (here under a temporary XDG_CACHE_HOME) edited so that the scene's rate is
+    NaN, 0, negative, infinite or text: a run of days without --yes is still refused (exit 2 with a finite
+    estimate; before, NaN or a rate <= 0 made the estimate NaN or 0 and the run started), and the rate is
+    measured again and kept."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    cfg = config(tmp_path, EDGE, [{**BOUNDS, "spp": 10 ** 12}])
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "first")[0] == 2
+    rates = tmp_path / "xdg" / "nlosbench" / "rates.json"
+    kept = json.loads(rates.read_text())
+    rates.write_text(json.dumps({k: {**v, "seconds_per_sample": bad} for k, v in kept.items()}))
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "run")
+    assert rc == 2 and "pass --yes to run it" in errors(err)[0] and "(measured now)" in err, err
+    assert "days" in errors(err)[0] and not (tmp_path / "run").exists()
+    again = [v["seconds_per_sample"] for v in json.loads(rates.read_text()).values()]
+    assert len(again) == 1 and 0 < again[0] < float("inf")
+
+
+@linux
+def test_a_record_log_that_cannot_be_written_names_its_file(tmp_path, capsys, monkeypatch):
+    """A full disk while a trial's record is appended (simulated: os.fsync raises ENOSPC on trials.jsonl, as it
+    does when the data is flushed; such an error carries no file name): exit 1, one line naming trials.jsonl,
+    'No space left on device (ENOSPC)' and how to resume, not a bare '[Errno 28]'. The record logs of every
+    study (trials, viewpoints) are one `RecordLog`."""
+    import errno
+
+    cfg = config(tmp_path, EDGE, [TRIALS])
+    run = tmp_path / "run"
+    real = os.fsync
+
+    def full(fd):
+        if os.readlink(f"/proc/self/fd/{fd}").endswith("trials.jsonl"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(fd)
+
+    monkeypatch.setattr(os, "fsync", full)
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    log = run / "00-trials" / "trials.jsonl"
+    assert rc == 1 and errors(err) == [
+        f"nlosbench: error: No space left on device (ENOSPC): {log} — free space on that disk or use another --out; "
+        f"resume with: nlosbench run {cfg} --out {run} --resume"], err
+
+
+@pytest.mark.parametrize("where", ["a result", "the pool's queues"])
+def test_a_full_dev_shm_is_one_line_naming_it_and_the_fix(tmp_path, capsys, monkeypatch, where):
+    """A full /dev/shm (simulated, not filled: the pool is replaced by one that fails as torch and multiprocessing
+    do) — a worker's image cannot be put in shared memory (torch's RuntimeError 'unable to write to file
+    </torch_...>: No space left on device') or the pool's semaphores cannot be made (ENOSPC, no file named):
+    exit 1, one line naming /dev/shm and the fixes, with how to resume; not a RuntimeError traceback nor a
+    'free space on that disk or use another --out' that sends one to the wrong disk."""
+    import errno
+    from concurrent.futures import Future
+
+    from nlosbench import executors
+
+    class FullShm:
+        def __init__(self, *args, **kw):
+            if where == "the pool's queues":
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        def submit(self, *args, **kw) -> Future:
+            f = Future()
+            f.set_exception(RuntimeError("unable to write to file </torch_4242_1234_0>: No space left on device (28)"))
+            return f
+
+        def shutdown(self, *args, **kw) -> None:
+            pass
+
+    monkeypatch.setattr(executors, "ProcessPoolExecutor", FullShm)
+    cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "local", "workers": 1})
+    run = tmp_path / "run"
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    assert rc == 1 and errors(err) == [f"nlosbench: error: {executors.SHM_FULL}; resume with: nlosbench run {cfg} "
+                                       f"--out {run} --resume"], err
+    assert "/dev/shm" in executors.SHM_FULL and "executor.type: serial" in executors.SHM_FULL
