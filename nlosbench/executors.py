@@ -11,9 +11,10 @@ model — built once per worker process from a picklable model spec (`scenes.bui
 `fn` must be a module-level function (it is pickled by reference) and `item` picklable. Warnings raised in
 a worker come back with its result and are shown by the run's process, each once per run (`_replay`).
 
-Stopping: pool workers ignore Ctrl-C (the parent decides: `abort` terminates them at once, `close`
-lets running tasks finish), and each runs a watchdog thread that exits the worker as soon as its parent
-is gone — killed with SIGKILL included — so no worker outlives the run (`_init_worker`).
+Stopping: pool workers never see Ctrl-C, SIGTERM or SIGHUP (started with them blocked, `_spawning`: the
+parent decides: `abort` kills them at once, `close` lets running tasks finish), and each runs a watchdog
+thread that exits the worker as soon as its parent is gone — killed with SIGKILL included — so no worker
+outlives the run (`_init_worker`).
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 
-from . import scenes
+from . import interrupts, scenes
 from .forward.model import ForwardModel
 
 # -- the worker side -------------------------------------------------------------------------
@@ -82,18 +83,24 @@ def _init_worker(parent: int) -> None:
 
 
 @contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Ctrl-C ignored for the block (main thread only). A process spawned inside inherits the ignored
-    disposition across exec, so Python never installs its KeyboardInterrupt handler there: a Ctrl-C that
-    reaches a worker still importing (before `_init_worker` runs) cannot print a traceback either."""
-    if threading.current_thread() is not threading.main_thread():
+def _spawning() -> Iterator[None]:
+    """Around the pool's construction and a submit (either may start a process: a worker, or multiprocessing's
+    resource tracker): the stop signals (SIGINT, SIGTERM, SIGHUP) are blocked in this thread, so a process
+    started here inherits them blocked across exec — a signal sent to the whole process group (a terminal's
+    Ctrl-C or hang-up, a batch system's SIGTERM) never reaches a worker that is still importing, nor kills the
+    resource tracker (whose death prints tracebacks); the run's process decides and stops its workers
+    (`abort`). In this process the signals are held (`interrupts.deferred`) and raised after the block, never
+    in the middle of the pool's bookkeeping (which left a future cancelled that a worker then finished:
+    InvalidStateError in the pool's thread)."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    with interrupts.deferred():
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, interrupts.STOPPING)
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _call(spec: dict, threads: int | None, fn: Callable, item) -> tuple[object, list[tuple]]:
@@ -220,8 +227,9 @@ class LocalPoolExecutor(Executor):
     def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
         with _shared_memory_errors():
             if self._pool is None:
-                self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                                 initializer=_init_worker, initargs=(os.getpid(),))
+                with _spawning():  # its queues' semaphores start the resource tracker, which inherits the mask
+                    self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                                     initializer=_init_worker, initargs=(os.getpid(),))
             yield from self._results(fn, items)
 
     def _results(self, fn: Callable, items: Iterable) -> Iterator:
@@ -229,7 +237,7 @@ class LocalPoolExecutor(Executor):
         try:
             while True:
                 for item in queue:
-                    with _sigint_ignored():  # a worker spawned by this submit starts with Ctrl-C ignored
+                    with _spawning():  # a worker spawned by this submit starts with the stop signals blocked
                         pending.add(self._pool.submit(_call, self.spec, self.threads, fn, item))
                     if len(pending) >= 2 * self.workers:
                         break
@@ -250,7 +258,7 @@ class LocalPoolExecutor(Executor):
     def abort(self) -> None:
         if self._pool is not None:
             for proc in list((getattr(self._pool, "_processes", None) or {}).values()):
-                proc.terminate()
+                proc.kill()  # SIGKILL: a worker has the stop signals blocked (`_spawning`)
             self._pool.shutdown(wait=False, cancel_futures=True)
             self._pool = None
 
