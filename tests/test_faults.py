@@ -801,3 +801,142 @@ def test_a_full_dev_shm_is_one_line_naming_it_and_the_fix(tmp_path, capsys, monk
     assert rc == 1 and errors(err) == [f"nlosbench: error: {executors.SHM_FULL}; resume with: nlosbench run {cfg} "
                                        f"--out {run} --resume"], err
     assert "/dev/shm" in executors.SHM_FULL and "executor.type: serial" in executors.SHM_FULL
+
+
+# -- stop signals at any moment ----------------------------------------------------------------------------------
+SHORT = {"type": "bounds", "grid": {"start": 0.8, "stop": 1.2, "num": 3}, "spp": 64, "zzb": False}
+#: (signal, seconds after the command's handlers are in place — its first lines, before torch or Mitsuba is
+#: imported — or after config.yaml is written: the run's studies under way)
+MOMENTS = {"SIGINT": [(0.0, "start"), (1.2, "start"), (0.0, "run"), (1.0, "run")],
+           "SIGTERM": [(0.3, "start"), (2.0, "start"), (0.3, "run")],
+           "SIGHUP": [(0.7, "start"), (1.6, "start"), (0.6, "run")]}
+BAD = ("Traceback", "leaked semaphore", "Fatal Python error", "Exception ignored", "resource_tracker")
+
+
+def handles(pid: int, signum: int) -> bool:
+    """Whether process `pid` has a handler for `signum` (the SigCgt mask of /proc/PID/status)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    mask = next((line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:")), "0")
+    return bool(int(mask, 16) >> (signum - 1) & 1)
+
+
+def _signal_lane(cfg: Path, tmp: Path, name: str) -> list[tuple]:
+    """Start `nlosbench run` (its own process group: the signal goes to the group, as a terminal's or a batch
+    system's does) and send `name` at each of its MOMENTS, one run after another; (delay, when, code, stdout,
+    stderr, folder, workers seen) per run. The moments are counted from events, so a loaded machine shifts
+    none of them before the command runs."""
+    out = []
+    for k, (delay, when) in enumerate(MOMENTS[name]):
+        run = tmp / f"{name}-{k}"
+        proc = spawn("run", cfg, "--out", run, "--quiet", start_new_session=True)
+        workers: list[int] = []
+        try:
+            if when == "run":
+                wait_for(lambda p=proc, r=run: (r / "config.yaml").exists() or p.poll() is not None, 60, 0.01)
+            else:  # a signal before the interpreter runs the command's first lines is Python's own business
+                wait_for(lambda p=proc: handles(p.pid, signal.SIGHUP) or p.poll() is not None, 60, 0.005)
+            time.sleep(delay)
+            workers = children(proc.pid)
+            try:
+                os.killpg(proc.pid, getattr(signal, name))
+            except ProcessLookupError:  # finished already
+                pass
+            stdout, stderr = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        out.append((delay, when, proc.returncode, stdout, stderr, run, workers))
+    return out
+
+
+@linux
+def test_sigint_sigterm_and_sighup_at_any_moment_end_with_one_line(tmp_path):
+    """SIGINT (Ctrl-C), SIGTERM and SIGHUP sent to `python -m nlosbench run` (a Π-hallway bounds study with one
+    pool worker) at moments spread from its start — the import of torch and nlosbench, Dr.Jit's and Mitsuba's
+    import, the scene load, the rate measurement — to the renders in the pool worker (after config.yaml is
+    written): 10 runs, the three signals' runs side by side. Each ends with exit 128 + the signal's number
+    (130, 143, 129) and its last stderr line `nlosbench: error: interrupted[ (SIGTERM|SIGHUP)]` (with the
+    resume command once the run has started), or had finished (exit 0, `done:`); never a traceback, a
+    'leaked semaphore' or resource-tracker warning, a `Fatal Python error`, nor a pool worker left. Before:
+    a signal during the imports printed a KeyboardInterrupt traceback (SIGINT) or ended silently by the
+    signal (SIGTERM, SIGHUP: -15, -1), and SIGHUP killed multiprocessing's resource tracker (KeyError
+    tracebacks)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    cfg = config(tmp_path, PI, [SHORT], executor={"type": "local", "workers": 1})
+    with ThreadPoolExecutor(len(MOMENTS)) as lanes:
+        runs = {name: lanes.submit(_signal_lane, cfg, tmp_path, name) for name in MOMENTS}
+        runs = {name: f.result() for name, f in runs.items()}
+    interrupted = 0
+    for name, results in runs.items():
+        signum = getattr(signal, name)
+        for delay, when, code, stdout, stderr, run, workers in results:
+            where = f"{name} {delay} s after the {when}: exit {code}\n{stderr}"
+            assert not any(b in stderr for b in BAD), where
+            assert wait_for(lambda ws=workers: not any(alive(w) for w in ws), timeout=5), where
+            if code == 0:
+                assert stdout.startswith("done:"), where
+                continue
+            interrupted += 1
+            lines = [line for line in stderr.splitlines() if line.strip()]
+            line = "nlosbench: error: interrupted" + ("" if name == "SIGINT" else f" ({name})")
+            assert code == 128 + signum and lines[-1].startswith(line) and len(errors(stderr)) == 1, where
+            hint = f"; resume with: nlosbench run {cfg} --out {run} --resume"
+            assert lines[-1] in (line, line + hint) and (when == "start" or lines[-1] == line + hint), where
+    assert interrupted >= 7, "most runs must be stopped, not finished: the moments are too late for this machine"
+    assert any(r[6] for rs in runs.values() for r in rs), "no signal came while the pool worker was alive"
+
+
+def test_a_signal_during_a_native_import_or_the_scene_load_is_held_until_it_ends():
+    """A SIGTERM that arrives inside `interrupts.deferred()` (where Dr.Jit and Mitsuba are imported and the
+    scene is loaded) does not cut the block: the block finishes, then the run's handler raises Interrupted
+    (SIGTERM). Without the deferral the handler's exception would be raised in the middle of the native
+    import, where it can leave Mitsuba half-initialised or abort the interpreter."""
+    from nlosbench import interrupts
+    from nlosbench.cli import _interrupts
+
+    def early(signum, frame):  # what runs if nothing holds the signal (instead of SIGTERM's default: the end)
+        raise RuntimeError("SIGTERM was not held")
+
+    saved = {s: signal.getsignal(s) for s in interrupts.STOPPING}
+    finished = False
+    try:
+        signal.signal(signal.SIGTERM, early)
+        with _interrupts(), pytest.raises(interrupts.Interrupted) as stop:
+            with interrupts.deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.2)  # the handler would have run here (between bytecodes of this thread)
+                finished = True
+        assert finished and stop.value.signum == signal.SIGTERM
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+
+
+@pytest.mark.parametrize("how", ["cause", "message"])
+def test_an_interrupt_inside_mitsubas_variant_import_is_not_a_variant_diagnosis(monkeypatch, how):
+    """Ctrl-C while Mitsuba imports a variant's native module, which the binding reports as its own error (the
+    KeyboardInterrupt as the cause, or only named in the message): `variant.select` re-raises it as
+    KeyboardInterrupt (the command: one line, exit 130), not the VariantError 'no usable Mitsuba variant'
+    with a fix that fixes nothing. Simulated with a stand-in `mitsuba` module."""
+    import types
+
+    from nlosbench import variant
+
+    def set_variant(name: str) -> None:
+        if how == "message":
+            raise RuntimeError(f"could not import mitsuba.{name}: KeyboardInterrupt")
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise RuntimeError(f"could not import mitsuba.{name}") from e
+
+    monkeypatch.setitem(sys.modules, "mitsuba", types.SimpleNamespace(variants=lambda: ["llvm_ad_rgb"],
+                                                                      set_variant=set_variant))
+    monkeypatch.setattr(variant, "_selected", None)
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/usr/lib/libLLVM-19.so")
+    with pytest.raises(KeyboardInterrupt):
+        variant.select("llvm_ad_rgb")
