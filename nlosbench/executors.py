@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import errno
 import json
+import logging
 import multiprocessing
 import os
 import signal
@@ -263,13 +264,25 @@ class LocalPoolExecutor(Executor):
             self._pool = None
 
 
+class WorkersLost(ConnectionError):
+    """No Dask worker was alive for `executor.worker_timeout` seconds (none at the start, or all lost mid-run)."""
+
+
+#: seconds between a Dask run's checks that a worker is alive (at most; a quarter of the timeout when shorter)
+WORKER_POLL = 1.0
+
+
 class DaskExecutor(Executor):
     """dask.distributed: a scheduler at `address` (given up after `connect_timeout` seconds with a
     ConnectionError naming it), or a LocalCluster of `workers` processes with one thread each. Every
-    worker process loads the scene once (on its first task)."""
+    worker process loads the scene once (on its first task). A run whose scheduler has no live worker for
+    `worker_timeout` seconds — none at the start, or all lost mid-run — stops with `WorkersLost` (a
+    ConnectionError naming the scheduler and the key): finished work is kept, the run can be resumed.
+    With `log`, the `distributed` loggers of this process write to that file, not to the terminal (and a
+    LocalCluster's worker processes log only what is critical)."""
 
     def __init__(self, spec: dict, address: str | None = None, workers: int = 2, threads: int | None = None,
-                 connect_timeout: float = 10.0):
+                 connect_timeout: float = 10.0, worker_timeout: float = 60.0, log: str | os.PathLike | None = None):
         try:
             import distributed  # noqa: F401
         except ImportError:
@@ -277,15 +290,25 @@ class DaskExecutor(Executor):
         self.spec, self.address, self.workers = spec, address, _check_workers(workers)
         self.threads = threads or _default_threads(self.workers)
         self.connect_timeout = float(connect_timeout)
+        self.worker_timeout = float(worker_timeout)
+        self.log = log
         self._client = None
         self._cluster = None
+        self._logging: _DaskLog | None = None
+        self._no_worker_since: float | None = None
 
     def start(self) -> None:
-        self.client()
+        client = self.client()
+        try:
+            client.wait_for_workers(1, timeout=self.worker_timeout)
+        except TimeoutError:
+            raise self._lost("no Dask worker at the scheduler {where} within {t:g} s") from None
 
     def client(self):
         """The dask Client (started on first use)."""
         if self._client is None:
+            if self.log is not None and self._logging is None:
+                self._logging = _DaskLog(self.log)
             from distributed import Client, LocalCluster
 
             if self.address:
@@ -296,23 +319,48 @@ class DaskExecutor(Executor):
                                           f"{self.connect_timeout:g} s (executor.connect_timeout): {e}") from None
             else:
                 self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                             dashboard_address=None)
+                                             dashboard_address=None,
+                                             silence_logs=logging.CRITICAL if self.log is not None else logging.WARN)
                 self._client = Client(self._cluster)
         return self._client
 
+    def _lost(self, what: str) -> WorkersLost:
+        """`WorkersLost` saying `what` (formatted with the scheduler's address `where` and the timeout `t`)."""
+        where = self.address or getattr(getattr(self._client, "scheduler", None), "address", "the LocalCluster")
+        return WorkersLost(what.format(where=where, t=self.worker_timeout) + " (executor.worker_timeout): start "
+                           f"workers for that scheduler (dask worker {where}) or raise executor.worker_timeout")
+
+    def _check_workers(self) -> None:
+        """Raise `WorkersLost` once the scheduler has had no worker for `worker_timeout` seconds."""
+        alive = len(self._client.scheduler_info(n_workers=1).get("workers") or {}) > 0
+        if alive:
+            self._no_worker_since = None
+        elif self._no_worker_since is None:
+            self._no_worker_since = time.monotonic()
+        elif time.monotonic() - self._no_worker_since >= self.worker_timeout:
+            raise self._lost("no Dask worker left at the scheduler {where} for {t:g} s (all lost mid-run)")
+
     def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
-        from distributed import as_completed
+        from distributed import wait as wait_for
 
         items = list(items)
         if not items:
             return
         client = self.client()
-        futures = [client.submit(_call, self.spec, self.threads, fn, item, pure=False) for item in items]
+        pending = [client.submit(_call, self.spec, self.threads, fn, item, pure=False) for item in items]
+        poll = min(WORKER_POLL, self.worker_timeout / 4)
         try:
-            for fut in as_completed(futures):
-                yield _replay(fut.result())
+            while pending:
+                try:
+                    done, left = wait_for(pending, timeout=poll, return_when="FIRST_COMPLETED")
+                except TimeoutError:
+                    done, left = (), pending
+                self._check_workers()
+                pending = list(left)
+                for fut in done:
+                    yield _replay(fut.result())
         finally:
-            client.cancel([f for f in futures if not f.done()])
+            client.cancel([f for f in pending if not f.done()])
 
     def close(self) -> None:
         if self._client is not None:
@@ -321,12 +369,44 @@ class DaskExecutor(Executor):
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
+        if self._logging is not None:
+            self._logging.close()
+            self._logging = None
 
 
-def create(config: dict, spec: dict, model: ForwardModel | None = None) -> Executor:
+class _DaskLog:
+    """The `distributed` loggers (and tornado's, which Dask's networking uses) of this process written to a file
+    instead of the terminal, until `close` puts their handlers back."""
+
+    NAMES = ("distributed", "tornado")
+
+    def __init__(self, path: str | os.PathLike):
+        self.handler = logging.FileHandler(path, encoding="utf-8")
+        self.handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
+        self.saved = {}
+        for name in self.NAMES:
+            logger = logging.getLogger(name)
+            self.saved[name] = (list(logger.handlers), logger.propagate)
+            for h in list(logger.handlers):
+                logger.removeHandler(h)
+            logger.addHandler(self.handler)
+            logger.propagate = False
+
+    def close(self) -> None:
+        for name, (handlers, propagate) in self.saved.items():
+            logger = logging.getLogger(name)
+            logger.removeHandler(self.handler)
+            for h in handlers:
+                logger.addHandler(h)
+            logger.propagate = propagate
+        self.handler.close()
+
+
+def create(config: dict, spec: dict, model: ForwardModel | None = None,
+           log: str | os.PathLike | None = None) -> Executor:
     """The executor a run config asks for: `config` is its `executor` block {type: local | serial |
-    dask, workers, address, connect_timeout}; `spec` the model spec workers build from; `model` the
-    already-loaded model (used by the serial executor, so it loads nothing)."""
+    dask, workers, address, connect_timeout, worker_timeout}; `spec` the model spec workers build from; `model`
+    the already-loaded model (used by the serial executor, so it loads nothing); `log` where Dask logs."""
     kind = config.get("type", "local")
     workers = config.get("workers", 2)
     if kind == "serial":
@@ -335,5 +415,6 @@ def create(config: dict, spec: dict, model: ForwardModel | None = None) -> Execu
         return LocalPoolExecutor(spec, workers=workers)
     if kind == "dask":
         return DaskExecutor(spec, address=config.get("address"), workers=workers,
-                            connect_timeout=config.get("connect_timeout", 10.0))
+                            connect_timeout=config.get("connect_timeout", 10.0),
+                            worker_timeout=config.get("worker_timeout", 60.0), log=log)
     raise ValueError(f"unknown executor type {kind!r}; expected serial, local or dask")

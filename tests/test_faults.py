@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from nlosbench.cli import main
+from nlosbench.executors import _call as _CALL
 from nlosbench.records import RecordLog
 
 ROOT = Path(__file__).parents[1]
@@ -940,3 +941,75 @@ def test_an_interrupt_inside_mitsubas_variant_import_is_not_a_variant_diagnosis(
     monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/usr/lib/libLLVM-19.so")
     with pytest.raises(KeyboardInterrupt):
         variant.select("llvm_ad_rgb")
+
+
+# -- bounded waits: a Dask scheduler without workers ---------------------------------------------------------------
+@pytest.fixture
+def scheduler():
+    """A Dask scheduler in this process with no worker (skipped without dask.distributed, the 'dask' extra)."""
+    distributed = pytest.importorskip("distributed", reason="dask.distributed is not installed (the 'dask' extra)")
+    with distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=None) as cluster:
+        yield cluster
+
+
+def test_a_dask_scheduler_without_workers_gives_up_after_worker_timeout(tmp_path, capsys, scheduler):
+    """A reachable Dask scheduler that has no worker (none was started), `executor.worker_timeout: 2`: exit 1
+    within seconds (not a wait for ever), one line on stderr naming the scheduler's address and the key, with
+    how to resume; Dask's own log lines are in RUN/dask.log, not on the terminal. (The timeout must be a
+    number > 0: 0 is exit 2 naming the key.)"""
+    address = scheduler.scheduler_address
+    cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "dask", "address": address, "worker_timeout": 2})
+    run = tmp_path / "run"
+    t0 = time.perf_counter()
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    assert rc == 1 and [line for line in err.splitlines() if line.strip()] == [
+        f"nlosbench: error: no Dask worker at the scheduler {address} within 2 s (executor.worker_timeout): start "
+        f"workers for that scheduler (dask worker {address}) or raise executor.worker_timeout; resume with: "
+        f"nlosbench run {cfg} --out {run} --resume"], err
+    assert 2 <= time.perf_counter() - t0 < 15
+    assert "distributed.scheduler" in (run / "dask.log").read_text()
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "zero", "--set", "executor.worker_timeout=0", "--quiet")
+    assert rc == 2 and errors(err) == ["nlosbench: error: executor.worker_timeout: expected a finite number > 0, "
+                                       "got 0"], err
+
+
+def _slow_call(*args):
+    """`executors._call`, 0.3 s slower (module level: Dask pickles it by reference)."""
+    time.sleep(0.3)
+    return _CALL(*args)
+
+
+def test_dask_workers_all_lost_mid_run_give_up_after_worker_timeout(tmp_path, capsys, scheduler, monkeypatch):
+    """Every Dask worker lost mid-run (simulated: the scheduler's one worker is removed once the first renders
+    are back; each task takes 0.3 s), `executor.worker_timeout: 2`: exit 1 a few seconds later (the tasks left
+    would otherwise wait for ever), one line naming the scheduler and the key with how to resume; the
+    finished renders are kept in the run's render store, and the resume (here on the serial executor: executor
+    keys may change on --resume) finishes the run with the numbers of one that never failed."""
+    import threading
+
+    from nlosbench import executors
+
+    monkeypatch.setattr(executors, "_call", _slow_call)  # the worker runs in this process: it looks it up here
+    scheduler.scale(1)
+    scheduler.wait_for_workers(1, timeout=30)
+    address = scheduler.scheduler_address
+    cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "dask", "address": address, "worker_timeout": 2})
+    run = tmp_path / "run"
+
+    def lose_workers() -> None:
+        wait_for(lambda: any((run / "renders").rglob("*.npc")), timeout=60, every=0.02)
+        scheduler.scale(0)
+
+    threading.Thread(target=lose_workers, daemon=True).start()
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    assert rc == 1 and errors(err) == [
+        f"nlosbench: error: no Dask worker left at the scheduler {address} for 2 s (all lost mid-run) "
+        f"(executor.worker_timeout): start workers for that scheduler (dask worker {address}) or raise "
+        f"executor.worker_timeout; resume with: nlosbench run {cfg} --out {run} --resume"], err
+    kept = list((run / "renders").rglob("*.npc"))
+    assert kept and not (run / "00-bounds" / "bounds.csv").exists()
+    monkeypatch.setattr(executors, "_call", _CALL)
+    assert cli(capsys, "run", cfg, "--out", run, "--resume", "--set", "executor.type=serial", "--quiet")[0] == 0
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "clean", "--set", "executor.type=serial", "--quiet")[0] == 0
+    assert (run / "00-bounds" / "bounds.csv").read_bytes() == \
+        (tmp_path / "clean" / "00-bounds" / "bounds.csv").read_bytes()
