@@ -36,7 +36,10 @@ EPILOG = """examples:
   nlosbench list estimators                              # one kind
   nlosbench list keys trials                             # a study's config keys with their help
   nlosbench report runs/try                              # re-make plots and report.md from saved data
-  nlosbench bench --reduced"""
+  nlosbench bench --reduced
+
+exit codes: 0 done, 1 environment (disk, permissions, network, shared memory), 2 bad input (nothing written),
+130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (a second signal stops at once)"""
 
 
 def build_parser() -> argparse.ArgumentParser:
