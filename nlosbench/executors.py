@@ -258,9 +258,12 @@ class LocalPoolExecutor(Executor):
 
     def abort(self) -> None:
         if self._pool is not None:
-            for proc in list((getattr(self._pool, "_processes", None) or {}).values()):
-                proc.kill()  # SIGKILL: a worker has the stop signals blocked (`_spawning`)
+            workers = list((getattr(self._pool, "_processes", None) or {}).values())
+            # shut down first: the pool's thread then drops the cancelled futures before it sees its workers
+            # killed (killing first made it mark a cancelled future failed: InvalidStateError: CANCELLED there)
             self._pool.shutdown(wait=False, cancel_futures=True)
+            for proc in workers:
+                proc.kill()  # SIGKILL: a worker has the stop signals blocked (`_spawning`)
             self._pool = None
 
 

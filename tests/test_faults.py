@@ -1013,3 +1013,28 @@ def test_dask_workers_all_lost_mid_run_give_up_after_worker_timeout(tmp_path, ca
     assert cli(capsys, "run", cfg, "--out", tmp_path / "clean", "--set", "executor.type=serial", "--quiet")[0] == 0
     assert (run / "00-bounds" / "bounds.csv").read_bytes() == \
         (tmp_path / "clean" / "00-bounds" / "bounds.csv").read_bytes()
+
+
+def test_stopping_a_pool_with_queued_tasks_leaves_no_error_in_its_thread(monkeypatch):
+    """The state a Ctrl-C leaves while pool workers start (2 workers busy, more tasks queued, the queued ones
+    cancelled as the interrupt passes through `imap_unordered`), then `abort`: the pool's management thread ends
+    without an exception. Before, the workers were killed first and that thread marked the cancelled futures
+    failed: `InvalidStateError: CANCELLED` with a thread traceback printed after the run's error line."""
+    import multiprocessing
+    import threading
+    from concurrent.futures import ProcessPoolExecutor
+
+    from nlosbench.executors import LocalPoolExecutor
+
+    caught = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: caught.append(args.exc_value))
+    pool = LocalPoolExecutor({"name": "edge1d"}, workers=2)
+    pool._pool = ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn"))
+    futures = [pool._pool.submit(time.sleep, 30) for _ in range(6)]
+    assert wait_for(lambda: sum(f.running() for f in futures) >= 2, timeout=60)
+    for f in futures:
+        f.cancel()
+    manager = pool._pool._executor_manager_thread
+    pool.abort()
+    manager.join(10)
+    assert not manager.is_alive() and not caught, caught
