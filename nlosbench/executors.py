@@ -18,6 +18,7 @@ outlives the run (`_init_worker`).
 """
 from __future__ import annotations
 
+import asyncio
 import errno
 import json
 import logging
@@ -271,6 +272,8 @@ class WorkersLost(ConnectionError):
     """No Dask worker was alive for `executor.worker_timeout` seconds (none at the start, or all lost mid-run)."""
 
 
+#: what Dask raises when a wait times out (asyncio's TimeoutError is the builtin one from Python 3.11 on)
+_TIMEOUTS = (TimeoutError, asyncio.TimeoutError)
 #: seconds between a Dask run's checks that a worker is alive (at most; a quarter of the timeout when shorter)
 WORKER_POLL = 1.0
 
@@ -304,7 +307,7 @@ class DaskExecutor(Executor):
         client = self.client()
         try:
             client.wait_for_workers(1, timeout=self.worker_timeout)
-        except TimeoutError:
+        except _TIMEOUTS:
             raise self._lost("no Dask worker at the scheduler {where} within {t:g} s") from None
 
     def client(self):
@@ -356,7 +359,7 @@ class DaskExecutor(Executor):
             while pending:
                 try:
                     done, left = wait_for(pending, timeout=poll, return_when="FIRST_COMPLETED")
-                except TimeoutError:
+                except _TIMEOUTS:
                     done, left = (), pending
                 self._check_workers()
                 pending = list(left)
