@@ -338,7 +338,7 @@ class DaskExecutor(Executor):
 
     def _check_workers(self) -> None:
         """Raise `WorkersLost` once the scheduler has had no worker for `worker_timeout` seconds."""
-        alive = len(self._client.scheduler_info(n_workers=1).get("workers") or {}) > 0
+        alive = len(self._client.nthreads()) > 0  # worker address → threads, asked of the scheduler
         if alive:
             self._no_worker_since = None
         elif self._no_worker_since is None:
