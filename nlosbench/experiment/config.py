@@ -12,8 +12,8 @@ NOISE = {"model": Field(str, help="noise model name", choices=("awgn", "poisson"
          "sigma": Field(float, None, "AWGN standard deviation (radiance units)", nullable=True),
          "scale": Field(float, None, "Poisson: expected photons per unit radiance", nullable=True)}
 
-STUDY = {"id": Field(plain_name, None, "folder name of the study in the run directory, a plain name (default: NN-type)",
-                    nullable=True)}
+STUDY = {"id": Field(plain_name, None, "folder name of the study in the run directory: no path separator, not . "
+                                      "or .. (default: NN-type)", nullable=True)}
 
 TOP = {
     "name": Field(str, "experiment", "a short name for the run"),
