@@ -3,8 +3,9 @@
 Exit codes: 0 done; 2 bad input (config, scene, a run folder held by another run or holding a different
 run, a run estimated above an hour without --yes: nothing was written); 1 environment (disk full,
 read-only or missing path, permissions, an unreachable Dask scheduler, a worker process that died);
-130 interrupted (Ctrl-C; a second Ctrl-C stops at once). Every error is one line on stderr; after an
-environment error or an interrupt during a run it says how to resume."""
+130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP): 128 + the signal's number, as a
+shell reports it; a second signal stops at once. Every error is one line on stderr; after an environment
+error or an interrupt during a run it says how to resume."""
 from __future__ import annotations
 
 import argparse
@@ -14,12 +15,15 @@ import signal
 import sys
 import threading
 import warnings
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from pathlib import Path
 
+from .interrupts import STOPPING, Interrupted, signum_of
 from .schema import ConfigError
+from .variant import VariantError
 
-OK, ENVIRONMENT, BAD_INPUT, INTERRUPTED = 0, 1, 2, 130
+OK, ENVIRONMENT, BAD_INPUT, INTERRUPTED = 0, 1, 2, 130  # a stop signal: 128 + its number (SIGTERM 143, SIGHUP 129)
 
 EPILOG = """examples:
   nlosbench run configs/quick.yaml                      # the demo: bounds, Fisher maps, MLE trials
@@ -32,7 +36,10 @@ EPILOG = """examples:
   nlosbench list estimators                              # one kind
   nlosbench list keys trials                             # a study's config keys with their help
   nlosbench report runs/try                              # re-make plots and report.md from saved data
-  nlosbench bench --reduced"""
+  nlosbench bench --reduced
+
+exit codes: 0 done, 1 environment (disk, permissions, network, shared memory), 2 bad input (nothing written),
+130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (a second signal stops at once)"""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -165,14 +172,11 @@ def _keys(study: str | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    from concurrent.futures.process import BrokenProcessPool
-
-    from .variant import VariantError
-
+    """Run the command in `argv` (default: sys.argv; then the process's stop signals stay handled to its end)."""
     resume = ""  # how to resume, once a run has started writing its folder
     try:
-        with _one_line_warnings(), _interrupts():
+        with _one_line_warnings(), _interrupts(keep=argv is None):  # first: before torch or Mitsuba is imported
+            args = build_parser().parse_args(argv)
             if args.command == "run":
                 from .experiment.runner import prepare
 
@@ -200,8 +204,10 @@ def main(argv: list[str] | None = None) -> int:
                 from .benchmarks import run_all
 
                 run_all(args.names, reduced=args.reduced)
-    except KeyboardInterrupt:
-        return _fail(INTERRUPTED, "interrupted", resume)
+    except KeyboardInterrupt as e:
+        signum = signum_of(e)
+        name = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
+        return _fail(128 + signum, f"interrupted{name}", resume)
     except ConfigError as e:
         return _fail(BAD_INPUT, str(e))
     except FileNotFoundError as e:
@@ -257,10 +263,12 @@ def _resume_command(args, run_dir: Path) -> str:
 
 
 @contextmanager
-def _interrupts():
-    """The first Ctrl-C raises KeyboardInterrupt (the run stops its workers and says how to resume); it also
-    sets the default action, which stays for the rest of the process (the cleanup after this block
-    included), so a second Ctrl-C ends the process at once. Without a Ctrl-C the previous handler returns."""
+def _interrupts(keep: bool = False):
+    """The first stop signal — Ctrl-C (SIGINT), SIGTERM or SIGHUP — raises `Interrupted` (the run stops its
+    workers and says how to resume; exit 128 + the signal's number); it also sets the default action of all
+    three, which stays for the rest of the process (the cleanup after this block included), so a second one
+    ends the process at once. Without a signal the previous handlers return, or with `keep` (a process that
+    only exits after this block) the signals are ignored from then on: the work is done, exit 0 stands."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
@@ -269,16 +277,19 @@ def _interrupts():
     def first(signum, frame):
         nonlocal fired
         fired = True
-        signal.signal(signal.SIGINT, signal.SIG_DFL)
-        print("nlosbench: stopping (Ctrl-C again to stop at once)", file=sys.stderr, flush=True)
-        raise KeyboardInterrupt
+        for s in STOPPING:
+            signal.signal(s, signal.SIG_DFL)
+        again = "Ctrl-C again" if signum == signal.SIGINT else f"{signal.Signals(signum).name}; a second signal"
+        print(f"nlosbench: stopping ({again} to stop at once)", file=sys.stderr, flush=True)
+        raise Interrupted(signum)
 
-    previous = signal.signal(signal.SIGINT, first)
+    previous = {s: signal.signal(s, first) for s in STOPPING}
     try:
         yield
     finally:
         if not fired:  # restoring Python's handler here would turn the second Ctrl-C into a slow exit
-            signal.signal(signal.SIGINT, previous)
+            for s, handler in previous.items():
+                signal.signal(s, signal.SIG_IGN if keep else handler)
 
 
 @contextmanager

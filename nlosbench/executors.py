@@ -11,13 +11,17 @@ model — built once per worker process from a picklable model spec (`scenes.bui
 `fn` must be a module-level function (it is pickled by reference) and `item` picklable. Warnings raised in
 a worker come back with its result and are shown by the run's process, each once per run (`_replay`).
 
-Stopping: pool workers ignore Ctrl-C (the parent decides: `abort` terminates them at once, `close`
-lets running tasks finish), and each runs a watchdog thread that exits the worker as soon as its parent
-is gone — killed with SIGKILL included — so no worker outlives the run (`_init_worker`).
+Stopping: pool workers never see Ctrl-C, SIGTERM or SIGHUP (started with them blocked, `_spawning`: the
+parent decides: `abort` kills them at once, `close` lets running tasks finish), and each runs a watchdog
+thread that exits the worker as soon as its parent is gone — killed with SIGKILL included — so no worker
+outlives the run (`_init_worker`).
 """
 from __future__ import annotations
 
+import asyncio
+import errno
 import json
+import logging
 import multiprocessing
 import os
 import signal
@@ -30,7 +34,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 
-from . import scenes
+from . import interrupts, scenes
 from .forward.model import ForwardModel
 
 # -- the worker side -------------------------------------------------------------------------
@@ -81,18 +85,24 @@ def _init_worker(parent: int) -> None:
 
 
 @contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Ctrl-C ignored for the block (main thread only). A process spawned inside inherits the ignored
-    disposition across exec, so Python never installs its KeyboardInterrupt handler there: a Ctrl-C that
-    reaches a worker still importing (before `_init_worker` runs) cannot print a traceback either."""
-    if threading.current_thread() is not threading.main_thread():
+def _spawning() -> Iterator[None]:
+    """Around the pool's construction and a submit (either may start a process: a worker, or multiprocessing's
+    resource tracker): the stop signals (SIGINT, SIGTERM, SIGHUP) are blocked in this thread, so a process
+    started here inherits them blocked across exec — a signal sent to the whole process group (a terminal's
+    Ctrl-C or hang-up, a batch system's SIGTERM) never reaches a worker that is still importing, nor kills the
+    resource tracker (whose death prints tracebacks); the run's process decides and stops its workers
+    (`abort`). In this process the signals are held (`interrupts.deferred`) and raised after the block, never
+    in the middle of the pool's bookkeeping (which left a future cancelled that a worker then finished:
+    InvalidStateError in the pool's thread)."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    with interrupts.deferred():
+        previous = signal.pthread_sigmask(signal.SIG_BLOCK, interrupts.STOPPING)
+        try:
+            yield
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _call(spec: dict, threads: int | None, fn: Callable, item) -> tuple[object, list[tuple]]:
@@ -174,6 +184,38 @@ def _check_workers(workers) -> int:
     return int(workers)
 
 
+class SharedMemoryError(OSError):
+    """/dev/shm is full or too small for the tensors passed between the run and its pool workers."""
+
+
+#: the one line of a full /dev/shm: what it is and how to fix it
+SHM_FULL = ("shared memory (/dev/shm) is full or too small: torch passes the images between the run and its pool "
+            "workers through it; mount a larger /dev/shm (Docker: --shm-size=2g; Kubernetes: an emptyDir with medium: "
+            "Memory at /dev/shm) or set executor.type: serial (no worker processes)")
+
+
+def _shm_full(e: BaseException) -> bool:
+    """Whether `e` says shared memory ran out: torch's `unable to allocate shared memory` / `unable to write to
+    file </torch_...>` (a RuntimeError, raised here or in a worker) or ENOSPC creating the pool's semaphores and
+    queues (an OSError naming no file or a file in /dev/shm)."""
+    text = str(e)
+    if isinstance(e, OSError):
+        return e.errno == errno.ENOSPC and (e.filename is None or str(e.filename).startswith("/dev/shm"))
+    return isinstance(e, RuntimeError) and ("shared memory" in text or "/dev/shm" in text
+                                            or ("</torch_" in text and "No space left" in text))
+
+
+@contextmanager
+def _shared_memory_errors() -> Iterator[None]:
+    """A full /dev/shm becomes a `SharedMemoryError` saying so (`SHM_FULL`); any other error passes."""
+    try:
+        yield
+    except (RuntimeError, OSError) as e:
+        if _shm_full(e):
+            raise SharedMemoryError(SHM_FULL) from e
+        raise
+
+
 class LocalPoolExecutor(Executor):
     """A pool of `workers` spawned processes, each loading the scene once (on its first task) and
     using `threads` CPU threads for torch and Dr.Jit (default: cores / workers). At most
@@ -185,14 +227,19 @@ class LocalPoolExecutor(Executor):
         self._pool: ProcessPoolExecutor | None = None
 
     def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                             initializer=_init_worker, initargs=(os.getpid(),))
+        with _shared_memory_errors():
+            if self._pool is None:
+                with _spawning():  # its queues' semaphores start the resource tracker, which inherits the mask
+                    self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
+                                                     initializer=_init_worker, initargs=(os.getpid(),))
+            yield from self._results(fn, items)
+
+    def _results(self, fn: Callable, items: Iterable) -> Iterator:
         pending, queue = set(), iter(items)
         try:
             while True:
                 for item in queue:
-                    with _sigint_ignored():  # a worker spawned by this submit starts with Ctrl-C ignored
+                    with _spawning():  # a worker spawned by this submit starts with the stop signals blocked
                         pending.add(self._pool.submit(_call, self.spec, self.threads, fn, item))
                     if len(pending) >= 2 * self.workers:
                         break
@@ -212,19 +259,36 @@ class LocalPoolExecutor(Executor):
 
     def abort(self) -> None:
         if self._pool is not None:
-            for proc in list((getattr(self._pool, "_processes", None) or {}).values()):
-                proc.terminate()
+            workers = list((getattr(self._pool, "_processes", None) or {}).values())
+            # shut down first: the pool's thread then drops the cancelled futures before it sees its workers
+            # killed (killing first made it mark a cancelled future failed: InvalidStateError: CANCELLED there)
             self._pool.shutdown(wait=False, cancel_futures=True)
+            for proc in workers:
+                proc.kill()  # SIGKILL: a worker has the stop signals blocked (`_spawning`)
             self._pool = None
+
+
+class WorkersLost(ConnectionError):
+    """No Dask worker was alive for `executor.worker_timeout` seconds (none at the start, or all lost mid-run)."""
+
+
+#: what Dask raises when a wait times out (asyncio's TimeoutError is the builtin one from Python 3.11 on)
+_TIMEOUTS = (TimeoutError, asyncio.TimeoutError)
+#: seconds between a Dask run's checks that a worker is alive (at most; a quarter of the timeout when shorter)
+WORKER_POLL = 1.0
 
 
 class DaskExecutor(Executor):
     """dask.distributed: a scheduler at `address` (given up after `connect_timeout` seconds with a
     ConnectionError naming it), or a LocalCluster of `workers` processes with one thread each. Every
-    worker process loads the scene once (on its first task)."""
+    worker process loads the scene once (on its first task). A run whose scheduler has no live worker for
+    `worker_timeout` seconds — none at the start, or all lost mid-run — stops with `WorkersLost` (a
+    ConnectionError naming the scheduler and the key): finished work is kept, the run can be resumed.
+    With `log`, the `distributed` loggers of this process write to that file, not to the terminal (and a
+    LocalCluster's worker processes log only what is critical)."""
 
     def __init__(self, spec: dict, address: str | None = None, workers: int = 2, threads: int | None = None,
-                 connect_timeout: float = 10.0):
+                 connect_timeout: float = 10.0, worker_timeout: float = 60.0, log: str | os.PathLike | None = None):
         try:
             import distributed  # noqa: F401
         except ImportError:
@@ -232,15 +296,25 @@ class DaskExecutor(Executor):
         self.spec, self.address, self.workers = spec, address, _check_workers(workers)
         self.threads = threads or _default_threads(self.workers)
         self.connect_timeout = float(connect_timeout)
+        self.worker_timeout = float(worker_timeout)
+        self.log = log
         self._client = None
         self._cluster = None
+        self._logging: _DaskLog | None = None
+        self._no_worker_since: float | None = None
 
     def start(self) -> None:
-        self.client()
+        client = self.client()
+        try:
+            client.wait_for_workers(1, timeout=self.worker_timeout)
+        except _TIMEOUTS:
+            raise self._lost("no Dask worker at the scheduler {where} within {t:g} s") from None
 
     def client(self):
         """The dask Client (started on first use)."""
         if self._client is None:
+            if self.log is not None and self._logging is None:
+                self._logging = _DaskLog(self.log)
             from distributed import Client, LocalCluster
 
             if self.address:
@@ -251,23 +325,48 @@ class DaskExecutor(Executor):
                                           f"{self.connect_timeout:g} s (executor.connect_timeout): {e}") from None
             else:
                 self._cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                             dashboard_address=None)
+                                             dashboard_address=None,
+                                             silence_logs=logging.CRITICAL if self.log is not None else logging.WARN)
                 self._client = Client(self._cluster)
         return self._client
 
+    def _lost(self, what: str) -> WorkersLost:
+        """`WorkersLost` saying `what` (formatted with the scheduler's address `where` and the timeout `t`)."""
+        where = self.address or getattr(getattr(self._client, "scheduler", None), "address", "the LocalCluster")
+        return WorkersLost(what.format(where=where, t=self.worker_timeout) + " (executor.worker_timeout): start "
+                           f"workers for that scheduler (dask worker {where}) or raise executor.worker_timeout")
+
+    def _check_workers(self) -> None:
+        """Raise `WorkersLost` once the scheduler has had no worker for `worker_timeout` seconds."""
+        alive = len(self._client.nthreads()) > 0  # worker address → threads, asked of the scheduler
+        if alive:
+            self._no_worker_since = None
+        elif self._no_worker_since is None:
+            self._no_worker_since = time.monotonic()
+        elif time.monotonic() - self._no_worker_since >= self.worker_timeout:
+            raise self._lost("no Dask worker left at the scheduler {where} for {t:g} s (all lost mid-run)")
+
     def imap_unordered(self, fn: Callable, items: Iterable) -> Iterator:
-        from distributed import as_completed
+        from distributed import wait as wait_for
 
         items = list(items)
         if not items:
             return
         client = self.client()
-        futures = [client.submit(_call, self.spec, self.threads, fn, item, pure=False) for item in items]
+        pending = [client.submit(_call, self.spec, self.threads, fn, item, pure=False) for item in items]
+        poll = min(WORKER_POLL, self.worker_timeout / 4)
         try:
-            for fut in as_completed(futures):
-                yield _replay(fut.result())
+            while pending:
+                try:
+                    done, left = wait_for(pending, timeout=poll, return_when="FIRST_COMPLETED")
+                except _TIMEOUTS:
+                    done, left = (), pending
+                self._check_workers()
+                pending = list(left)
+                for fut in done:
+                    yield _replay(fut.result())
         finally:
-            client.cancel([f for f in futures if not f.done()])
+            client.cancel([f for f in pending if not f.done()])
 
     def close(self) -> None:
         if self._client is not None:
@@ -276,12 +375,44 @@ class DaskExecutor(Executor):
         if self._cluster is not None:
             self._cluster.close()
             self._cluster = None
+        if self._logging is not None:
+            self._logging.close()
+            self._logging = None
 
 
-def create(config: dict, spec: dict, model: ForwardModel | None = None) -> Executor:
+class _DaskLog:
+    """The `distributed` loggers (and tornado's, which Dask's networking uses) of this process written to a file
+    instead of the terminal, until `close` puts their handlers back."""
+
+    NAMES = ("distributed", "tornado")
+
+    def __init__(self, path: str | os.PathLike):
+        self.handler = logging.FileHandler(path, encoding="utf-8")
+        self.handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
+        self.saved = {}
+        for name in self.NAMES:
+            logger = logging.getLogger(name)
+            self.saved[name] = (list(logger.handlers), logger.propagate)
+            for h in list(logger.handlers):
+                logger.removeHandler(h)
+            logger.addHandler(self.handler)
+            logger.propagate = False
+
+    def close(self) -> None:
+        for name, (handlers, propagate) in self.saved.items():
+            logger = logging.getLogger(name)
+            logger.removeHandler(self.handler)
+            for h in handlers:
+                logger.addHandler(h)
+            logger.propagate = propagate
+        self.handler.close()
+
+
+def create(config: dict, spec: dict, model: ForwardModel | None = None,
+           log: str | os.PathLike | None = None) -> Executor:
     """The executor a run config asks for: `config` is its `executor` block {type: local | serial |
-    dask, workers, address, connect_timeout}; `spec` the model spec workers build from; `model` the
-    already-loaded model (used by the serial executor, so it loads nothing)."""
+    dask, workers, address, connect_timeout, worker_timeout}; `spec` the model spec workers build from; `model`
+    the already-loaded model (used by the serial executor, so it loads nothing); `log` where Dask logs."""
     kind = config.get("type", "local")
     workers = config.get("workers", 2)
     if kind == "serial":
@@ -290,5 +421,6 @@ def create(config: dict, spec: dict, model: ForwardModel | None = None) -> Execu
         return LocalPoolExecutor(spec, workers=workers)
     if kind == "dask":
         return DaskExecutor(spec, address=config.get("address"), workers=workers,
-                            connect_timeout=config.get("connect_timeout", 10.0))
+                            connect_timeout=config.get("connect_timeout", 10.0),
+                            worker_timeout=config.get("worker_timeout", 60.0), log=log)
     raise ValueError(f"unknown executor type {kind!r}; expected serial, local or dask")

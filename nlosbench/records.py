@@ -13,6 +13,8 @@ from __future__ import annotations
 import json
 import os
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 
@@ -51,7 +53,7 @@ class RecordLog:
             return []
         end = raw.rfind(b"\n") + 1
         if end < len(raw):
-            with open(self.path, "r+b") as f:
+            with self._naming_errors(), open(self.path, "r+b") as f:
                 f.truncate(end)
                 f.flush()
                 os.fsync(f.fileno())
@@ -66,17 +68,30 @@ class RecordLog:
 
     def append(self, record: dict) -> None:
         """Write one record as a line, flushed and fsynced before returning."""
-        if self._file is None:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
-            self._file = open(self.path, "a", encoding="utf-8")
-        self._file.write(json.dumps(record) + "\n")
-        self._file.flush()
-        os.fsync(self._file.fileno())
+        line = json.dumps(record) + "\n"
+        with self._naming_errors():
+            if self._file is None:
+                self.path.parent.mkdir(parents=True, exist_ok=True)
+                self._file = open(self.path, "a", encoding="utf-8")
+            self._file.write(line)
+            self._file.flush()
+            os.fsync(self._file.fileno())
+
+    @contextmanager
+    def _naming_errors(self) -> Iterator[None]:
+        """An OSError without a file name (a write, flush or fsync on a full disk: ENOSPC) names this log."""
+        try:
+            yield
+        except OSError as e:
+            if e.filename is not None or e.errno is None:
+                raise
+            raise OSError(e.errno, e.strerror or os.strerror(e.errno), str(self.path)) from e
 
     def close(self) -> None:
         if self._file is not None:
-            self._file.close()
-            self._file = None
+            file, self._file = self._file, None
+            with self._naming_errors():
+                file.close()
 
     def __enter__(self) -> RecordLog:
         return self

@@ -42,6 +42,15 @@ def positive_number(value, path: str) -> float:
     return v
 
 
+def plain_name(value, path: str) -> str:
+    """A file name of its own (a Field type): not empty, no path separator, not `.` or `..`, no NUL; what a
+    key that names a folder inside the run directory needs, so it cannot point outside it."""
+    v = _check_type(value, str, path)
+    if not v.strip() or v in (".", "..") or any(c in v for c in ("/", "\\", "\0")):
+        raise ConfigError(path, f"expected a plain name (no path separator, not '.' or '..', not empty), got {value!r}")
+    return v
+
+
 def halvings(value, path: str) -> int:
     """An integer in [0, 12] (a Field type: how often an FD step may be halved)."""
     v = _check_type(value, int, path)
@@ -232,7 +241,8 @@ GRID = Field(grid_spec, help="θ values: a list, {start, stop, num}, or a list o
 
 
 # -- the keys of a schema as rows (for `nlosbench list keys` and the documentation's config reference) -----
-_KINDS = {grid_spec: "θ grid", point_spec: "θ point", points_spec: "θ points", noise_spec: "noise choice"}
+_KINDS = {grid_spec: "θ grid", point_spec: "θ point", points_spec: "θ points", noise_spec: "noise choice",
+          plain_name: "plain name", positive_number: "number > 0"}
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,8 @@ import glob
 import os
 import re
 
+from . import interrupts
+
 MIN_LLVM = 16
 _SEARCH = ["/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib",
            "/usr/local/lib", "/usr/lib/llvm-*/lib", "/opt/homebrew/opt/llvm/lib", "/usr/local/opt/llvm/lib"]
@@ -61,10 +63,16 @@ def select(variant: str | None = None) -> str:
 
     Calling it again with the same (or no) variant is free; a different variant switches Mitsuba over.
     """
-    global _selected
     want = variant or os.environ.get("NLOSBENCH_VARIANT")
     if _selected is not None and want in (None, _selected):
         return _selected
+    with interrupts.deferred():  # a Ctrl-C in the middle of a native import is held until it ends
+        return _activate(want)
+
+
+def _activate(want: str | None) -> str:
+    """`select`'s work: import Mitsuba and activate the first usable candidate; an interrupt is re-raised as such."""
+    global _selected
     configure_libllvm()
     import mitsuba as mi
 
@@ -87,7 +95,10 @@ def select(variant: str | None = None) -> str:
                 raise RuntimeError("no usable CUDA device")
             if v.startswith("llvm") and not dr.has_backend(dr.JitBackend.LLVM):
                 raise RuntimeError(f"Dr.Jit could not load libLLVM; {_FIX}")
-        except Exception as e:  # noqa: BLE001 - every failure is reported with its fix below
+        except Exception as e:  # noqa: BLE001 - every failure is reported with its fix below (an interrupt is not one)
+            stop = interrupts.interrupt_in(e)
+            if stop is not None:  # a Ctrl-C wrapped by the binding: the user's, not a reason the variant is unusable
+                raise stop from None
             errors.append(f"{v}: {e}")
             continue
         _selected = v

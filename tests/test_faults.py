@@ -15,6 +15,7 @@ import pytest
 import yaml
 
 from nlosbench.cli import main
+from nlosbench.executors import _call as _CALL
 from nlosbench.records import RecordLog
 
 ROOT = Path(__file__).parents[1]
@@ -710,3 +711,330 @@ def test_report_refuses_a_table_cut_short(two_studies, tmp_path, capsys):
     assert rc == 2 and errors(err) == [f"nlosbench: error: {table}: has 3 rows, results.json says {len(rows) - 1}: "
                                        f"a report from it would be wrong; resume the run (nlosbench run <its config> "
                                        f"--out {run} --resume) to rebuild it"], err
+
+
+# -- the small ones: a study id, a damaged rate, a record log that cannot be written, a full /dev/shm -------------
+@pytest.mark.parametrize("sid", ["../escape", "a/b", "/abs", "..", ".", "", "a\\b"])
+def test_a_study_id_that_is_not_a_plain_name_is_refused(tmp_path, capsys, sid):
+    """A study `id` is the study's folder in the run directory: one with a path separator, `..`, `.` or empty
+    (which would write outside the run folder, or into it) is exit 2 at config time, one line naming
+    `studies[0].id`, nothing written (neither the run folder nor the folder the id points at)."""
+    run = tmp_path / "out" / "run"
+    rc, err = cli(capsys, "run", config(tmp_path, EDGE, [{**BOUNDS, "id": sid}]), "--out", run, "--quiet")
+    assert rc == 2 and errors(err) == [f"nlosbench: error: studies[0].id: expected a plain name (no path separator, "
+                                       f"not '.' or '..', not empty), got {sid!r}"], err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "escape").exists()
+
+
+@pytest.mark.parametrize("bad", [float("nan"), 0.0, -1e-9, float("inf"), "fast"])
+def test_a_damaged_rate_is_measured_again_so_the_hour_guard_holds(tmp_path, capsys, monkeypatch, bad):
+    """~/.cache/nlosbench/rates.json (here under a temporary XDG_CACHE_HOME) edited so that the scene's rate is
+    NaN, 0, negative, infinite or text: a run of days without --yes is still refused (exit 2 with a finite
+    estimate; before, NaN or a rate <= 0 made the estimate NaN or 0 and the run started), and the rate is
+    measured again and kept."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    cfg = config(tmp_path, EDGE, [{**BOUNDS, "spp": 10 ** 12}])
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "first")[0] == 2
+    rates = tmp_path / "xdg" / "nlosbench" / "rates.json"
+    kept = json.loads(rates.read_text())
+    rates.write_text(json.dumps({k: {**v, "seconds_per_sample": bad} for k, v in kept.items()}))
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "run")
+    assert rc == 2 and "pass --yes to run it" in errors(err)[0] and "(measured now)" in err, err
+    assert "days" in errors(err)[0] and not (tmp_path / "run").exists()
+    again = [v["seconds_per_sample"] for v in json.loads(rates.read_text()).values()]
+    assert len(again) == 1 and 0 < again[0] < float("inf")
+
+
+@linux
+def test_a_record_log_that_cannot_be_written_names_its_file(tmp_path, capsys, monkeypatch):
+    """A full disk while a trial's record is appended (simulated: os.fsync raises ENOSPC on trials.jsonl, as it
+    does when the data is flushed; such an error carries no file name): exit 1, one line naming trials.jsonl,
+    'No space left on device (ENOSPC)' and how to resume, not a bare '[Errno 28]'. The record logs of every
+    study (trials, viewpoints) are one `RecordLog`."""
+    import errno
+
+    cfg = config(tmp_path, EDGE, [TRIALS])
+    run = tmp_path / "run"
+    real = os.fsync
+
+    def full(fd):
+        if os.readlink(f"/proc/self/fd/{fd}").endswith("trials.jsonl"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real(fd)
+
+    monkeypatch.setattr(os, "fsync", full)
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    log = run / "00-trials" / "trials.jsonl"
+    assert rc == 1 and errors(err) == [
+        f"nlosbench: error: No space left on device (ENOSPC): {log} — free space on that disk or use another --out; "
+        f"resume with: nlosbench run {cfg} --out {run} --resume"], err
+
+
+@pytest.mark.parametrize("where", ["a result", "the pool's queues"])
+def test_a_full_dev_shm_is_one_line_naming_it_and_the_fix(tmp_path, capsys, monkeypatch, where):
+    """A full /dev/shm (simulated, not filled: the pool is replaced by one that fails as torch and multiprocessing
+    do) — a worker's image cannot be put in shared memory (torch's RuntimeError 'unable to write to file
+    </torch_...>: No space left on device') or the pool's semaphores cannot be made (ENOSPC, no file named):
+    exit 1, one line naming /dev/shm and the fixes, with how to resume; not a RuntimeError traceback nor a
+    'free space on that disk or use another --out' that sends one to the wrong disk."""
+    import errno
+    from concurrent.futures import Future
+
+    from nlosbench import executors
+
+    class FullShm:
+        def __init__(self, *args, **kw):
+            if where == "the pool's queues":
+                raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+        def submit(self, *args, **kw) -> Future:
+            f = Future()
+            f.set_exception(RuntimeError("unable to write to file </torch_4242_1234_0>: No space left on device (28)"))
+            return f
+
+        def shutdown(self, *args, **kw) -> None:
+            pass
+
+    monkeypatch.setattr(executors, "ProcessPoolExecutor", FullShm)
+    cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "local", "workers": 1})
+    run = tmp_path / "run"
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    assert rc == 1 and errors(err) == [f"nlosbench: error: {executors.SHM_FULL}; resume with: nlosbench run {cfg} "
+                                       f"--out {run} --resume"], err
+    assert "/dev/shm" in executors.SHM_FULL and "executor.type: serial" in executors.SHM_FULL
+
+
+# -- stop signals at any moment ----------------------------------------------------------------------------------
+SHORT = {"type": "bounds", "grid": {"start": 0.8, "stop": 1.2, "num": 3}, "spp": 64, "zzb": False}
+#: (signal, seconds after the command's handlers are in place — its first lines, before torch or Mitsuba is
+#: imported — or after config.yaml is written: the run's studies under way)
+MOMENTS = {"SIGINT": [(0.0, "start"), (1.2, "start"), (0.0, "run"), (1.0, "run")],
+           "SIGTERM": [(0.3, "start"), (2.0, "start"), (0.3, "run")],
+           "SIGHUP": [(0.7, "start"), (1.6, "start"), (0.6, "run")]}
+BAD = ("Traceback", "leaked semaphore", "Fatal Python error", "Exception ignored", "resource_tracker")
+
+
+def handles(pid: int, signum: int) -> bool:
+    """Whether process `pid` has a handler for `signum` (the SigCgt mask of /proc/PID/status)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    mask = next((line.split()[1] for line in status.splitlines() if line.startswith("SigCgt:")), "0")
+    return bool(int(mask, 16) >> (signum - 1) & 1)
+
+
+def _signal_lane(cfg: Path, tmp: Path, name: str) -> list[tuple]:
+    """Start `nlosbench run` (its own process group: the signal goes to the group, as a terminal's or a batch
+    system's does) and send `name` at each of its MOMENTS, one run after another; (delay, when, code, stdout,
+    stderr, folder, workers seen) per run. The moments are counted from events, so a loaded machine shifts
+    none of them before the command runs."""
+    out = []
+    for k, (delay, when) in enumerate(MOMENTS[name]):
+        run = tmp / f"{name}-{k}"
+        proc = spawn("run", cfg, "--out", run, "--quiet", start_new_session=True)
+        workers: list[int] = []
+        try:
+            if when == "run":
+                wait_for(lambda p=proc, r=run: (r / "config.yaml").exists() or p.poll() is not None, 60, 0.01)
+            else:  # a signal before the interpreter runs the command's first lines is Python's own business
+                wait_for(lambda p=proc: handles(p.pid, signal.SIGHUP) or p.poll() is not None, 60, 0.005)
+            time.sleep(delay)
+            workers = children(proc.pid)
+            try:
+                os.killpg(proc.pid, getattr(signal, name))
+            except ProcessLookupError:  # finished already
+                pass
+            stdout, stderr = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        out.append((delay, when, proc.returncode, stdout, stderr, run, workers))
+    return out
+
+
+@linux
+def test_sigint_sigterm_and_sighup_at_any_moment_end_with_one_line(tmp_path):
+    """SIGINT (Ctrl-C), SIGTERM and SIGHUP sent to `python -m nlosbench run` (a Π-hallway bounds study with one
+    pool worker) at moments spread from its start — the import of torch and nlosbench, Dr.Jit's and Mitsuba's
+    import, the scene load, the rate measurement — to the renders in the pool worker (after config.yaml is
+    written): 10 runs, the three signals' runs side by side. Each ends with exit 128 + the signal's number
+    (130, 143, 129) and its last stderr line `nlosbench: error: interrupted[ (SIGTERM|SIGHUP)]` (with the
+    resume command once the run has started), or had finished (exit 0, `done:`); never a traceback, a
+    'leaked semaphore' or resource-tracker warning, a `Fatal Python error`, nor a pool worker left. Before:
+    a signal during the imports printed a KeyboardInterrupt traceback (SIGINT) or ended silently by the
+    signal (SIGTERM, SIGHUP: -15, -1), and SIGHUP killed multiprocessing's resource tracker (KeyError
+    tracebacks)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    cfg = config(tmp_path, PI, [SHORT], executor={"type": "local", "workers": 1})
+    with ThreadPoolExecutor(len(MOMENTS)) as lanes:
+        runs = {name: lanes.submit(_signal_lane, cfg, tmp_path, name) for name in MOMENTS}
+        runs = {name: f.result() for name, f in runs.items()}
+    interrupted = 0
+    for name, results in runs.items():
+        signum = getattr(signal, name)
+        for delay, when, code, stdout, stderr, run, workers in results:
+            where = f"{name} {delay} s after the {when}: exit {code}\n{stderr}"
+            assert not any(b in stderr for b in BAD), where
+            assert wait_for(lambda ws=workers: not any(alive(w) for w in ws), timeout=5), where
+            if code == 0:
+                assert stdout.startswith("done:"), where
+                continue
+            interrupted += 1
+            lines = [line for line in stderr.splitlines() if line.strip()]
+            line = "nlosbench: error: interrupted" + ("" if name == "SIGINT" else f" ({name})")
+            assert code == 128 + signum and lines[-1].startswith(line) and len(errors(stderr)) == 1, where
+            hint = f"; resume with: nlosbench run {cfg} --out {run} --resume"
+            assert lines[-1] in (line, line + hint) and (when == "start" or lines[-1] == line + hint), where
+    assert interrupted >= 7, "most runs must be stopped, not finished: the moments are too late for this machine"
+    assert any(r[6] for rs in runs.values() for r in rs), "no signal came while the pool worker was alive"
+
+
+def test_a_signal_during_a_native_import_or_the_scene_load_is_held_until_it_ends():
+    """A SIGTERM that arrives inside `interrupts.deferred()` (where Dr.Jit and Mitsuba are imported and the
+    scene is loaded) does not cut the block: the block finishes, then the run's handler raises Interrupted
+    (SIGTERM). Without the deferral the handler's exception would be raised in the middle of the native
+    import, where it can leave Mitsuba half-initialised or abort the interpreter."""
+    from nlosbench import interrupts
+    from nlosbench.cli import _interrupts
+
+    def early(signum, frame):  # what runs if nothing holds the signal (instead of SIGTERM's default: the end)
+        raise RuntimeError("SIGTERM was not held")
+
+    saved = {s: signal.getsignal(s) for s in interrupts.STOPPING}
+    finished = False
+    try:
+        signal.signal(signal.SIGTERM, early)
+        with _interrupts(), pytest.raises(interrupts.Interrupted) as stop:
+            with interrupts.deferred():
+                os.kill(os.getpid(), signal.SIGTERM)
+                time.sleep(0.2)  # the handler would have run here (between bytecodes of this thread)
+                finished = True
+        assert finished and stop.value.signum == signal.SIGTERM
+    finally:
+        for s, handler in saved.items():
+            signal.signal(s, handler)
+
+
+@pytest.mark.parametrize("how", ["cause", "message"])
+def test_an_interrupt_inside_mitsubas_variant_import_is_not_a_variant_diagnosis(monkeypatch, how):
+    """Ctrl-C while Mitsuba imports a variant's native module, which the binding reports as its own error (the
+    KeyboardInterrupt as the cause, or only named in the message): `variant.select` re-raises it as
+    KeyboardInterrupt (the command: one line, exit 130), not the VariantError 'no usable Mitsuba variant'
+    with a fix that fixes nothing. Simulated with a stand-in `mitsuba` module."""
+    import types
+
+    from nlosbench import variant
+
+    def set_variant(name: str) -> None:
+        if how == "message":
+            raise RuntimeError(f"could not import mitsuba.{name}: KeyboardInterrupt")
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as e:
+            raise RuntimeError(f"could not import mitsuba.{name}") from e
+
+    monkeypatch.setitem(sys.modules, "mitsuba", types.SimpleNamespace(variants=lambda: ["llvm_ad_rgb"],
+                                                                      set_variant=set_variant))
+    monkeypatch.setattr(variant, "_selected", None)
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/usr/lib/libLLVM-19.so")
+    with pytest.raises(KeyboardInterrupt):
+        variant.select("llvm_ad_rgb")
+
+
+# -- bounded waits: a Dask scheduler without workers ---------------------------------------------------------------
+@pytest.fixture
+def scheduler():
+    """A Dask scheduler in this process with no worker (skipped without dask.distributed, the 'dask' extra)."""
+    distributed = pytest.importorskip("distributed", reason="dask.distributed is not installed (the 'dask' extra)")
+    with distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=None) as cluster:
+        yield cluster
+
+
+def test_a_dask_scheduler_without_workers_gives_up_after_worker_timeout(tmp_path, capsys, scheduler):
+    """A reachable Dask scheduler that has no worker (none was started), `executor.worker_timeout: 2`: exit 1
+    within seconds (not a wait for ever), one line on stderr naming the scheduler's address and the key, with
+    how to resume; Dask's own log lines are in RUN/dask.log, not on the terminal. (The timeout must be a
+    number > 0: 0 is exit 2 naming the key.)"""
+    address = scheduler.scheduler_address
+    cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "dask", "address": address, "worker_timeout": 2})
+    run = tmp_path / "run"
+    t0 = time.perf_counter()
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    assert rc == 1 and [line for line in err.splitlines() if line.strip()] == [
+        f"nlosbench: error: no Dask worker at the scheduler {address} within 2 s (executor.worker_timeout): start "
+        f"workers for that scheduler (dask worker {address}) or raise executor.worker_timeout; resume with: "
+        f"nlosbench run {cfg} --out {run} --resume"], err
+    assert 2 <= time.perf_counter() - t0 < 15
+    assert "distributed.scheduler" in (run / "dask.log").read_text()
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "zero", "--set", "executor.worker_timeout=0", "--quiet")
+    assert rc == 2 and errors(err) == ["nlosbench: error: executor.worker_timeout: expected a finite number > 0, "
+                                       "got 0"], err
+
+
+def _slow_call(*args):
+    """`executors._call`, 0.3 s slower (module level: Dask pickles it by reference)."""
+    time.sleep(0.3)
+    return _CALL(*args)
+
+
+def test_dask_workers_all_lost_mid_run_give_up_after_worker_timeout(tmp_path, capsys, scheduler, monkeypatch):
+    """Every Dask worker lost mid-run (simulated: the scheduler's one worker is removed once the first renders
+    are back; each task takes 0.3 s), `executor.worker_timeout: 2`: exit 1 a few seconds later (the tasks left
+    would otherwise wait for ever), one line naming the scheduler and the key with how to resume; the
+    finished renders are kept in the run's render store, and the resume (here on the serial executor: executor
+    keys may change on --resume) finishes the run with the numbers of one that never failed."""
+    import threading
+
+    from nlosbench import executors
+
+    monkeypatch.setattr(executors, "_call", _slow_call)  # the worker runs in this process: it looks it up here
+    scheduler.scale(1)
+    scheduler.wait_for_workers(1, timeout=30)
+    address = scheduler.scheduler_address
+    cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "dask", "address": address, "worker_timeout": 2})
+    run = tmp_path / "run"
+
+    def lose_workers() -> None:
+        wait_for(lambda: any((run / "renders").rglob("*.npc")), timeout=60, every=0.02)
+        scheduler.scale(0)
+
+    threading.Thread(target=lose_workers, daemon=True).start()
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    assert rc == 1 and errors(err) == [
+        f"nlosbench: error: no Dask worker left at the scheduler {address} for 2 s (all lost mid-run) "
+        f"(executor.worker_timeout): start workers for that scheduler (dask worker {address}) or raise "
+        f"executor.worker_timeout; resume with: nlosbench run {cfg} --out {run} --resume"], err
+    kept = list((run / "renders").rglob("*.npc"))
+    assert kept and not (run / "00-bounds" / "bounds.csv").exists()
+    monkeypatch.setattr(executors, "_call", _CALL)
+    assert cli(capsys, "run", cfg, "--out", run, "--resume", "--set", "executor.type=serial", "--quiet")[0] == 0
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "clean", "--set", "executor.type=serial", "--quiet")[0] == 0
+    assert (run / "00-bounds" / "bounds.csv").read_bytes() == \
+        (tmp_path / "clean" / "00-bounds" / "bounds.csv").read_bytes()
+
+
+def test_stopping_a_pool_with_queued_tasks_leaves_no_error_in_its_thread(monkeypatch):
+    """The state a Ctrl-C leaves while pool workers start (2 workers busy, more tasks queued, the queued ones
+    cancelled as the interrupt passes through `imap_unordered`), then `abort`: the pool's management thread ends
+    without an exception. Before, the workers were killed first and that thread marked the cancelled futures
+    failed: `InvalidStateError: CANCELLED` with a thread traceback printed after the run's error line."""
+    import multiprocessing
+    import threading
+    from concurrent.futures import ProcessPoolExecutor
+
+    from nlosbench.executors import LocalPoolExecutor
+
+    caught = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: caught.append(args.exc_value))
+    pool = LocalPoolExecutor({"name": "edge1d"}, workers=2)
+    pool._pool = ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn"))
+    futures = [pool._pool.submit(time.sleep, 30) for _ in range(6)]
+    assert wait_for(lambda: sum(f.running() for f in futures) >= 2, timeout=60)
+    for f in futures:
+        f.cancel()
+    manager = pool._pool._executor_manager_thread
+    pool.abort()
+    manager.join(10)
+    assert not manager.is_alive() and not caught, caught

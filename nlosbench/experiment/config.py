@@ -6,13 +6,14 @@ from pathlib import Path
 import yaml
 
 from .. import studies
-from ..schema import ConfigError, Field, validate_block
+from ..schema import ConfigError, Field, plain_name, positive_number, validate_block
 
 NOISE = {"model": Field(str, help="noise model name", choices=("awgn", "poisson")),
          "sigma": Field(float, None, "AWGN standard deviation (radiance units)", nullable=True),
          "scale": Field(float, None, "Poisson: expected photons per unit radiance", nullable=True)}
 
-STUDY = {"id": Field(str, None, "folder name of the study in the run directory (default: NN-type)", nullable=True)}
+STUDY = {"id": Field(plain_name, None, "folder name of the study in the run directory: no path separator, not . "
+                                      "or .. (default: NN-type)", nullable=True)}
 
 TOP = {
     "name": Field(str, "experiment", "a short name for the run"),
@@ -33,7 +34,10 @@ TOP = {
                        "workers": Field(int, 2, "local worker processes"),
                        "address": Field(str, None, "dask scheduler address (default: a LocalCluster)", nullable=True),
                        "connect_timeout": Field(float, 10.0, "seconds to wait for the dask scheduler at `address` "
-                                                             "before giving up")}),
+                                                             "before giving up"),
+                       "worker_timeout": Field(positive_number, 60.0, "dask: seconds without a live worker (none at "
+                                                                      "the start, or all lost mid-run) before the run "
+                                                                      "gives up (exit 1; finished work is kept)")}),
     "cache": Field(str, None, "render cache folder shared across runs (default: none)", nullable=True),
     "keep_renders": Field(bool, True, "keep every render of the run in RUN/renders/ (checksummed), so a resumed "
                                       "run renders nothing twice"),

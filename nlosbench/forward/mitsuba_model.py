@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from .. import interrupts
 from .. import variant as _variant
 from ..params import ParamSpace
 from ..seeds import derive
@@ -95,24 +96,17 @@ class MitsubaModel(ForwardModel):
                  defines: dict | None = None, ad_integrator: dict | None = None,
                  max_pass_samples: int | None = None, cache=None, remove: list[str] | None = None,
                  freeze: bool | None = None, llvm_target: str | None = None):
-        self.llvm_target = _llvm_target.pin(llvm_target)  # before Mitsuba runs its first kernel
-        self.variant = _variant.select(variant)
-        import mitsuba as mi
-
         self.scene_file = Path(scene_file)
         if not self.scene_file.is_file():
             raise FileNotFoundError(f"scene {name!r}: scene file {self.scene_file} does not exist")
         self.defines = {k: v for k, v in (defines or {}).items()}
         self.remove = list(remove or [])  # element ids dropped from the scene file before loading
-        # optimize=False: merging meshes orders shapes and emitters differently in each process,
-        # which breaks "same (θ, spp, seed) → same image" across worker processes
-        try:
-            if self.remove:
-                self.scene = mi.load_string(pruned_xml(self.scene_file, self.remove), optimize=False, **self.defines)
-            else:
-                self.scene = mi.load_file(str(self.scene_file), optimize=False, **self.defines)
-        except RuntimeError as e:  # Mitsuba's parser: invalid XML, unknown plugin, missing asset, bad define
-            raise SceneError(f"scene {name!r}: {self.scene_file} does not load: {_first_line(e)}") from None
+        with interrupts.deferred():  # Dr.Jit's and Mitsuba's imports and the scene load are not cut by a Ctrl-C
+            self.llvm_target = _llvm_target.pin(llvm_target)  # before Mitsuba runs its first kernel
+            self.variant = _variant.select(variant)
+            self.scene = self._load(name)
+        import mitsuba as mi
+
         MitsubaModel.loads += 1
         self._params = mi.traverse(self.scene)
         bindings = [Binding.from_spec(p) for p in params]
@@ -138,6 +132,22 @@ class MitsubaModel(ForwardModel):
         # every file the scene loads (includes and $-named meshes too), as Mitsuba's parser finds them
         self._hash = content_hash(self.scene_file, {k: str(v) for k, v in self.defines.items()}, self.variant)
         self._renderer = FrozenRender(freeze_default(freeze), label=f"scene {name!r}")
+
+    def _load(self, name: str):
+        """The Mitsuba scene from the scene file (without `remove`'s elements); SceneError when it does not load.
+        optimize=False: merging meshes orders shapes and emitters differently in each process, which breaks
+        "same (θ, spp, seed) → same image" across worker processes."""
+        import mitsuba as mi
+
+        try:
+            if self.remove:
+                return mi.load_string(pruned_xml(self.scene_file, self.remove), optimize=False, **self.defines)
+            return mi.load_file(str(self.scene_file), optimize=False, **self.defines)
+        except RuntimeError as e:  # Mitsuba's parser: invalid XML, unknown plugin, missing asset, bad define
+            stop = interrupts.interrupt_in(e)
+            if stop is not None:
+                raise stop from None
+            raise SceneError(f"scene {name!r}: {self.scene_file} does not load: {_first_line(e)}") from None
 
     @property
     def freeze(self) -> bool:

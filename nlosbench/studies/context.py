@@ -78,7 +78,8 @@ class RunContext:
     def start(self) -> None:
         """Start the run's executor (the config's `executor` block), its render bank (renders kept in
         the run directory's renders/ when the config's `keep_renders` is on) and its bound service."""
-        self.executor = executors.create(self.config["executor"], self.model_spec, self.model)
+        self.executor = executors.create(self.config["executor"], self.model_spec, self.model,
+                                         log=self.dir / "dask.log")  # Dask's own log lines: a file, not stderr
         self.executor.start()  # Dask: connect now (ConnectionError naming the address), not at the first task
         store = RenderCache(self.dir / "renders") if self.config.get("keep_renders", True) else None
         self.bank = RenderBank(self.model, self.executor, self.progress, seed=self.seed, store=store)

@@ -95,7 +95,7 @@ def rate(model: ForwardModel) -> Rate:
     except (OSError, ValueError):
         known = {}
     hit = known.get(key) if isinstance(known, dict) else None
-    if isinstance(hit, dict) and isinstance(hit.get("seconds_per_sample"), (int, float)):
+    if isinstance(hit, dict) and _usable(hit.get("seconds_per_sample")):  # else (NaN, 0, < 0, text) measured again
         return Rate(float(hit["seconds_per_sample"]), f"measured {hit.get('when', '')} ({path})")
     r = measure(model)
     try:
@@ -106,6 +106,12 @@ def rate(model: ForwardModel) -> Rate:
     except OSError:  # a read-only home: the estimate still stands, it is just measured again next time
         pass
     return Rate(r, "measured now")
+
+
+def _usable(value) -> bool:
+    """A kept rate is a finite number > 0: NaN, infinity, zero or a negative rate (a hand-edited or damaged
+    rates.json) would make every estimate NaN, infinite or 0 and switch off the one-hour `--yes` guard."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
 
 
 def measure(model: ForwardModel) -> float:
