@@ -50,6 +50,27 @@ def halvings(value, path: str) -> int:
     return v
 
 
+def folder_name(value, path: str) -> str:
+    """A name that becomes one file or folder inside the run folder (the run's `name`, a study's `id`, a
+    Fisher map's label): one path component, so it cannot point outside the run folder (no '/', '\\', '.',
+    '..', NUL, nothing empty, at most 200 bytes). A Field type."""
+    v = _check_type(value, str, path)
+    if v in ("", ".", "..") or any(c in v for c in "/\\\0") or len(v.encode("utf-8", "surrogatepass")) > 200:
+        raise ConfigError(path, f"expected a file or folder name inside the run folder (one path component: no "
+                                f"'/', no '..', not empty, at most 200 bytes), got {value!r}")
+    return v
+
+
+def path_string(value, path: str) -> str:
+    """A file-system path that may point anywhere, outside the run folder included (the scene spec, the
+    cross-run render cache, the folder runs go under, a verdicts file): a non-empty string without NUL.
+    A Field type."""
+    v = _check_type(value, str, path)
+    if not v or "\0" in v:
+        raise ConfigError(path, f"expected a non-empty path without NUL characters, got {value!r}")
+    return v
+
+
 #: the FD-step rule of the Δ → 0 term and the CRLB at a quoted θ (bounds.fd_step), shared by the studies
 STEP_TOL = Field(positive_number, 0.1, "the FD step of the Δ → 0 term and the CRLB counts as converged when the "
                  "paired upper limit of F(ξ/2)/F(ξ) is <= 1 + step_tol; else their lower ends are labelled 'not a "
@@ -232,7 +253,8 @@ GRID = Field(grid_spec, help="θ values: a list, {start, stop, num}, or a list o
 
 
 # -- the keys of a schema as rows (for `nlosbench list keys` and the documentation's config reference) -----
-_KINDS = {grid_spec: "θ grid", point_spec: "θ point", points_spec: "θ points", noise_spec: "noise choice"}
+_KINDS = {folder_name: "name", path_string: "path",
+          grid_spec: "θ grid", point_spec: "θ point", points_spec: "θ points", noise_spec: "noise choice"}
 
 
 @dataclass(frozen=True)
