@@ -42,11 +42,20 @@ permissions, network, a worker that died); 3 internal error (a bug: traceback in
 file, named on the error line); 130 interrupted. Errors are one line `nlosbench: error: ...`."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line `nlosbench: error: ...` (exit 2), like every other."""
+
+    def error(self, message: str):
+        sub = self.prog.removeprefix("nlosbench").strip()
+        self.exit(BAD_INPUT, f"nlosbench: error: {' '.join(message.split())} (nlosbench {sub + ' ' if sub else ''}"
+                             "--help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The `nlosbench` argument parser (also read by the documentation's CLI reference)."""
     from . import __version__
 
-    p = argparse.ArgumentParser(prog="nlosbench", description="Renderer-backed estimation bounds (HCR, CRLB, "
+    p = _Parser(prog="nlosbench", description="Renderer-backed estimation bounds (HCR, CRLB, "
                                 "Barankin) and ML estimators for plenoptic / NLOS imaging.",
                                 epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")

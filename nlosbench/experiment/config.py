@@ -63,7 +63,12 @@ def load(path: str | Path, overrides: list[str] = (), smoke: bool = False) -> di
     try:
         raw = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as e:
-        raise ConfigError("", f"{path} is not valid YAML: {e}") from None
+        raise ConfigError("", f"{path} is not valid YAML: {' '.join(str(e).split())}") from None
+    except UnicodeDecodeError:
+        raise ConfigError("", f"{path} is not a text file (a YAML config)") from None
+    if not isinstance(raw, dict):
+        raise ConfigError("", f"{path} holds a YAML {type(raw).__name__}, not a mapping of config keys (name, scene, "
+                              "noise, studies, ...; nlosbench list keys)")
     for item in overrides:
         apply_override(raw, item)
     _scene_beside(raw, path.parent)
@@ -150,6 +155,9 @@ def resolve(raw: dict) -> dict:
         path = f"studies[{i}]"
         if not isinstance(block, dict) or "type" not in block:
             raise ConfigError(path, "each study needs a `type`")
+        if not isinstance(block["type"], str):
+            raise ConfigError(f"{path}.type", f"expected a study type (one of {', '.join(studies.available())}), got "
+                                              f"{type(block['type']).__name__} {block['type']!r}")
         try:
             mod = studies.get(block["type"])
         except KeyError as e:
