@@ -35,6 +35,10 @@ class MultiStart(Estimator):
         self.base_name, self.starts, self.options, self.spp = base, int(starts), dict(options or {}), int(spp)
         self._base = get(base, **self.options)
 
+    def grid_wanted(self, params):
+        """The base estimator's grid (its fits get the problem as it is, `grids` included)."""
+        return self._base.grid_wanted(params)
+
     def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,
              tracker: Tracker) -> Outcome:
         seed = derive(render_seed(rng), "multi-start")
