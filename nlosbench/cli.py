@@ -194,7 +194,11 @@ def _keys(study: str | None) -> str:
     else:
         from . import studies
 
-        rows, title = describe(study_schema(studies.get(study))), f"keys of a `type: {study}` study block"
+        try:
+            mod = studies.get(study)
+        except KeyError as e:
+            raise ConfigError("STUDY", e.args[0]) from None
+        rows, title = describe(study_schema(mod)), f"keys of a `type: {study}` study block"
     width = max(len(r.path) for r in rows)
     lines = [f"{title}:"]
     for r in rows:

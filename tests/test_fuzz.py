@@ -450,3 +450,11 @@ def test_regression_usage_errors_are_one_line(argv):
     rc, _, err = cli(*argv)
     assert rc == BAD_INPUT and len(err.strip().splitlines()) == 1 and err.startswith("nlosbench: error: "), err
     assert "--help)" in err
+
+
+@pytest.mark.parametrize("argv", [["list", "keys", "bound"], ["bench", "nosuch"]])
+def test_regression_an_unknown_study_or_benchmark_name_is_bad_input(argv):
+    """Found while reclassifying errors: `list keys bound` (a KeyError) and `bench nosuch` (an ImportError, a
+    traceback before) are bad input: exit 2, one line naming what is available."""
+    rc, _, err = cli(*argv)
+    assert rc == BAD_INPUT and len(err.strip().splitlines()) == 1 and "available" in err, err
