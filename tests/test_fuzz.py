@@ -10,9 +10,9 @@ error), never a traceback — and a refused run leaves `--out` absent. Three way
     specs that are lists, strings, XML files, folders, missing, unreadable or name invalid XML;
 (c) CLI arguments: subcommands, flags and `--set` overrides of every kind.
 
-Profiles: `make test` loads the default profile (derandomized, no example database, the whole file in
-well under 20 s); HYPOTHESIS_PROFILE=nightly runs many more examples with random seeds. Every failure found
-is kept below as a named regression test (an explicit example).
+Profiles: `make test` runs the "make-test" profile (derandomized, no example database, the whole file in
+under 20 s); HYPOTHESIS_PROFILE=nightly runs 50× the examples with random seeds (minutes). Every failure
+found is kept below as a named regression test (an explicit example).
 """
 from __future__ import annotations
 
@@ -39,16 +39,16 @@ ROOT = Path(__file__).resolve().parents[1]
 CONFIGS = sorted((ROOT / "configs").glob("*.yaml")) + sorted((ROOT / "tests" / "configs").glob("*.yaml"))
 SPEC = ROOT / "scenes" / "cornell_ball.yaml"
 
-settings.register_profile("default", derandomize=True, database=None, deadline=None,
+settings.register_profile("make-test", derandomize=True, database=None, deadline=None,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
 settings.register_profile("nightly", max_examples=2000, deadline=None, database=None,
                           suppress_health_check=[HealthCheck.too_slow, HealthCheck.filter_too_much])
-settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "make-test"))
 NIGHTLY = os.environ.get("HYPOTHESIS_PROFILE") == "nightly"
 
 
 def examples(n: int) -> settings:
-    """n examples in the default profile; the nightly profile's count (× 1, its own setting) otherwise."""
+    """n examples under `make test`, 50 n in the nightly profile."""
     return settings(max_examples=n * 50 if NIGHTLY else n)
 
 
@@ -458,3 +458,15 @@ def test_regression_an_unknown_study_or_benchmark_name_is_bad_input(argv):
     traceback before) are bad input: exit 2, one line naming what is available."""
     rc, _, err = cli(*argv)
     assert rc == BAD_INPUT and len(err.strip().splitlines()) == 1 and "available" in err, err
+
+
+@pytest.mark.parametrize("binding", ["axis: [.inf, 0, 0]", "axis: [.nan, 1, 0]"], ids=["inf", "nan"])
+def test_regression_a_translate_axis_that_is_not_finite(tmp_path, binding):
+    """Found by the nightly fuzzing: `axis: [.inf, 0, 0]` passed (its norm is > 0) and became a NaN axis (a
+    RuntimeWarning, then NaN renders); it is one line naming the spec and the parameter."""
+    shutil.copy(ROOT / "scenes" / "cornell_ball.xml", tmp_path / "cornell_ball.xml")
+    spec = tmp_path / "s.yaml"
+    spec.write_text("file: cornell_ball.xml\nparams:\n  - {name: x, kind: translate, object: ball, " + binding
+                    + ", lower: -0.1, upper: 0.1, default: 0}\n")
+    with pytest.raises(ConfigError, match=r"s\.yaml: parameter 'x': translate needs a finite, non-zero 3-vector"):
+        scenes.load_spec(spec, defines={"res": 8})
