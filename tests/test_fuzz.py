@@ -301,7 +301,9 @@ def test_a_bad_spec_is_one_line_naming_it_from_the_config_and_from_check_scene(b
 def test_an_xml_file_list_or_string_where_a_spec_belongs_says_how_to_write_one(bad_specs, tmp_path, name):
     """Task: an XML file (or a YAML list or string) given as a spec: one line saying how to write the spec,
     naming `file:`, `params:`, `nlosbench check-scene` and examples/own_scene.py; nothing written."""
-    for args in (("check-scene", bad_specs / name), ("render", bad_specs / name)):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump({**TINY, "scene": {"name": str(bad_specs / name)}}))
+    for args in (("check-scene", bad_specs / name), ("render", bad_specs / name), ("run", cfg)):
         rc, _, err = cli(*args, "--out", tmp_path / "out")
         assert rc == BAD_INPUT and len(err.strip().splitlines()) == 1, err
         for words in ("`file:`", "`params:`", "nlosbench check-scene", "examples/own_scene.py"):
