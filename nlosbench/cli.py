@@ -56,8 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     from . import __version__
 
     p = _Parser(prog="nlosbench", description="Renderer-backed estimation bounds (HCR, CRLB, "
-                                "Barankin) and ML estimators for plenoptic / NLOS imaging.",
-                                epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+                "Barankin) and ML estimators for plenoptic / NLOS imaging.",
+                epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     r = sub.add_parser("run", help="run the studies of a YAML config")
