@@ -259,6 +259,8 @@ def main(argv: list[str] | None = None) -> int:
         return _fail(ENVIRONMENT, f"a worker process died ({e}; out of memory?)", resume)
     except VariantError as e:
         return _fail(ENVIRONMENT, str(e))
+    except ImportError as e:  # an optional dependency that is not installed (dask for executor: dask)
+        return _fail(ENVIRONMENT, str(e), resume)
     except Exception as e:  # noqa: BLE001 - not caused by the input: a bug, reported with its traceback kept
         return _fail(INTERNAL, _internal(e, prepared.dir if prepared is not None else None), resume)
     return OK

@@ -50,6 +50,19 @@ def halvings(value, path: str) -> int:
     return v
 
 
+def integer_in(lo: int, hi: int):
+    """A check: an integer in [lo, hi] (a Field type)."""
+
+    def check(value, path: str) -> int:
+        v = _check_type(value, int, path)
+        if not lo <= v <= hi:
+            raise ConfigError(path, f"expected an integer in [{lo}, {hi}], got {value!r}")
+        return v
+
+    check.__name__ = f"integer in [{lo}, {hi}]"  # the kind `describe` shows
+    return check
+
+
 def folder_name(value, path: str) -> str:
     """A name that becomes one file or folder inside the run folder (the run's `name`, a study's `id`, a
     Fisher map's label): one path component, so it cannot point outside the run folder (no '/', '\\', '.',

@@ -209,7 +209,11 @@ def test_mutated_configs_pass_or_are_refused_before_anything_is_written(raw):
 @examples(4)
 @given(raw=mutated(TINY))
 def test_mutated_configs_run_in_smoke_mode_or_are_refused(raw):
-    """`nlosbench run --smoke` in this process on a mutated tiny config: exit 0, or 2 with --out absent."""
+    """`nlosbench run --smoke` in this process on a mutated tiny config: exit 0, or 2 with --out absent. The
+    executor stays serial (spawning worker pools per example would take minutes; the executor block is fuzzed
+    through the config tests above)."""
+    if isinstance(raw, dict):
+        raw = {**raw, "executor": {"type": "serial"}}
     with tempfile.TemporaryDirectory() as d:
         cfg, out = Path(d) / "c.yaml", Path(d) / "run"
         cfg.write_text(yaml.safe_dump(raw, allow_unicode=True))
@@ -472,3 +476,19 @@ def test_regression_a_translate_axis_that_is_not_finite(tmp_path, binding):
                     + ", lower: -0.1, upper: 0.1, default: 0}\n")
     with pytest.raises(ConfigError, match=r"s\.yaml: parameter 'x': translate needs a finite, non-zero 3-vector"):
         scenes.load_spec(spec, defines={"res": 8})
+
+
+@pytest.mark.parametrize("executor, key", [({"workers": 0}, "executor.workers"), ({"workers": -3}, "executor.workers"),
+                                           ({"workers": 2**40}, "executor.workers"),
+                                           ({"connect_timeout": math.inf}, "executor.connect_timeout"),
+                                           ({"connect_timeout": 0}, "executor.connect_timeout")])
+def test_regression_executor_settings_are_checked_with_the_config(tmp_path, executor, key):
+    """Found while looking into a stalled nightly fuzz run (mutated `executor` blocks): `workers: 0` passed the
+    config and failed only when the run started its executor (a ValueError after the run folder was made, so
+    an internal error), and an infinite connect_timeout would wait for ever; both are refused with the config,
+    nothing written."""
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump({**TINY, "executor": {"type": "local", **executor}}))
+    rc, _, err = cli("run", cfg, "--out", tmp_path / "run")
+    check_outcome(rc, err, tmp_path / "run")
+    assert rc == BAD_INPUT and f"nlosbench: error: {key}: expected" in err, err

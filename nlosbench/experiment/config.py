@@ -14,7 +14,7 @@ from pathlib import Path
 import yaml
 
 from .. import scenes, studies
-from ..schema import ConfigError, Field, folder_name, path_string, validate_block
+from ..schema import ConfigError, Field, folder_name, integer_in, path_string, positive_number, validate_block
 
 NOISE = {"model": Field(str, help="noise model name", choices=("awgn", "poisson")),
          "sigma": Field(float, None, "AWGN standard deviation (radiance units)", nullable=True),
@@ -41,10 +41,10 @@ TOP = {
                                          choices=("native", "portable"), nullable=True)}),
     "noise": Field(list, [{"model": "awgn", "sigma": 0.1}], "noise models", items=NOISE),
     "executor": Field({"type": Field(str, "local", choices=("local", "serial", "dask")),
-                       "workers": Field(int, 2, "local worker processes"),
+                       "workers": Field(integer_in(1, 1024), 2, "worker processes (local, or a dask LocalCluster)"),
                        "address": Field(str, None, "dask scheduler address (default: a LocalCluster)", nullable=True),
-                       "connect_timeout": Field(float, 10.0, "seconds to wait for the dask scheduler at `address` "
-                                                             "before giving up")}),
+                       "connect_timeout": Field(positive_number, 10.0, "seconds to wait for the dask scheduler at "
+                                                                       "`address` before giving up")}),
     "cache": Field(path_string, None, "render cache folder shared across runs (default: none; may lie outside the "
                                       "run folder)", nullable=True),
     "keep_renders": Field(bool, True, "keep every render of the run in RUN/renders/ (checksummed), so a resumed "
