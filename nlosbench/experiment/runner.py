@@ -25,6 +25,7 @@ import yaml
 
 from .. import studies
 from ..io import write_json, write_text
+from ..records import RecordError
 from ..schema import ConfigError
 from ..studies import estimate
 from ..studies.context import RunContext
@@ -89,7 +90,7 @@ class Run:
                     before, t0 = ctx.model.stats.snapshot(), time.perf_counter()
                     try:
                         summary = studies.get(study["type"]).run(ctx, study)
-                    except ConfigError:
+                    except (ConfigError, RecordError):  # input the user can fix (a damaged record log)
                         raise
                     except (ValueError, KeyError) as e:  # not the input's fault (that is a ConfigError): an
                         # internal error (the CLI's exit 3); name the study, keep the kind
