@@ -19,6 +19,7 @@ import threading
 import warnings
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NoReturn
 
 from .schema import ConfigError
 
@@ -45,7 +46,7 @@ file, named on the error line); 130 interrupted. Errors are one line `nlosbench:
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose usage errors are one line `nlosbench: error: ...` (exit 2), like every other."""
 
-    def error(self, message: str):
+    def error(self, message: str) -> NoReturn:
         sub = self.prog.removeprefix("nlosbench").strip()
         self.exit(BAD_INPUT, f"nlosbench: error: {' '.join(message.split())} (nlosbench {sub + ' ' if sub else ''}"
                              "--help)\n")

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..params import ParamSpace
 from ..seeds import derive
 from .base import Budget, Estimator, Outcome, Problem, Tracker, nll, render_seed
 
@@ -35,7 +36,7 @@ class MultiStart(Estimator):
         self.base_name, self.starts, self.options, self.spp = base, int(starts), dict(options or {}), int(spp)
         self._base = get(base, **self.options)
 
-    def grid_wanted(self, params):
+    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int] | None:
         """The base estimator's grid (its fits get the problem as it is, `grids` included)."""
         return self._base.grid_wanted(params)
 
