@@ -1,11 +1,15 @@
 """`nlosbench` command line: run experiments, render scenes, list plug-ins, re-make reports, benchmark.
 
-Exit codes: 0 done; 2 bad input (config, scene, a run folder held by another run or holding a different
-run, a run estimated above an hour without --yes: nothing was written); 1 environment (disk full,
-read-only or missing path, permissions, an unreachable Dask scheduler, a worker process that died);
-130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP): 128 + the signal's number, as a
-shell reports it; a second signal stops at once. Every error is one line on stderr; after an environment
-error or an interrupt during a run it says how to resume."""
+Exit codes: 0 done; 2 bad input, something the user can fix (config, overrides, scene spec or scene file, a
+run folder held by another run or holding a different run or a damaged record, a run estimated above an
+hour without --yes: nothing was written); 1 environment (disk full, read-only or missing path,
+permissions, an unreachable Dask scheduler or one without workers, a full /dev/shm, a worker process that
+died); 3 internal error (an exception the input did not cause, e.g. a ValueError raised by a study after the
+config was checked: a bug in nlosbench; the full traceback goes to RUN/error.log, or to a temporary file when
+no run folder exists, and the line names it); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up
+(SIGHUP): 128 + the signal's number, as a shell reports it; a second signal stops at once. Every error is one
+line on stderr; after an environment error, an internal error or an interrupt during a run it says how to
+resume."""
 from __future__ import annotations
 
 import argparse
@@ -18,12 +22,14 @@ import warnings
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NoReturn
 
 from .interrupts import STOPPING, Interrupted, signum_of
+from .records import RecordError
 from .schema import ConfigError
 from .variant import VariantError
 
-OK, ENVIRONMENT, BAD_INPUT, INTERRUPTED = 0, 1, 2, 130  # a stop signal: 128 + its number (SIGTERM 143, SIGHUP 129)
+OK, ENVIRONMENT, BAD_INPUT, INTERNAL, INTERRUPTED = 0, 1, 2, 3, 130  # a stop signal: 128 + its number
 
 EPILOG = """examples:
   nlosbench run configs/quick.yaml                      # the demo: bounds, Fisher maps, MLE trials
@@ -38,17 +44,28 @@ EPILOG = """examples:
   nlosbench report runs/try                              # re-make plots and report.md from saved data
   nlosbench bench --reduced
 
-exit codes: 0 done, 1 environment (disk, permissions, network, shared memory), 2 bad input (nothing written),
-130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (a second signal stops at once)"""
+exit codes: 0 done; 2 bad input (config, spec, overrides, run folder: nothing written); 1 environment (disk,
+permissions, network, shared memory, a worker that died); 3 internal error (a bug: traceback in RUN/error.log
+or a temporary file, named on the error line); 130 Ctrl-C, 143 SIGTERM, 129 SIGHUP (a second signal stops at
+once). Errors are one line `nlosbench: error: ...`."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line `nlosbench: error: ...` (exit 2), like every other."""
+
+    def error(self, message: str) -> NoReturn:
+        sub = self.prog.removeprefix("nlosbench").strip()
+        self.exit(BAD_INPUT, f"nlosbench: error: {' '.join(message.split())} (nlosbench {sub + ' ' if sub else ''}"
+                             "--help)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
     """The `nlosbench` argument parser (also read by the documentation's CLI reference)."""
     from . import __version__
 
-    p = argparse.ArgumentParser(prog="nlosbench", description="Renderer-backed estimation bounds (HCR, CRLB, "
-                                "Barankin) and ML estimators for plenoptic / NLOS imaging.",
-                                epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = _Parser(prog="nlosbench", description="Renderer-backed estimation bounds (HCR, CRLB, "
+                "Barankin) and ML estimators for plenoptic / NLOS imaging.",
+                epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     r = sub.add_parser("run", help="run the studies of a YAML config")
@@ -100,9 +117,13 @@ def _render(args) -> None:
 
     from . import io, scenes
 
-    defines = dict(kv.split("=", 1) for kv in args.define)
+    _check_spp_seed(args.spp, args.seed)
+    defines = _defines(args.define)
     model = scenes.get(args.scene, **({"defines": defines} if defines else {}))
-    theta = model.params.default if args.theta is None else np.array(args.theta)
+    try:
+        theta = model.params.validate(model.params.default if args.theta is None else np.array(args.theta))
+    except ValueError as e:
+        raise ConfigError("--theta", str(e)) from None
     img = model.render(theta, args.spp, args.seed)
     out = Path(args.out)
     stem = f"{model.name}_spp{args.spp}_seed{args.seed}"
@@ -116,6 +137,25 @@ def _render(args) -> None:
         f"{model.name}: θ = {dict(zip(model.params.names, theta.tolist(), strict=True))}, {args.spp} spp, "
         f"{model.stats.seconds:.3f} s → {out / stem}.exr, .png"
     )
+
+
+def _defines(items: list[str]) -> dict[str, str]:
+    """--define KEY=VALUE items as a mapping (ConfigError for an item without '=' or with an empty key)."""
+    out = {}
+    for kv in items:
+        key, eq, value = kv.partition("=")
+        if not eq or not key.strip():
+            raise ConfigError("--define", f"expected KEY=VALUE (a scene XML default, e.g. res=64), got {kv!r}")
+        out[key.strip()] = value
+    return out
+
+
+def _check_spp_seed(spp: int, seed: int) -> None:
+    """ConfigError naming --spp / --seed unless spp >= 1 and seed >= 0 (a 32-bit render seed)."""
+    if spp < 1:
+        raise ConfigError("--spp", f"expected a positive integer, got {spp}")
+    if not 0 <= seed < 2**32:
+        raise ConfigError("--seed", f"expected an integer in [0, 2^32), got {seed}")
 
 
 LIST_KINDS = ("scenes", "estimators", "noise", "studies")
@@ -162,7 +202,11 @@ def _keys(study: str | None) -> str:
     else:
         from . import studies
 
-        rows, title = describe(study_schema(studies.get(study))), f"keys of a `type: {study}` study block"
+        try:
+            mod = studies.get(study)
+        except KeyError as e:
+            raise ConfigError("STUDY", e.args[0]) from None
+        rows, title = describe(study_schema(mod)), f"keys of a `type: {study}` study block"
     width = max(len(r.path) for r in rows)
     lines = [f"{title}:"]
     for r in rows:
@@ -174,6 +218,7 @@ def _keys(study: str | None) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run the command in `argv` (default: sys.argv; then the process's stop signals stay handled to its end)."""
     resume = ""  # how to resume, once a run has started writing its folder
+    prepared = None  # the checked run (its folder gets error.log after an internal error)
     try:
         with _one_line_warnings(), _interrupts(keep=argv is None):  # first: before torch or Mitsuba is imported
             args = build_parser().parse_args(argv)
@@ -190,8 +235,8 @@ def main(argv: list[str] | None = None) -> int:
             elif args.command == "check-scene":
                 from .scenes.check import check_scene, format_report
 
-                print(format_report(check_scene(args.scene, args.spp, args.seed,
-                                                dict(kv.split("=", 1) for kv in args.define), args.out)))
+                _check_spp_seed(args.spp, args.seed)
+                print(format_report(check_scene(args.scene, args.spp, args.seed, _defines(args.define), args.out)))
             elif args.command == "list":
                 _list(args.what, args.study)
             elif args.command == "report":
@@ -208,21 +253,46 @@ def main(argv: list[str] | None = None) -> int:
         signum = signum_of(e)
         name = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
         return _fail(128 + signum, f"interrupted{name}", resume)
-    except ConfigError as e:
+    except (ConfigError, RecordError) as e:  # input the user can fix (a damaged record log included)
         return _fail(BAD_INPUT, str(e))
     except FileNotFoundError as e:
         if e.errno is None:  # raised by nlosbench for a path given to it (a scene or spec that does not exist)
             return _fail(BAD_INPUT, str(e))
         return _fail(ENVIRONMENT, _describe(e), resume)
-    except (KeyError, ValueError) as e:
-        return _fail(BAD_INPUT, e.args[0] if isinstance(e, KeyError) and e.args else str(e))
     except OSError as e:  # disk full, read-only or missing path, permissions, an unreachable scheduler
         return _fail(ENVIRONMENT, _describe(e), resume)
     except BrokenProcessPool as e:
         return _fail(ENVIRONMENT, f"a worker process died ({e}; out of memory?)", resume)
     except VariantError as e:
         return _fail(ENVIRONMENT, str(e))
+    except ImportError as e:  # an optional dependency that is not installed (dask for executor: dask)
+        return _fail(ENVIRONMENT, str(e), resume)
+    except Exception as e:  # noqa: BLE001 - not caused by the input: a bug, reported with its traceback kept
+        return _fail(INTERNAL, _internal(e, prepared.dir if prepared is not None else None), resume)
     return OK
+
+
+def _internal(e: BaseException, run_dir: Path | None) -> str:
+    """The line for an internal error: what was raised, and where its full traceback was written (RUN/error.log
+    when the run folder exists, else a temporary file)."""
+    import tempfile
+    import traceback
+
+    text = "".join(traceback.format_exception(type(e), e, e.__traceback__))
+    try:
+        if run_dir is not None and run_dir.is_dir():
+            log = run_dir / "error.log"
+            log.write_text(text)
+        else:
+            fd, name = tempfile.mkstemp(prefix="nlosbench-error-", suffix=".log")
+            with open(fd, "w") as f:
+                f.write(text)
+            log = Path(name)
+        where = f"full traceback in {log}"
+    except OSError as w:
+        where = f"the traceback could not be written ({w})"
+    return (f"internal error (a bug in nlosbench, not in your input: please report it): {type(e).__name__}: {e}; "
+            f"{where}")
 
 
 def _fail(code: int, message: str, resume: str = "") -> int:

@@ -58,7 +58,8 @@ class Setting:
 @dataclass(frozen=True)
 class Trial:
     """One fit of one setting: noise j, θ* index i, trial k; `clean` is the observation's mean at θ*
-    (H, W, C), clean-image replicate `cluster`; `bank`: grid renders the estimator may use (Problem.bank)."""
+    (H, W, C), clean-image replicate `cluster`; `bank`: grid renders the estimator may use (Problem.bank);
+    `grid`: the renders of the setting's own grid (`Estimator.grid_wanted`), made by the run's bank (Problem.grids)."""
 
     noise_index: int
     theta_index: int
@@ -73,6 +74,7 @@ class Trial:
     keep_trace: bool = False
     cluster: int = 0
     bank: BankGrid | None = None
+    grid: BankGrid | None = None
 
     @property
     def key(self) -> tuple:
@@ -86,10 +88,11 @@ def record_key(rec: dict) -> tuple:
 
 def make_trials(thetas: np.ndarray, n: int, settings: Sequence[Setting], noises: dict[int, NoiseModel],
                 cleans: dict, seed: int, budget: Budget = Budget(), start_width: float | None = None,
-                keep_trace: bool = False, bank: BankGrid | None = None, clusters: int = 1) -> list[Trial]:
+                keep_trace: bool = False, bank: BankGrid | None = None, clusters: int = 1,
+                grids: dict | None = None) -> list[Trial]:
     """All trials, in the order noise → θ* → trial → setting. thetas: (T, P); noises: index → model;
     cleans: (θ index, replicate) → image for replicates 0 … clusters − 1 (or θ index → image, one replicate);
-    trial k uses replicate k mod clusters."""
+    trial k uses replicate k mod clusters; grids: setting label → its grid renders (`Trial.grid`)."""
     if n < 1:
         raise ValueError(f"n (trials per θ*) must be >= 1, got {n}")
     labels = [s.label for s in settings]
@@ -99,21 +102,23 @@ def make_trials(thetas: np.ndarray, n: int, settings: Sequence[Setting], noises:
     def clean(i: int, c: int) -> torch.Tensor:
         return cleans[(i, c)] if (i, c) in cleans else cleans[i]
 
+    grids = grids or {}
     return [Trial(j, i, k, s, noise, tuple(float(v) for v in thetas[i]), clean(i, k % clusters), seed, budget,
-                  start_width, keep_trace, k % clusters, bank)
+                  start_width, keep_trace, k % clusters, bank, grids.get(s.label))
             for j, noise in noises.items() for i in range(len(thetas)) for k in range(n) for s in settings]
 
 
 def make_bayes_trials(thetas: np.ndarray, settings: Sequence[Setting], noises: dict[int, NoiseModel],
                       cleans: Sequence[torch.Tensor], seed: int, budget: Budget = Budget(), keep_trace: bool = False,
-                      bank: BankGrid | None = None) -> list[Trial]:
+                      bank: BankGrid | None = None, grids: dict | None = None) -> list[Trial]:
     """The Bayesian protocol: trial k has its own θ*_k (thetas (n, P), drawn from the prior by the caller)
     and clean image cleans[k]; starts are uniform over Θ. θ index = k, one trial each."""
     labels = [s.label for s in settings]
     if len(set(labels)) != len(labels):
         raise ValueError(f"estimator labels must be unique, got {labels}")
+    grids = grids or {}
     return [Trial(j, k, 0, s, noise, tuple(float(v) for v in thetas[k]), cleans[k], seed, budget, None, keep_trace,
-                  0, bank)
+                  0, bank, grids.get(s.label))
             for j, noise in noises.items() for k in range(len(thetas)) for s in settings]
 
 
@@ -145,7 +150,8 @@ def run_trial(model: ForwardModel, trial: Trial) -> dict:
     init = draw_start(model.params, theta_true, trial.start_width,
                       np.random.default_rng(derive(trial.seed, "trial-start", i, k)))
     rec["init"] = init.tolist()
-    problem = Problem(model, trial.noise, trial.setting.gradient, derive(trial.seed, "problem"), trial.bank)
+    problem = Problem(model, trial.noise, trial.setting.gradient, derive(trial.seed, "problem"), trial.bank,
+                      () if trial.grid is None else (trial.grid,))
     before, t0 = model.stats.snapshot(), time.perf_counter()
     try:
         est = _estimator(trial.setting).fit(

@@ -42,20 +42,45 @@ def positive_number(value, path: str) -> float:
     return v
 
 
-def plain_name(value, path: str) -> str:
-    """A file name of its own (a Field type): not empty, no path separator, not `.` or `..`, no NUL; what a
-    key that names a folder inside the run directory needs, so it cannot point outside it."""
-    v = _check_type(value, str, path)
-    if not v.strip() or v in (".", "..") or any(c in v for c in ("/", "\\", "\0")):
-        raise ConfigError(path, f"expected a plain name (no path separator, not '.' or '..', not empty), got {value!r}")
-    return v
-
-
 def halvings(value, path: str) -> int:
     """An integer in [0, 12] (a Field type: how often an FD step may be halved)."""
     v = _check_type(value, int, path)
     if not 0 <= v <= 12:
         raise ConfigError(path, f"expected an integer in [0, 12], got {value!r}")
+    return v
+
+
+def integer_in(lo: int, hi: int):
+    """A check: an integer in [lo, hi] (a Field type)."""
+
+    def check(value, path: str) -> int:
+        v = _check_type(value, int, path)
+        if not lo <= v <= hi:
+            raise ConfigError(path, f"expected an integer in [{lo}, {hi}], got {value!r}")
+        return v
+
+    check.__name__ = f"integer in [{lo}, {hi}]"  # the kind `describe` shows
+    return check
+
+
+def folder_name(value, path: str) -> str:
+    """A name that becomes one file or folder inside the run folder (the run's `name`, a study's `id`, a
+    Fisher map's label): one path component, so it cannot point outside the run folder (no '/', '\\', '.',
+    '..', NUL, nothing empty, at most 200 bytes). A Field type."""
+    v = _check_type(value, str, path)
+    if v in ("", ".", "..") or any(c in v for c in "/\\\0") or len(v.encode("utf-8", "surrogatepass")) > 200:
+        raise ConfigError(path, f"expected a file or folder name inside the run folder (one path component: no "
+                                f"'/', no '..', not empty, at most 200 bytes), got {value!r}")
+    return v
+
+
+def path_string(value, path: str) -> str:
+    """A file-system path that may point anywhere, outside the run folder included (the scene spec, the
+    cross-run render cache, the folder runs go under, a verdicts file): a non-empty string without NUL.
+    A Field type."""
+    v = _check_type(value, str, path)
+    if not v or "\0" in v:
+        raise ConfigError(path, f"expected a non-empty path without NUL characters, got {value!r}")
     return v
 
 
@@ -241,8 +266,8 @@ GRID = Field(grid_spec, help="θ values: a list, {start, stop, num}, or a list o
 
 
 # -- the keys of a schema as rows (for `nlosbench list keys` and the documentation's config reference) -----
-_KINDS = {grid_spec: "θ grid", point_spec: "θ point", points_spec: "θ points", noise_spec: "noise choice",
-          plain_name: "plain name", positive_number: "number > 0"}
+_KINDS = {folder_name: "name", path_string: "path", positive_number: "number > 0",
+          grid_spec: "θ grid", point_spec: "θ point", points_spec: "θ points", noise_spec: "noise choice"}
 
 
 @dataclass(frozen=True)

@@ -20,8 +20,8 @@ GHOST = """    <shape type="sphere" id="ghost">
 
 BAD_SPEC = """file: room.xml
 params:
-  - {name: ghost_paint, kind: reflectance, key: ghost.bsdf.reflectance.value, lower: 0.2, upper: 0.9, default: 0.5,
-     units: "1"}
+  - {name: ghost_paint, kind: reflectance, key: ghost.bsdf.reflectance.value, channel: 0, lower: 0.2, upper: 0.9,
+     default: 0.5, units: "1"}
   # offsets -1 → 0 keep the ghost behind the wall (z = -3 → -2); +1 brings it half into the room (z = -1)
   - {name: ghost_z, kind: translate, object: ghost, axis: [0, 0, 1], lower: -1.0, upper: 1.0, default: 0.0}
   # 3 m to the right takes the crate through the right wall and out of the camera's view
@@ -104,3 +104,25 @@ def test_a_bad_spec_path_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing/room.yaml" in err[0] and "does not exist" in err[0]
     assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_a_default_that_is_not_the_xmls_value_is_warned_without_a_render(tmp_path, capsys):
+    """θ = the spec's default must leave the scene as the XML has it: a translate default of 0.2 m moves the crate
+    (warned, in the text and check.json; the example's spec, whose defaults agree, has no warning: above). The
+    comparison of the mi.traverse values renders nothing."""
+    from nlosbench.scenes import get
+    from nlosbench.scenes.check import default_agreement
+
+    spec = scene(tmp_path, "file: room.xml\ndefines: {resx: 8, resy: 6, max_depth: 2}\nparams:\n"
+                           "  - {name: crate_x, kind: translate, object: crate, axis: [1, 0, 0], lower: -0.5, "
+                           "upper: 0.5, default: 0.2}\n")
+    model = get(str(spec))
+    agree = default_agreement(model)
+    assert model.stats.renders == 0
+    assert agree["crate_x"][0] == "crate.vertex_positions" and agree["crate_x"][1] > 0.19 and not agree["crate_x"][2]
+    assert main(["check-scene", str(spec), "--spp", "2", "--out", str(tmp_path / "out")]) == 0
+    text = capsys.readouterr().out
+    assert "crate_x: θ = its default 0.2 m does not leave the scene as the XML has it" in text, text
+    result = json.loads((tmp_path / "out" / "check.json").read_text())
+    assert result["params"][0]["default_ok"] is False and result["params"][0]["default_diff"] > 0.19
+    assert any("crate_x: θ = its default" in w for w in result["warnings_all"])

@@ -721,8 +721,9 @@ def test_a_study_id_that_is_not_a_plain_name_is_refused(tmp_path, capsys, sid):
     `studies[0].id`, nothing written (neither the run folder nor the folder the id points at)."""
     run = tmp_path / "out" / "run"
     rc, err = cli(capsys, "run", config(tmp_path, EDGE, [{**BOUNDS, "id": sid}]), "--out", run, "--quiet")
-    assert rc == 2 and errors(err) == [f"nlosbench: error: studies[0].id: expected a plain name (no path separator, "
-                                       f"not '.' or '..', not empty), got {sid!r}"], err
+    assert rc == 2 and errors(err) == [f"nlosbench: error: studies[0].id: expected a file or folder name inside the "
+                                       f"run folder (one path component: no '/', no '..', not empty, at most 200 "
+                                       f"bytes), got {sid!r}"], err
     assert not (tmp_path / "out").exists() and not (tmp_path / "escape").exists()
 
 

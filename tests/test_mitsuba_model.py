@@ -96,14 +96,17 @@ def test_bad_inputs(cornell, theta, spp, seed, msg):
 
 
 def test_unknown_scene_suggests_a_name():
-    with pytest.raises(KeyError, match="did you mean 'cornell_ball'"):
+    with pytest.raises(nb.scenes.SpecError, match="did you mean 'cornell_ball'"):
         nb.scenes.get("cornel_ball")
 
 
 def test_bad_scene_spec(tmp_path):
+    """A spec naming a missing XML file, or a binding to a shape the XML lacks: a SpecError (a ConfigError: the
+    CLI's exit 2) naming the spec."""
     spec = tmp_path / "s.yaml"
-    spec.write_text("file: missing.xml\nparams: []\n")
-    with pytest.raises(FileNotFoundError, match="missing.xml"):
+    spec.write_text("file: missing.xml\nparams:\n  - {name: a, kind: radius, object: ball, lower: 0.1, upper: 0.2, "
+                    "default: 0.1}\n")
+    with pytest.raises(nb.scenes.SpecError, match="missing.xml"):
         nb.scenes.get(str(spec))
     xml = nb.scenes.SCENE_DIR / "cornell_ball.xml"
     spec.write_text(f"file: {xml}\nparams:\n  - {{name: a, kind: translate, object: nosuch, axis: [1,0,0], "

@@ -485,3 +485,41 @@ def test_bias_test_p_value_is_uniform_without_bias_and_matches_the_verdict():
     assert abs((ps < 0.05).mean() - 0.05) < 0.015 and abs((ps < 0.5).mean() - 0.5) < 0.035
     shifted = [bias_test(rng.normal(size=(12, 1)) + 3 / np.sqrt(12), clusters)["p"] < 0.05 for _ in range(500)]
     assert np.mean(shifted) > 0.4
+
+
+def test_grid_search_takes_its_grid_from_the_render_bank_once(tmp_path):
+    """grid-search's grid comes from the run's render bank: a direct fit renders its own grid (9 renders); with the
+    grid from a bank (replicate 0 of the bound service's sets) the fit renders only its refinement, and the bound
+    grid asked for later shares those 9 renders. In a trials study whose grid-search grid is the bound grid (same
+    θ, spp, seeds) the study renders nothing for it; at another spp it adds the grid once, never per fit."""
+    from nlosbench.bank import RenderBank
+    from nlosbench.bounds import BoundService
+    from nlosbench.estimators import BankGrid, Problem
+
+    model, noise = nb.scenes.get("edge1d", render_noise=0.05), nb.noise.AWGN(0.1)
+    y = model.render([0.5], 64, 1)
+    before = model.stats.renders
+    estimators.get("grid-search", num=9, spp=4, refine_evals=3).fit(Problem(model, noise), y,
+                                                                     rng=np.random.default_rng(0))
+    alone = model.stats.renders - before
+    svc = BoundService(RenderBank(model, seed=3), [noise])
+    est = estimators.get("grid-search", num=9, spp=4, refine_evals=3)
+    thetas, spp = est.grid_wanted(model.params)
+    grid = BankGrid(thetas, svc.replicates(thetas, spp, "common", 1)[0], spp)
+    assert svc.bank.renders == 9
+    before = model.stats.renders
+    est.fit(Problem(model, noise, grids=(grid,)), y, rng=np.random.default_rng(0))
+    assert model.stats.renders - before == alone - 9 > 0  # the refinement only
+    svc.replicates(thetas, spp, "common", 3)  # the bound grid: replicate 0 is the grid-search grid
+    assert svc.bank.renders == 9 + 2 * 9
+
+    def study_renders(gs_spp: int, sid: str) -> tuple[int, int]:
+        ctx, block = make_ctx(tmp_path / sid, {"name": "edge1d", "options": {"render_noise": 0.05}}, {
+            "theta": [0.5], "n": 3, "n_eff": 4, "truth_replicates": 1, "hcr_grid": 5, "bound_spp": 4, "replicates": 2,
+            "bounds": [], "bootstrap": 5,
+            "estimators": [{"name": "grid-search", "options": {"num": 5, "spp": gs_spp, "refine": False}}]})
+        res = study.run(ctx, block)
+        return res["bank_renders"], res["fit_renders"]
+
+    assert study_renders(4, "shared") == (2 * 5 + 1, 0)  # bound grid (R × G) + the clean image; no fit renders
+    assert study_renders(16, "own") == (2 * 5 + 1 + 5, 0)  # its own grid, once

@@ -22,6 +22,12 @@ def print_rows(rows: list[dict], file=sys.stdout) -> None:
 
 
 def run_all(selected: list[str] | None = None, reduced: bool = False) -> list[dict]:
+    """Run the benchmark modules `selected` (default: all) and print their rows; ConfigError for an unknown name."""
+    unknown = [n for n in selected or [] if n not in names()]
+    if unknown:
+        from ..schema import ConfigError
+
+        raise ConfigError("names", f"unknown benchmark(s) {unknown} (available: {', '.join(names())})")
     rows = []
     for name in selected or names():
         mod = importlib.import_module(f"{__name__}.{name}")

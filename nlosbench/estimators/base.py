@@ -3,7 +3,9 @@
 A `Problem` bundles what an estimator may use: the forward model (and so Θ), the noise model, the
 gradient settings, a seed for renders shared across fits, and optionally a `BankGrid`: renders of a θ
 grid the run made already (the bound service's render sets, never the observation's own), over which a
-profile-likelihood start costs no render (`profile_start`). The negative log-likelihood goes through
+profile-likelihood start costs no render (`profile_start`), and `grids`: renders of θ grids an estimator
+asked for (`Estimator.grid_wanted`), made by the run's render bank (shared, counted and kept like every
+other render of the run) instead of by the estimator in each process. The negative log-likelihood goes through
 `Problem.nll`, whose Poisson policy (a model mean floored at `POISSON_FLOOR` photons per pixel) keeps it
 finite where a Monte Carlo render left a pixel at 0 and y > 0, so no fit is dropped for an infinite NLL. A subclass
 of `Estimator` implements `_fit`; the base class validates the inputs, draws a uniform random start
@@ -72,6 +74,8 @@ class Problem:
         Seed for renders that are the same for every fit (derive it from the experiment seed).
     bank : BankGrid, optional
         Grid renders an estimator may use without rendering (e.g. a profile-likelihood start).
+    grids : tuple of BankGrid, default ()
+        Further grid renders made for this problem's estimator (what its `grid_wanted` asked for).
 
     Examples
     --------
@@ -91,6 +95,28 @@ class Problem:
     gradient: GradientSettings = field(default_factory=GradientSettings)
     seed: int = 0
     bank: BankGrid | None = None
+    grids: tuple[BankGrid, ...] = ()
+
+    def find_grid(self, thetas: np.ndarray, spp: int) -> BankGrid | None:
+        """Renders the run made already at exactly `thetas` (G, P) and `spp` (in `grids` or `bank`), or None.
+
+        Parameters
+        ----------
+        thetas : numpy.ndarray
+            The grid (G, P) in parameter units (matched to 1e-12).
+        spp : int
+            Samples per pixel of the renders.
+
+        Returns
+        -------
+        BankGrid or None
+            The matching grid renders, or None when the run made none.
+        """
+        for g in (*self.grids, self.bank):
+            if g is not None and g.spp == spp and np.shape(g.thetas) == np.shape(thetas) \
+                    and np.allclose(g.thetas, thetas, rtol=0, atol=1e-12):
+                return g
+        return None
 
     def __post_init__(self):
         object.__setattr__(self, "gradient", resolve_gradient(self.model, self.gradient))
@@ -395,6 +421,23 @@ class Estimator(ABC):
                         renders=used.renders,
                         grad_passes=used.grad_passes, samples=used.samples, seconds=tracker.seconds(),
                         final_loss=float(out.final_loss), init=theta0, trace=tracker.trace)
+
+    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int] | None:
+        """A θ grid (G, P) and spp this estimator renders once per process before its fits (None: none). A
+        study with a render bank renders it there and passes it as `Problem.grids`, so the grid is made once
+        per run, shared with equal render sets (e.g. a bound grid) and counted with the bank's renders.
+
+        Parameters
+        ----------
+        params : ParamSpace
+            The parameter space Θ of the problem.
+
+        Returns
+        -------
+        tuple of (numpy.ndarray, int) or None
+            The grid (G, P) in parameter units and the spp of its renders; None when the estimator needs none.
+        """
+        return None
 
     @abstractmethod
     def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,

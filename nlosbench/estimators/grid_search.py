@@ -1,7 +1,9 @@
 """`grid-search`: profile likelihood on cached grid renders, then a derivative-free local refinement.
 
-A tensor grid of `num` points per parameter over Θ is rendered once per process (seeds derived from
-the problem's seed, so every fit sees the same grid renders) and kept in memory; a fit evaluates the
+A tensor grid of `num` points per parameter over Θ (`grid_wanted`) comes from the run's render bank when a
+study passes it in `Problem.grids` (the trials study does: rendered once per run, shared with a bound grid of
+the same θ, spp and seeds); otherwise it is rendered once per process (seeds derived from the problem's seed,
+so every fit sees the same grid renders) and kept in memory. A fit evaluates the
 NLL of y at every grid render (no render), takes the minimum, then refines with Powell's method
 (Brent line searches; no derivative, so kinks and edges are fine) inside the neighbouring grid cells,
 on renders at `refine_spp` that share one seed (the objective is deterministic during the search);
@@ -15,6 +17,7 @@ import numpy as np
 import scipy.optimize
 import torch
 
+from ..params import ParamSpace
 from ..seeds import derive
 from .base import Estimator, Outcome, Problem, Tracker, finite_or_raise, nll, render_seed
 
@@ -64,32 +67,51 @@ class GridSearch(Estimator):
         self.refine_evals, self.xtol, self.max_grid = int(refine_evals), float(xtol), int(max_grid)
         self._grids: dict[str, tuple[np.ndarray, list[torch.Tensor]]] = {}
 
-    def grid(self, problem: Problem) -> tuple[np.ndarray, list[torch.Tensor]]:
-        """(θ grid (G, P), renders) for this problem, rendered on first use and cached.
+    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int]:
+        """The tensor grid of `num` points per parameter over Θ and its spp.
 
         Parameters
         ----------
-        problem : Problem
-            The problem (its model, parameter space and seed key the cache).
+        params : ParamSpace
+            The parameter space Θ.
 
         Returns
         -------
-        tuple of (numpy.ndarray, list of torch.Tensor)
-            The grid (G, P) float64 in parameter units, G = num^P, and its G renders (H, W, C) float32.
+        tuple of (numpy.ndarray, int)
+            The grid (G, P) float64 in parameter units, G = num^P, and the spp of its renders.
 
         Raises
         ------
         ValueError
             If num^P exceeds `max_grid`.
         """
-        p = problem.params
-        G = self.num ** p.dim
+        G = self.num ** params.dim
         if G > self.max_grid:
-            raise ValueError(f"grid-search: {self.num}^{p.dim} = {G} grid renders exceed max_grid = {self.max_grid}")
-        key = json.dumps([problem.model.content_key(), p.names, self.num, self.spp, problem.seed],
+            raise ValueError(f"grid-search: {self.num}^{params.dim} = {G} grid renders exceed max_grid = "
+                             f"{self.max_grid}")
+        return params.grid(self.num), self.spp
+
+    def grid(self, problem: Problem) -> tuple[np.ndarray, list[torch.Tensor]]:
+        """(θ grid (G, P), renders) for this problem: the run's renders when the problem carries them
+        (`Problem.find_grid`), else rendered on first use and cached in this process.
+
+        Parameters
+        ----------
+        problem : Problem
+            The problem (its grids, model, parameter space and seed).
+
+        Returns
+        -------
+        tuple of (numpy.ndarray, list of torch.Tensor)
+            The grid (G, P) float64 in parameter units, G = num^P, and its G renders (H, W, C) float32.
+        """
+        thetas, spp = self.grid_wanted(problem.params)
+        given = problem.find_grid(thetas, spp)
+        if given is not None:
+            return np.asarray(given.thetas, dtype=np.float64), list(given.images)
+        key = json.dumps([problem.model.content_key(), problem.params.names, self.num, self.spp, problem.seed],
                          sort_keys=True, default=repr)
         if key not in self._grids:
-            thetas = p.grid(self.num)
             renders = [problem.model.render(t, self.spp, derive(problem.seed, "grid-search", g))
                        for g, t in enumerate(thetas)]
             self._grids[key] = (thetas, renders)

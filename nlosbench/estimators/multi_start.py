@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ..params import ParamSpace
 from ..seeds import derive
 from .base import Budget, Estimator, Outcome, Problem, Tracker, nll, render_seed
 
@@ -43,6 +44,21 @@ class MultiStart(Estimator):
             raise ValueError("multi-start: base must be another estimator")
         self.base_name, self.starts, self.options, self.spp = base, int(starts), dict(options or {}), int(spp)
         self._base = get(base, **self.options)
+
+    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int] | None:
+        """The base estimator's grid (its fits get the problem as it is, `grids` included).
+
+        Parameters
+        ----------
+        params : ParamSpace
+            The parameter space Θ of the problem.
+
+        Returns
+        -------
+        tuple of (numpy.ndarray, int) or None
+            The base estimator's grid (G, P) and spp, or None.
+        """
+        return self._base.grid_wanted(params)
 
     def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,
              tracker: Tracker) -> Outcome:

@@ -1,24 +1,34 @@
-"""Experiment config: YAML → validated dict. Top level and per-study blocks (from each study's SCHEMA)."""
+"""Experiment config: YAML → validated dict. Top level and per-study blocks (from each study's SCHEMA).
+
+Paths. Keys naming something inside the run folder are single names (`schema.folder_name`: the run's
+`name`, a study's `id`, a Fisher map's `labels`): '/', '..' and the like are refused, so nothing a run writes
+can land outside its folder. Keys that may point anywhere, outside the run folder included, are read or
+chosen by the user on purpose (`schema.path_string`): `scene.name` (a scene spec; read only), `cache` (the
+render cache shared across runs), `output` (the folder runs go under) and an estimator's gradient
+`verdicts` (a file read). `scene.name` is checked here (a registered name or a readable spec mapping:
+`scenes.check_name`), so a wrong one is refused before anything is loaded or written."""
 from __future__ import annotations
 
 from pathlib import Path
 
 import yaml
 
-from .. import studies
-from ..schema import ConfigError, Field, plain_name, positive_number, validate_block
+from .. import scenes, studies
+from ..schema import ConfigError, Field, folder_name, integer_in, path_string, positive_number, validate_block
 
 NOISE = {"model": Field(str, help="noise model name", choices=("awgn", "poisson")),
          "sigma": Field(float, None, "AWGN standard deviation (radiance units)", nullable=True),
          "scale": Field(float, None, "Poisson: expected photons per unit radiance", nullable=True)}
 
-STUDY = {"id": Field(plain_name, None, "folder name of the study in the run directory: no path separator, not . "
-                                      "or .. (default: NN-type)", nullable=True)}
+STUDY = {"id": Field(folder_name, None, "folder name of the study in the run directory (default: NN-type); one name, "
+                                        "never a path out of the run folder", nullable=True)}
 
 TOP = {
-    "name": Field(str, "experiment", "a short name for the run"),
+    "name": Field(folder_name, "experiment", "a short name for the run (the run folder OUTPUT/NAME without --out): "
+                                             "one name, no '/' or '..'"),
     "seed": Field(int, 0, "experiment seed; every random draw derives from it"),
-    "scene": Field({"name": Field(str, help="registered scene name or path to a scene spec .yaml"),
+    "scene": Field({"name": Field(path_string, help="registered scene name or path to a scene spec .yaml (may lie "
+                                                   "outside the run folder; read only)"),
                     "options": Field(dict, {}, "options for the scene (e.g. defines: {res: 32})"),
                     "params": Field(list, None, "θ components studied (default: all)", items=str, nullable=True),
                     "fixed": Field(dict, {}, "values of the other parameters (default: their defaults)"),
@@ -31,17 +41,18 @@ TOP = {
                                          choices=("native", "portable"), nullable=True)}),
     "noise": Field(list, [{"model": "awgn", "sigma": 0.1}], "noise models", items=NOISE),
     "executor": Field({"type": Field(str, "local", choices=("local", "serial", "dask")),
-                       "workers": Field(int, 2, "local worker processes"),
+                       "workers": Field(integer_in(1, 1024), 2, "worker processes (local, or a dask LocalCluster)"),
                        "address": Field(str, None, "dask scheduler address (default: a LocalCluster)", nullable=True),
-                       "connect_timeout": Field(float, 10.0, "seconds to wait for the dask scheduler at `address` "
-                                                             "before giving up"),
+                       "connect_timeout": Field(positive_number, 10.0, "seconds to wait for the dask scheduler at "
+                                                                       "`address` before giving up"),
                        "worker_timeout": Field(positive_number, 60.0, "dask: seconds without a live worker (none at "
                                                                       "the start, or all lost mid-run) before the run "
                                                                       "gives up (exit 1; finished work is kept)")}),
-    "cache": Field(str, None, "render cache folder shared across runs (default: none)", nullable=True),
+    "cache": Field(path_string, None, "render cache folder shared across runs (default: none; may lie outside the "
+                                      "run folder)", nullable=True),
     "keep_renders": Field(bool, True, "keep every render of the run in RUN/renders/ (checksummed), so a resumed "
                                       "run renders nothing twice"),
-    "output": Field(str, "runs", "folder under which the run directory is made"),
+    "output": Field(path_string, "runs", "folder under which the run directory is made (any path)"),
     "studies": Field(list, help="studies to run, each {type: ..., ...}"),
 }
 
@@ -55,7 +66,12 @@ def load(path: str | Path, overrides: list[str] = (), smoke: bool = False) -> di
     try:
         raw = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as e:
-        raise ConfigError("", f"{path} is not valid YAML: {e}") from None
+        raise ConfigError("", f"{path} is not valid YAML: {' '.join(str(e).split())}") from None
+    except UnicodeDecodeError:
+        raise ConfigError("", f"{path} is not a text file (a YAML config)") from None
+    if not isinstance(raw, dict):
+        raise ConfigError("", f"{path} holds a YAML {type(raw).__name__}, not a mapping of config keys (name, scene, "
+                              "noise, studies, ...; nlosbench list keys)")
     for item in overrides:
         apply_override(raw, item)
     _scene_beside(raw, path.parent)
@@ -129,6 +145,10 @@ def apply_override(raw: dict, item: str) -> None:
 def resolve(raw: dict) -> dict:
     """Validate the top level and every study block; fill defaults."""
     cfg = validate_block(raw, TOP)
+    try:
+        scenes.check_name(cfg["scene"]["name"])
+    except ConfigError as e:
+        raise ConfigError("scene.name", str(e)) from None
     for i, n in enumerate(cfg["noise"]):
         need = {"awgn": "sigma", "poisson": "scale"}[n["model"]]
         if n[need] is None or n[need] <= 0:
@@ -138,6 +158,9 @@ def resolve(raw: dict) -> dict:
         path = f"studies[{i}]"
         if not isinstance(block, dict) or "type" not in block:
             raise ConfigError(path, "each study needs a `type`")
+        if not isinstance(block["type"], str):
+            raise ConfigError(f"{path}.type", f"expected a study type (one of {', '.join(studies.available())}), got "
+                                              f"{type(block['type']).__name__} {block['type']!r}")
         try:
             mod = studies.get(block["type"])
         except KeyError as e:

@@ -11,7 +11,9 @@ folder that holds one, or a resume whose fingerprint differs, is refused). Any p
 (resolved), runs each study (a resumed run skips finished studies whose outputs are all there and parse, as
 results.json lists them, and rebuilds the others with a warning; studies resume their own partial work from
 their record logs and the render store), writes results.json after every study and report.md.
-On Ctrl-C or an error the executor's workers are stopped at once (`abort`)."""
+On Ctrl-C or an error the executor's workers are stopped at once (`abort`). An error that is not a
+ConfigError after the checks is not the input's fault: the CLI reports it as an internal error (exit 3,
+traceback in RUN/error.log)."""
 from __future__ import annotations
 
 import time
@@ -23,6 +25,7 @@ import yaml
 
 from .. import studies
 from ..io import write_json, write_text
+from ..records import RecordError
 from ..schema import ConfigError
 from ..studies import estimate
 from ..studies.context import RunContext
@@ -87,9 +90,10 @@ class Run:
                     before, t0 = ctx.model.stats.snapshot(), time.perf_counter()
                     try:
                         summary = studies.get(study["type"]).run(ctx, study)
-                    except ConfigError:
+                    except (ConfigError, RecordError):  # input the user can fix (a damaged record log)
                         raise
-                    except (ValueError, KeyError) as e:  # bad input found by the study: name it, keep the kind
+                    except (ValueError, KeyError) as e:  # not the input's fault (that is a ConfigError): an
+                        # internal error (the CLI's exit 3); name the study, keep the kind
                         msg = f"study {sid}: {e.args[0] if isinstance(e, KeyError) and e.args else e}"
                         raise (KeyError if isinstance(e, KeyError) else ValueError)(msg) from e
                     spent = ctx.model.stats.since(before)

@@ -54,13 +54,13 @@ class Binding:
             raise ValueError(f"{where}: channel must be 0, 1 or 2, got {b.channel!r}")
         if kind == "translate":
             axis = np.asarray(spec.pop("axis", None), dtype=np.float64)
-            if axis.shape != (3,) or not np.linalg.norm(axis) > 0:
-                raise ValueError(f"{where}: translate needs a non-zero 3-vector `axis`")
+            if axis.shape != (3,) or not np.all(np.isfinite(axis)) or not np.linalg.norm(axis) > 0:
+                raise ValueError(f"{where}: translate needs a finite, non-zero 3-vector `axis`, got {axis.tolist()}")
             b.axis = axis / np.linalg.norm(axis)
         if kind == "path":
             pts = np.asarray(spec.pop("points", None), dtype=np.float64)
-            if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
-                raise ValueError(f"{where}: path needs `points`, a list of at least two [x, y, z]")
+            if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2 or not np.all(np.isfinite(pts)):
+                raise ValueError(f"{where}: path needs `points`, a list of at least two finite [x, y, z]")
             seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
             if np.any(seg <= 0):
                 raise ValueError(f"{where}: path has repeated consecutive points")

@@ -3,6 +3,10 @@
 Built in: the analytic toys `blob2d` and `edge1d` (torch, exact gradients) and every scene spec
 `<name>.yaml` in the project's `scenes/` folder (a Mitsuba XML file plus its θ bindings). A path to a
 `.yaml` spec works too. Extra folders: the environment variable NLOSBENCH_SCENE_PATH (':'-separated).
+
+A spec that cannot be used (missing, a folder, a Mitsuba XML file or a YAML list or string where the spec
+mapping belongs, a missing or mistyped key, a binding or scene file that does not load) is a `SpecError`
+(a ConfigError: one line naming the spec and saying how to write one, `HOW`).
 """
 from __future__ import annotations
 
@@ -16,6 +20,17 @@ import yaml
 from ..forward import llvm_target
 from ..forward.analytic import Blob2D, Edge1D
 from ..forward.model import ForwardModel
+from ..schema import ConfigError
+
+#: how to write a scene spec (the end of every SpecError about a spec's shape)
+HOW = ("a scene spec is a YAML mapping with `file:` (the Mitsuba XML, relative to the spec) and `params:` (a list "
+       "of θ bindings: name, kind, object or key, lower, upper, default); check one with `nlosbench check-scene "
+       "SPEC.yaml`; a worked example: examples/own_scene.py")
+
+
+class SpecError(ConfigError):
+    """A scene name or spec that cannot be used; `str()` is one line: `name or path: what is wrong`."""
+
 
 _BUILTIN: dict[str, Callable[..., ForwardModel]] = {"blob2d": Blob2D, "edge1d": Edge1D}
 SCENE_DIR = Path(__file__).resolve().parents[2] / "scenes"
@@ -57,29 +72,72 @@ def register(name: str, factory: Callable[..., ForwardModel]) -> None:
     _BUILTIN[name] = factory
 
 
+def read_spec(path: str | Path) -> dict:
+    """The top level of a scene spec file, checked (SpecError naming the file otherwise): a readable YAML
+    mapping, not a Mitsuba XML file, with `file` (a string) and `params` (a non-empty list of mappings), and
+    `defines` / `smoke` mappings where given. Renders and loads nothing."""
+    path = Path(path)
+    if path.suffix.lower() == ".xml":
+        raise SpecError(str(path), f"is a Mitsuba XML file, not a scene spec; {HOW}")
+    if path.is_dir():
+        raise SpecError(str(path), f"is a folder, not a scene spec file; {HOW}")
+    if not path.is_file():
+        raise SpecError("scene spec", f"{path} does not exist")
+    try:
+        text = path.read_text()
+    except UnicodeDecodeError:
+        raise SpecError(str(path), f"is not a text file; {HOW}") from None
+    if text.lstrip().startswith("<"):
+        raise SpecError(str(path), f"holds XML, not a scene spec; {HOW}")
+    try:
+        spec = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise SpecError(str(path), f"is not valid YAML: {' '.join(str(e).split())}") from None
+    if not isinstance(spec, dict):
+        raise SpecError(str(path), f"holds a YAML {type(spec).__name__}, not a mapping; {HOW}")
+    for k in ("file", "params"):
+        if k not in spec:
+            raise SpecError(str(path), f"missing key {k!r}; {HOW}")
+    if not isinstance(spec["file"], str) or not spec["file"]:
+        raise SpecError(f"{path}: file", f"expected the scene XML's path, got {spec['file']!r}")
+    params = spec["params"]
+    if not isinstance(params, list) or not params or not all(isinstance(q, dict) for q in params):
+        raise SpecError(f"{path}: params", f"expected a non-empty list of bindings (mappings), got {params!r}")
+    for k in ("defines", "smoke"):
+        if spec.get(k) is not None and not isinstance(spec[k], dict):
+            raise SpecError(f"{path}: {k}", f"expected a mapping, got {spec[k]!r}")
+    return spec
+
+
 def load_spec(path: str | Path, **options) -> ForwardModel:
     """A MitsubaModel from a scene spec: `file` (XML, relative to the spec), `params`, optional
     `defines` (XML $-defaults such as res, max_depth), `ad_integrator`, `variant`, `remove` (element ids
     dropped from the scene before loading, e.g. [light_c] to see what the bound owes it), `max_pass_samples`
     (a cap on the backend's pass size), `freeze` (the frozen render path; default on) and `llvm_target`
     (native | portable: Dr.Jit's CPU code-generation target). Options given here
-    override the spec's top-level keys; `defines` are merged."""
+    override the spec's top-level keys; `defines` are merged. SpecError for a spec that does not load."""
     from ..forward.mitsuba_model import MitsubaModel
 
     path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"scene spec {path} does not exist")
-    spec = yaml.safe_load(path.read_text()) or {}
-    defines = {**(spec.get("defines") or {}), **(options.pop("defines", None) or {})}
+    spec = read_spec(path)
+    given = options.pop("defines", None) or {}
+    if not isinstance(given, dict):
+        raise SpecError("defines", f"expected a mapping of XML defaults, got {given!r}")
+    defines = {**(spec.get("defines") or {}), **given}
     spec = {**spec, **options}
-    for k in ("file", "params"):
-        if k not in spec:
-            raise ValueError(f"scene spec {path}: missing key {k!r}")
-    return MitsubaModel(name=spec.get("name", path.stem), scene_file=path.parent / spec["file"], params=spec["params"],
-                        variant=spec.get("variant"), defines={k: str(v) for k, v in defines.items()},
-                        ad_integrator=spec.get("ad_integrator"), max_pass_samples=spec.get("max_pass_samples"),
-                        cache=spec.get("cache"), remove=spec.get("remove"), freeze=spec.get("freeze"),
-                        llvm_target=spec.get("llvm_target"))
+    try:
+        return MitsubaModel(name=spec.get("name", path.stem), scene_file=path.parent / spec["file"],
+                            params=spec["params"], variant=spec.get("variant"),
+                            defines={k: str(v) for k, v in defines.items()}, ad_integrator=spec.get("ad_integrator"),
+                            max_pass_samples=spec.get("max_pass_samples"), cache=spec.get("cache"),
+                            remove=spec.get("remove"), freeze=spec.get("freeze"), llvm_target=spec.get("llvm_target"))
+    except FileNotFoundError as e:
+        if e.errno is not None:  # the file system's own error: an environment problem
+            raise
+        raise SpecError(str(path), str(e)) from None
+    except (TypeError, ValueError, KeyError) as e:  # a binding, a define or the scene file: the spec's content
+        raise SpecError(str(path), " ".join(str(e.args[0] if isinstance(e, KeyError) and e.args else e).split())) \
+            from None
 
 
 def smoke_options(name: str) -> dict:
@@ -87,26 +145,37 @@ def smoke_options(name: str) -> dict:
     height: 12}}); {} for the analytic toys, which are cheap already."""
     if name in _BUILTIN:
         return {}
-    path = _specs().get(name) or Path(name)
-    if not path.is_file():
-        raise FileNotFoundError(f"scene spec {path} does not exist")
-    return dict((yaml.safe_load(path.read_text()) or {}).get("smoke") or {})
+    return dict(read_spec(_specs().get(name) or Path(name)).get("smoke") or {})
 
 
 def get(name: str, **options) -> ForwardModel:
-    """The forward model for a registered scene name or a path to a `.yaml` scene spec."""
+    """The forward model for a registered scene name or a path to a `.yaml` scene spec (SpecError otherwise)."""
+    if not isinstance(name, str) or not name:
+        raise SpecError("scene", f"expected a scene name or a spec path, got {name!r}")
     if name in _BUILTIN:
-        return _BUILTIN[name](**options)
+        try:
+            return _BUILTIN[name](**options)
+        except (TypeError, ValueError) as e:
+            raise SpecError(name, f"options {options!r}: {e}") from None
+    check_name(name)
     specs = _specs()
-    if name in specs:
-        return load_spec(specs[name], **options)
-    if name.endswith((".yaml", ".yml")) or os.sep in name:
-        return load_spec(name, **options)
+    return load_spec(specs.get(name, name), **options)
+
+
+def check_name(name: str) -> None:
+    """SpecError unless `name` is a registered scene or a path to a usable spec file (`read_spec`); renders
+    and loads nothing."""
+    if name in _BUILTIN or name in _specs():
+        return
+    if name.lower().endswith((".yaml", ".yml", ".xml")) or os.sep in name or Path(name).exists():
+        read_spec(name)
+        return
     import difflib
 
     close = difflib.get_close_matches(name, available(), n=1)
     hint = f"; did you mean {close[0]!r}?" if close else ""
-    raise KeyError(f"unknown scene {name!r}{hint} (available: {', '.join(available())})")
+    raise SpecError(name, f"unknown scene{hint} (available: {', '.join(available())}; or a path to a scene spec "
+                          ".yaml)")
 
 
 def build(spec: dict) -> ForwardModel:

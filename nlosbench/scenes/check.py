@@ -15,6 +15,11 @@ Warnings (heuristics, stated so their limits are clear):
   which breaks FD with common random numbers); also any warning the scene load raised;
 - reproducibility: the default θ rendered twice with the same seed gives different images (max |ΔL| given);
 - dark: the image at the default θ is all zeros (no light reaches the camera);
+- default: writing θ = the spec's `default` changes the scene from the XML as loaded (the `mi.traverse`
+  values a binding writes — a shape's to_world or vertex positions, a colour — differ before and after the
+  write by more than `DEFAULT_TOL` relative): a translate default that is not 0, a radius default that is not
+  the object's size, a colour default that is not the XML's. Studies that hold a parameter at its default
+  then see another scene than the XML file shows. Checked without rendering;
 - moves nothing: no pixel changes between Θ's ends — the binding writes something the camera cannot see
   (an occluded or unlit object, an unused BSDF) or a value the scene ignores;
 - flat half: the image changes in one half of Θ but not in the other (the object leaves the view, hides
@@ -40,8 +45,11 @@ from pathlib import Path
 import numpy as np
 
 from ..io import write_json
+from ..schema import ConfigError
 from . import get
 
+#: relative tolerance of "θ = default leaves the XML's values" (float32 scene values: a few ulps)
+DEFAULT_TOL = 1e-5
 #: τ relative to the mean |L| of the default image (see the module docstring)
 REL_TOL = 1e-6
 #: a "visible" change: some channel moves by more than this fraction of the default image's mean |L|
@@ -71,7 +79,9 @@ class Step:
 @dataclass
 class ParamCheck:
     """One parameter: name, binding kind, units, θ at lower / mid / upper (3,), the two steps, where its object
-    lies relative to the frame at each θ (geometry bindings; else empty) and its warnings."""
+    lies relative to the frame at each θ (geometry bindings; else empty), its warnings, and whether θ = its
+    spec default leaves the scene as the XML has it (`default_key`: the traverse key it writes; `default_diff`:
+    max |after − before| of that key's values; `default_ok`: within DEFAULT_TOL; None for analytic models)."""
 
     name: str
     kind: str
@@ -80,6 +90,10 @@ class ParamCheck:
     steps: list[Step]
     frame: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
+    default: float = math.nan
+    default_key: str = ""
+    default_diff: float = math.nan
+    default_ok: bool | None = None
 
 
 @dataclass
@@ -183,14 +197,38 @@ def frame_status(model, object_id: str) -> str:
     return "outside" if overlap <= 0 else "partly outside"
 
 
+def _values(v) -> np.ndarray:
+    """A traverse value (Float, Transform4f, Color3f, ...) as a flat float64 array."""
+    return np.array(v.matrix if "Transform" in type(v).__name__ else v, dtype=np.float64).reshape(-1)
+
+
+def default_agreement(model) -> dict[str, tuple[str, float, bool]]:
+    """Per binding of a Mitsuba model: (the traverse key it writes, max |Δ| of that key's values between the XML
+    as loaded and the scene after writing θ = the spec defaults, whether that is within DEFAULT_TOL relative).
+    Writes θ (no render); {} for models without bindings."""
+    binder = getattr(model, "binder", None)
+    if binder is None:
+        return {}
+    keys = [binder.objects[b.object].key if b.object in binder.objects else b.key for b in binder.bindings]
+    rest = {geo.key: _values(geo.rest) for geo in binder.objects.values()}
+    rest.update({k: np.asarray(c, dtype=np.float64) for k, c in binder.colors.items()})
+    model._apply(np.asarray(model.params.default, dtype=np.float64))
+    out = {}
+    for b, key in zip(binder.bindings, keys, strict=True):
+        before, after = rest[key], _values(model._params[key])[:rest[key].size]
+        diff = float(np.abs(after - before).max())
+        out[b.param.name] = (key, diff, diff <= DEFAULT_TOL * max(1.0, float(np.abs(before).max())))
+    return out
+
+
 def check_scene(spec: str, spp: int = 64, seed: int = 0, defines: dict | None = None,
                 out: str | Path | None = None) -> SceneCheck:
     """Render every parameter of the scene `spec` (a registered name or a path to a .yaml spec) at Θ's lower
     end, mid-point and upper end (the others at their defaults, one seed), measure the image change per step,
     check the object's frame for geometry bindings and collect warnings (module docstring). With `out`, write
     check.png (the figure) and check.json there. FileNotFoundError / KeyError / ValueError for a bad spec."""
-    if int(spp) != spp or spp < 1:
-        raise ValueError(f"spp must be a positive integer, got {spp!r}")
+    if isinstance(spp, bool) or int(spp) != spp or spp < 1:
+        raise ConfigError("spp", f"expected a positive integer, got {spp!r}")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         model = get(spec, **({"defines": defines} if defines else {}))
@@ -203,6 +241,7 @@ def check_scene(spec: str, spp: int = 64, seed: int = 0, defines: dict | None = 
             scene_warnings.append(str(w.message))
     p = model.params
     default = p.default.copy()
+    agree = default_agreement(model)  # before any render: the XML's values against θ = default, no render
     base = model.render(default, spp, seed).double().numpy()
     again = model._render(default, spp, seed).double().numpy() if hasattr(model, "_render") else base
     repeat = float(np.abs(again - base).max())
@@ -228,8 +267,16 @@ def check_scene(spec: str, spp: int = 64, seed: int = 0, defines: dict | None = 
                 frame.append(frame_status(model, bindings[j].object))
         steps = [_step(imgs[0], imgs[1], tau, visible, "lower", "mid"),
                  _step(imgs[1], imgs[2], tau, visible, "mid", "upper")]
-        pc = ParamCheck(name, kind, p.units[j], thetas, steps, frame)
+        pc = ParamCheck(name, kind, p.units[j], thetas, steps, frame, default=float(default[j]))
         unit = _unit(p.units[j])
+        if name in agree:
+            pc.default_key, pc.default_diff, pc.default_ok = agree[name]
+            if not pc.default_ok:
+                pc.warnings.append(f"{name}: θ = its default {default[j]:g}{unit} does not leave the scene as the XML "
+                                   f"has it: {pc.default_key} changes by up to {pc.default_diff:.3g} when the spec's "
+                                   "defaults are written (studies that hold it at its default see another scene; "
+                                   "make `default` the XML's value: 0 for translate, the object's size for radius, "
+                                   "the XML's colour)")
         moved = [s.changed > 0 for s in steps]
         if not any(moved):
             pc.warnings.append(f"{name}: no pixel changes between θ = {thetas[0]:g} and {thetas[2]:g}{unit}: "
@@ -311,6 +358,10 @@ def format_report(result: SceneCheck) -> str:
                          f"{s.relative:>9.2%} {s.changed:>7.0%} {s.visible:>8.0%} {border:>9}")
         if pc.frame:
             lines.append(f"{'':<16} {'':<12} bounding box at lower / mid / upper: {' / '.join(pc.frame)}")
+        if pc.default_ok is not None:
+            state = "leaves the scene as the XML has it" if pc.default_ok else \
+                f"CHANGES {pc.default_key} (max |Δ| {pc.default_diff:.3g})"
+            lines.append(f"{'':<16} {'':<12} θ = default {pc.default:.4g}{_unit(pc.units)}: {state}")
     ws = result.all_warnings
     lines += [f"warning: {w}" for w in ws] or ["no warnings"]
     lines += [f"wrote {f}" for f in result.files]

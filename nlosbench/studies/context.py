@@ -26,6 +26,8 @@ def load_model(spec: dict) -> ForwardModel:
     invalid XML, bad options) is a ConfigError naming `scene`."""
     try:
         return scenes.build(spec)
+    except ConfigError as e:  # a SpecError: names the spec file and what is wrong in it
+        raise ConfigError("scene", str(e)) from None
     except KeyError as e:
         raise ConfigError("scene.name", e.args[0] if e.args else str(e)) from None
     except FileNotFoundError as e:

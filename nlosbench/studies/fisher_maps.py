@@ -9,7 +9,7 @@ import numpy as np
 
 from ..bounds import save_fisher_maps
 from ..io import read_csv, write_csv, write_exr
-from ..schema import MAX_HALVINGS, STEP_TOL, ConfigError, Field, point_spec
+from ..schema import MAX_HALVINGS, STEP_TOL, ConfigError, Field, folder_name, point_spec
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import fisher_figure
@@ -19,7 +19,8 @@ from .tables import fmt_end
 NAME = "fisher-maps"
 SCHEMA = {
     "at": Field(list, help="θ values (a number per point for 1-D θ, else a list)", items=point_spec),
-    "labels": Field(list, None, "a label per θ (e.g. LOS, NLOS)", items=str, nullable=True),
+    "labels": Field(list, None, "a label per θ (e.g. LOS, NLOS); it names files in the study's folder, so one name "
+                                "each (no '/' or '..')", items=folder_name, nullable=True),
     "spp": Field(int, 1024, "samples per pixel of the renders"),
     "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
     "fd_rounds": Field(int, 3, "independent FD rounds: the unbiased Fisher information is a U-statistic over them "

@@ -15,7 +15,10 @@ Per θ* the bound service gives the HCR interval (with its Δ → 0 term), the C
 information, and the paper's HCR_Neff / HCR-hat; in bayesian mode its curve over a uniform `hcr_grid` on
 Θ gives the ZZB. Estimators get the bound sets' grid renders as `Problem.bank` (a profile-likelihood
 start costs no render: estimator option `start: profile`); those sets never share a seed with the
-observation's mean (the bank's TRUTH set). Trials resume from trials.jsonl. Outputs: summary.csv,
+observation's mean (the bank's TRUTH set). An estimator that renders a grid before its fits (grid-search:
+`Estimator.grid_wanted`) gets it from the bank as replicate 0 of the bound service's render sets at its spp
+(`Problem.grids`): rendered once per run, counted with the bank's renders, and the bound grid's own renders
+when its θ and spp are the bound grid's. Trials resume from trials.jsonl. Outputs: summary.csv,
 bounds.csv (zzb.csv), plots/mse_vs_theta.png, plots/speed_vs_error.png.
 
 An estimator's `gradient: {method: auto}` is resolved once, before any render (`diagnostics.
@@ -187,8 +190,9 @@ def parse_settings(specs: list, where: str, model) -> list[Setting]:
 class Plan:
     """What the study computes: mode, θ* (T, P) (local) or the drawn θ* (n, P) (bayesian), trials, N_eff and its
     replicates, bound renders (spp, replicates, seeds), the noise models, the estimator settings (gradients
-    resolved), the budget per fit, and what fixes the results besides the config (`fingerprint`: the resolved
-    gradients; the run folder's fingerprint holds it, so a resume after the verdicts changed is refused)."""
+    resolved), the budget per fit, what fixes the results besides the config (`fingerprint`: the resolved
+    gradients; the run folder's fingerprint holds it, so a resume after the verdicts changed is refused), and
+    the grids the settings' estimators want (label → (θ grid, spp): `Estimator.grid_wanted`)."""
 
     mode: str
     thetas: np.ndarray
@@ -201,6 +205,7 @@ class Plan:
     settings: list
     budget: Budget
     fingerprint: dict
+    grids: dict = dataclasses.field(default_factory=dict)
 
 
 def plan(ctx, cfg: dict) -> Plan:
@@ -247,7 +252,22 @@ def plan(ctx, cfg: dict) -> Plan:
     fingerprint = json.loads(json.dumps({"gradients": {s.label: dataclasses.asdict(s.gradient) for s in settings}},
                                         sort_keys=True, default=repr))
     return Plan(cfg["mode"], thetas, cfg["n"], cfg["n_eff"], clusters, cfg["bound_spp"] or cfg["n_eff"],
-                cfg["replicates"], noises, settings, budget, fingerprint)
+                cfg["replicates"], noises, settings, budget, fingerprint,
+                wanted_grids(settings, params, f"{sid}.estimators"))
+
+
+def wanted_grids(settings: list[Setting], params, where: str) -> dict:
+    """label → (θ grid (G, P), spp) of each setting whose estimator renders a grid before its fits
+    (`Estimator.grid_wanted`); ConfigError naming the setting for a grid it refuses (e.g. above max_grid)."""
+    out = {}
+    for k, s in enumerate(settings):
+        try:
+            want = estimators.get(s.name, **s.options).grid_wanted(params)
+        except ValueError as e:
+            raise ConfigError(f"{where}[{k}]", str(e)) from None
+        if want is not None:
+            out[s.label] = want
+    return out
 
 
 def cost(ctx, cfg: dict, p: Plan) -> Estimate:
@@ -272,6 +292,9 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
             pts = T * (G + 2 * P * cfg["hcr_offsets"])
             renders, samples = renders + pts * len(cfg["levels"]), samples + pts * sum(cfg["levels"])
         fits = len(p.noises) * T * p.n
+    for thetas, spp in p.grids.values():  # made once by the bank; the bound grid's renders when they are the same
+        if not (spp == bspp and len(thetas) == G):
+            renders, samples = renders + len(thetas), samples + len(thetas) * spp
     for s in p.settings:
         r, spp = _fit_cost(s.name, s.options, s.gradient, P, p.budget)
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
@@ -281,9 +304,9 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
 
 def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budget: Budget) -> tuple[float, float]:
     """(renders, spp summed over them) of one fit, estimated from the estimator's options (its constructor's
-    defaults filled in): grid-search num^P grid renders + refine_evals; multi-start `starts` × its base
-    estimator; otherwise iterations (capped by the budget) × (a render + the gradient's renders: 2 per FD
-    parameter and round, AD_PASS_RENDERS per AD pass)."""
+    defaults filled in): grid-search refine_evals (its grid is the bank's, counted once in `cost`); multi-start
+    `starts` × its base estimator; otherwise iterations (capped by the budget) × (a render + the gradient's
+    renders: 2 per FD parameter and round, AD_PASS_RENDERS per AD pass)."""
     try:
         sig = inspect.signature(estimators.factory(name))
         o = {k: v.default for k, v in sig.parameters.items() if v.default is not inspect.Parameter.empty}
@@ -297,9 +320,8 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
         r, n = _fit_cost(o.get("base", "mle-adam"), o.get("options") or {}, gradient, P, budget)
         return o.get("starts", 4) * r + 1, o.get("starts", 4) * n + spp
     if name == "grid-search":
-        grid = o.get("num", 65) ** P
         refine = o.get("refine_evals", 150) if o.get("refine", True) else 0
-        return grid + refine, grid * spp + refine * (o.get("refine_spp") or spp)
+        return refine, refine * (o.get("refine_spp") or spp)
     n_ad = P if gradient.method == "ad" else len(gradient.ad_params) if gradient.method == "mixed" else 0
     grad = 2 * gradient.rounds * (P - n_ad) + (AD_PASS_RENDERS if n_ad else 0)
     iterations = budget.cap(int(o.get("iterations", 100)))
@@ -352,6 +374,9 @@ def run(ctx, cfg: dict) -> dict:
     # the estimators' grid is the mean of the bound's replicate sets (R × bound_spp samples, no new render)
     reps = svc.replicates(grid, p.bound_spp, cfg["seeds"], p.replicates, "bank grid")
     bank_grid = BankGrid(grid, reps.mean(dim=0), p.replicates * p.bound_spp)
+    # the settings' own grids (grid-search): replicate 0 of the bound sets at their spp, one render per (θ, spp, seed)
+    grids = {label: BankGrid(thetas, svc.replicates(thetas, spp, cfg["seeds"], 1, f"{label} grid")[0], spp)
+             for label, (thetas, spp) in p.grids.items()}
     bound_rows, zzb = [], {}
     tseed = ctx.seed_for(f"trials {sid}")  # the trials' noise, start and fit seeds: a stream of this study's own
     if p.mode == "bayesian":
@@ -363,7 +388,7 @@ def run(ctx, cfg: dict) -> dict:
                                            for j, b in zzb.items()])
         cleans = list(ctx.bank.at(p.thetas, p.n_eff, TRUTH, desc="clean images (one per trial)"))
         trials = make_bayes_trials(p.thetas, p.settings, p.noises, cleans, tseed, p.budget, cfg["traces"],
-                                   bank_grid)
+                                   bank_grid, grids)
     else:
         cleans = {}
         for c in range(p.clusters):
@@ -380,7 +405,7 @@ def run(ctx, cfg: dict) -> dict:
         bound_rows = [{"theta_index": i % len(p.thetas), **pt.row(params.names)} for i, pt in enumerate(points)]
         write_csv(folder / "bounds.csv", bound_rows)
         trials = make_trials(p.thetas, p.n, p.settings, p.noises, cleans, tseed, p.budget, cfg["start_width"],
-                             cfg["traces"], bank_grid, p.clusters)
+                             cfg["traces"], bank_grid, p.clusters, grids)
     renders = ctx.bank.renders - before
     records = run_trials(ctx.bank.executor, trials, folder / LOG_NAME, resume=ctx.resume, progress=ctx.progress)
     labels = [s.label for s in p.settings]
