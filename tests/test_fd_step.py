@@ -171,3 +171,16 @@ def test_poisson_zzb_from_rare_path_renders_stays_below_the_exact_zzb():
     assert np.mean([z.lower <= exact for z in new]) >= 0.95 - 3 * math.sqrt(0.95 * 0.05 / 100)
     assert np.mean([z.point <= exact for z in new]) > 0.5
     assert np.mean([z.lower > exact for z in old]) > 0.12 and np.median([z.point for z in old]) > exact + 0.5
+
+
+def test_an_unresolved_halving_is_named_unresolved_not_a_nan_ratio():
+    """Where F̂ ≤ 0 at a step (rendering noise above the signal) the halving has no ratio: the lower end's note
+    says "F unresolved", never "F ×nan ± nan" (as a 512-spp NLOS table printed it)."""
+    from nlosbench.bounds.fd_step import Halving, StepFisher, crlb_term
+
+    F = UStat(np.array([[4.0]]), np.array([[1.0]]), np.empty((0, 1, 1)), 4, np.array([[30.0]]))
+    noisy = UStat(np.array([[-1.0]]), np.array([[3.0]]), np.empty((0, 1, 1)), 4, np.array([[30.0]]))
+    sf = StepFisher([{"central": F}, {"central": noisy}], [0.02, 0.01],
+                    [Halving(0.02, math.nan, math.nan, False, False)])
+    note = crlb_term(sf, 0.95).lower_note
+    assert "F unresolved from ξ = 0.02" in note and "nan" not in note, note

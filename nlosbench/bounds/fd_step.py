@@ -224,8 +224,9 @@ def crlb_term(sf: StepFisher, level: float, tests: int = 1) -> CRLBTerm:
         note = f"not a confidence limit: FD step not checked (one step, ξ = {sf.steps[-1]:.3g})"
     elif not sf.converged:
         h = sf.halvings[-1]
-        note = (f"not a confidence limit: FD step not converged (F ×{h.ratio:.3g} ± {h.se:.2g} from ξ = {h.step:.3g} "
-                f"to ξ/2)")
+        change = (f"F ×{h.ratio:.3g} ± {h.se:.2g}" if math.isfinite(h.ratio) and math.isfinite(h.se) else
+                  "F unresolved")  # F̂ ≤ 0 at a step: rendering noise above the signal, no ratio to quote
+        note = f"not a confidence limit: FD step not converged ({change} from ξ = {h.step:.3g} to ξ/2)"
     final = sf.final
     loo = np.array([_log(trace_inv(Fk)) for Fk in final.loo]) if final.loo.size else np.empty(0)
     return CRLBTerm(_log(point), _log(lower), _log(upper), note, zero, loo)
