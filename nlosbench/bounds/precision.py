@@ -273,8 +273,11 @@ def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float,
     """(the smallest ladder count in (above, cap] predicted to meet `target`, None if none is; the precision
     predicted at that count, or at `cap` when none meets)."""
     fits = [Fit.of(r) for r in raws]
-    got = math.inf
-    for R in ladder(cap, above):
+    steps = ladder(cap, above)
+    got = predicted_reached(fits, kinds, steps[-1], level) if steps else math.inf
+    if got > target:  # not even at the cap (the prediction falls with R): no scan
+        return None, got
+    for R in steps:
         got = predicted_reached(fits, kinds, R, level)
         if got <= target:
             return R, got

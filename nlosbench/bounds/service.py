@@ -517,8 +517,8 @@ class BoundService:
         stages = None
         if need_fi:
             common = center if seeds == "common" else None
-            stages = self._refine(thetas, lambda idx, xi: self._stages(thetas[idx], None if common is None else
-                                                                       common[:, idx], spp, seeds, R, xi, first),
+            stages = self._refine(thetas, lambda idx, xi: self._stages(  # a torch index: a numpy one is ~500× slower
+                thetas[idx], None if common is None else common[:, torch.as_tensor(idx)], spp, seeds, R, xi, first),
                                   {j: [w for w, _ in rows] for j, rows in weights.items()}, fd_step, step_tol,
                                   max_halvings)
         rows: dict[tuple[int, int], BoundPoint] = {}
@@ -528,7 +528,7 @@ class BoundService:
             pts = np.concatenate([grid[near], offs])
             alt = None
             if need_alt:
-                alt = grid_X[:, near]
+                alt = grid_X[:, torch.as_tensor(near)]  # a torch index: a numpy one is ~500× slower
                 if len(offs):
                     alt = torch.cat([alt, self.replicates(offs, spp, seeds, R, "bound offset renders",
                                                                      first).double()], dim=1)
