@@ -37,10 +37,11 @@ of x (Gaussian errors, independent pixels), has
 
 `variance_terms` estimates a and b from a look's raw replicate data (λ(Δ): the replicate differences D
 (R, K, N); F: the FD rounds (R, P, N) of every stage and variant): s² the per-pixel sample variance over
-replicates, d² the unbiased d̄² − s²/R clipped at 0 per pixel. `predicted_reached` builds UStats with the
-look's estimates and SE √(a/R + b/(R(R − 1))) (degrees of freedom the look's Satterthwaite df × (R − 1)/(R0 − 1))
-and calls the same interval code as the service (`hcr_interval`, `crlb_term`), so an open end (λ_L ≤ 0),
-the Bonferroni share and the FD stages are predicted the way they are computed. This is not
+replicates, d² s² and s⁴ their unbiased (Gaussian) estimates, the sum clipped at 0. `Fit.bounds` builds UStats
+with the look's estimates and SE √(a/R + b/(R(R − 1))) (degrees of freedom the look's Satterthwaite df ×
+(R − 1)/(R0 − 1); for a vector θ, leave-one-outs scaled to that variance) and calls the same interval code as
+the service (`hcr_interval`, `crlb_term`), so an open end (λ_L ≤ 0), the Bonferroni share and the FD stages are
+predicted the way they are computed. This is not
 n·(width/target)² (SE ∝ R^−½): where the noise × noise part b dominates, SE falls like 1/R.
 
 Budget: pixel-samples = spp × H × W × renders made by the call (the bank's `renders` counter). The pilot is
@@ -176,14 +177,17 @@ class Precision:
 # -- the planning model ---------------------------------------------------------------------------------
 def variance_terms(X: np.ndarray, w) -> tuple[np.ndarray, np.ndarray]:
     """(a (K,), b (K,)) of the U-statistics of Σ_pixels w·x_r·x_s over R replicates X (R, K, N) (w scalar or
-    (N,)): Var ≈ a/R + b/(R(R − 1)), a = 4 Σ w² d² s², b = 2 Σ w² s⁴, with s² the per-pixel sample variance and
-    d² = max(x̄² − s²/R, 0) per pixel."""
+    (N,)): Var ≈ a/R + b/(R(R − 1)), a = 4 Σ w² d² s², b = 2 Σ w² s⁴. Per pixel, from the mean x̄ and sample
+    variance ŝ² over replicates, unbiased for Gaussian errors (x̄ and ŝ² independent, E ŝ⁴ = s⁴ (R + 1)/(R − 1)):
+    s⁴ ≈ ŝ⁴ (R − 1)/(R + 1) and d² s² ≈ x̄² ŝ² − s⁴/R, summed over pixels and the sum clipped at 0. (Clipping
+    d² per pixel instead would add ≈ s⁴/R from every signal-free pixel; the plug-in ŝ⁴ is 2× s⁴ at R = 3:
+    measured on blob2d, both doubled the predicted SE where b dominates.)"""
     X = np.asarray(X, dtype=np.float64)
     R = X.shape[0]
     m, s2 = X.mean(axis=0), X.var(axis=0, ddof=1)
-    d2 = np.clip(m * m - s2 / R, 0.0, None)
+    s4 = s2 * s2 * (R - 1.0) / (R + 1.0)
     w2 = np.asarray(w, dtype=np.float64) ** 2
-    return 4.0 * (w2 * d2 * s2).sum(axis=-1), 2.0 * (w2 * s2 * s2).sum(axis=-1)
+    return np.clip(4.0 * (w2 * (m * m * s2 - s4 / R)).sum(axis=-1), 0.0, None), 2.0 * (w2 * s4).sum(axis=-1)
 
 
 def _var(a, b, R: int):
