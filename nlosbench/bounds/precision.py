@@ -196,9 +196,9 @@ def _var(a, b, R: int):
 
 def _predict_ustat(u: UStat, ab: tuple[np.ndarray, np.ndarray], R: int) -> UStat:
     """u as it would be from R replicates: the same estimate, SE √(a/R + b/(R(R−1))) from the variance terms
-    ab = (a, b), df × (R − 1)/(R0 − 1). For F (P, P) with P > 1 (a jackknife over rounds): leave-one-outs whose
-    jackknife variance is u's scaled by the predicted variance ratio (√ of the two diagonal ratios off the
-    diagonal)."""
+    ab = (a, b), df × (R − 1)/(R0 − 1). For F (P, P) with P > 1 (a jackknife over rounds): R0 leave-one-outs whose
+    jackknife variance, taken with R replicates, is u's scaled by the predicted variance ratio (√ of the two
+    diagonal ratios off the diagonal)."""
     R0, (a, b) = u.replicates, ab
     df = u.dof * (R - 1.0) / (R0 - 1.0)
     if u.est.ndim == 1 or u.est.shape == (1, 1):
@@ -207,12 +207,11 @@ def _predict_ustat(u: UStat, ab: tuple[np.ndarray, np.ndarray], R: int) -> UStat
     v0 = _var(a, b, R0)
     ratio = np.sqrt(np.divide(_var(a, b, R), v0, out=np.ones_like(a), where=v0 > 0))
     c2 = np.sqrt(np.outer(ratio, ratio))
+    # the R0 pilot deviations, rescaled: `crlb_term` takes the jackknife as (R − 1)/R Σ (loo − mean)² over the rows
+    # given with R = u.replicates, so R0 rows carry the variance of R (no R-row array: R reaches MAX_PREDICT)
     dev = u.loo - u.loo.mean(axis=0)
-    rows = dev[np.arange(R) % R0]
-    rows = rows - rows.mean(axis=0)
-    j0, jR = (R0 - 1) / R0 * (dev**2).sum(axis=0), (R - 1) / R * (rows**2).sum(axis=0)
-    s = np.sqrt(np.divide(c2 * c2 * j0, jR, out=np.zeros_like(j0), where=jR > 0))
-    return UStat(u.est, u.se * c2, u.est + s * rows, R, df)
+    s = np.sqrt(c2 * c2 * (R0 - 1.0) / R0 * R / (R - 1.0))
+    return UStat(u.est, u.se * c2, u.est + s * dev, R, df)
 
 
 @dataclass(frozen=True)
