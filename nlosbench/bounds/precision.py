@@ -41,7 +41,8 @@ replicates, d² s² and s⁴ their unbiased (Gaussian) estimates, the sum clippe
 with the look's estimates and SE √(a/R + b/(R(R − 1))) (degrees of freedom the look's Satterthwaite df ×
 (R − 1)/(R0 − 1); for a vector θ, leave-one-outs scaled to that variance) and calls the same interval code as
 the service (`hcr_interval`, `crlb_term`), so an open end (λ_L ≤ 0), the Bonferroni share and the FD stages are
-predicted the way they are computed. This is not
+predicted the way they are computed. Where a look's λ̂(Δ) ≤ 0 (no information on λ at that Δ), the plan uses the
+local quadratic ΔᵀF̂Δ instead. Plans only choose R; the proof above does not depend on them. This is not
 n·(width/target)² (SE ∝ R^−½): where the noise × noise part b dominates, SE falls like 1/R.
 
 Budget: pixel-samples = spp × H × W × renders made by the call (the bank's `renders` counter). The pilot is
@@ -243,7 +244,13 @@ class Fit:
             t = crlb_term(pred, level)
             out["crlb"] = (t.lower, t.point, t.upper)
         if "hcr" in kinds and self.lam is not None:
-            iv = hcr_interval(_predict_ustat(raw.lam, self.lam, R), raw.deltas, pred, level, raw.lower, raw.upper)
+            # a look's λ̂ ≤ 0 says nothing about λ (that Δ would never resolve): plan with the local quadratic
+            # ΔᵀF̂Δ there instead (a guess for the plan only; the looks' limits do not depend on it)
+            D = raw.deltas.reshape(len(raw.deltas), -1)
+            quad = np.einsum("kp,pq,kq->k", D, sf.final.est, D)
+            lam = _predict_ustat(raw.lam, self.lam, R)
+            lam = UStat(np.where(raw.lam.est > 0, raw.lam.est, quad), lam.se, lam.loo, lam.replicates, lam.df)
+            iv = hcr_interval(lam, raw.deltas, pred, level, raw.lower, raw.upper)
             out["hcr"] = (iv.lower, iv.point, iv.upper)
         return out
 
@@ -346,7 +353,8 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
         need, got = plan([st.raws[j, i] for j in noises], kinds(i), target, level, MAX_PREDICT)
         if need is None:
             st.notes[i] = (f"not met: no number of fresh sets is predicted to meet the target (predicted {got:.3g} at "
-                           f"{MAX_PREDICT} sets: an end set by a coarse FD stage or an unresolved Δ does not shrink)")
+                           f"{MAX_PREDICT} sets: more sets do not move an end set by a coarse FD stage, nor one from "
+                           "an F̂ ≤ 0)")
         elif need <= r_max:
             star[i] = need
         elif r_max >= 3:
