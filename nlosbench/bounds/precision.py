@@ -381,19 +381,20 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
         for i in todo:
             st.notes[i] = f"met at look {k}" if worst(i) <= target else f"not met after look {k}"
     total = spent()
+    extra = {}
+    for i in range(T):  # where unmet: predicted from the reported look's own data, fresh sets beyond those it used
+        need = R_last = 0
+        if worst(i) > target:
+            R_last = st.fresh[i]
+            need = plan([st.raws[m, i] for m in noises], kinds(i), target, level, MAX_PREDICT, R_last)[0]
+        extra[i] = math.inf if need is None else float(need - R_last)
     out = []
     for j in noises:
         for i in range(T):
-            met = worst(i) <= target
-            extra = 0.0
-            if not met:  # predicted from the reported look's own data: fresh sets beyond those it used
-                R_last = st.fresh[i]
-                need, _ = plan([st.raws[m, i] for m in noises], kinds(i), target, level, MAX_PREDICT, R_last)
-                extra = math.inf if need is None else float(need - R_last)
             pt = st.points[j, i]
             pt.precision = Precision(
-                float(target), {k: reached(pt.bounds[k]) for k in kinds(i)}, met, st.looks[i], R0, st.fresh[i],
-                level, int(total), extra, extra * cost.one(i, st.stages[i]) * per_sample if extra else 0.0,
-                st.notes[i])
+                float(target), {k: reached(pt.bounds[k]) for k in kinds(i)}, worst(i) <= target, st.looks[i], R0,
+                st.fresh[i], level, int(total), extra[i],
+                extra[i] * cost.one(i, st.stages[i]) * per_sample if extra[i] else 0.0, st.notes[i])
             out.append(pt)
     return out
