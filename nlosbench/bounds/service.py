@@ -41,6 +41,7 @@ pixels is in the flags (never a silent −inf or a dropped Δ).
 """
 from __future__ import annotations
 
+import copy
 import itertools
 import json
 import math
@@ -57,6 +58,7 @@ from nlosbench.bounds.grid import pairwise_lambda
 from nlosbench.bounds.hcr import HCRResult, hcr_from_lambda
 from nlosbench.bounds.hcr_interval import HCRInterval, hcr_interval
 from nlosbench.bounds.inexact import InexactHCR, inexact_hcr
+from nlosbench.bounds.precision import Precision, Raw, SetCost, check_precision, refine
 from nlosbench.bounds.unbiased_fisher import unbiased_fisher
 from nlosbench.bounds.ustat import UStat, pairwise_ustat, pixel_ustat
 from nlosbench.bounds.zzb import bhattacharyya_ustat, uniform_spacing, zzb_interval
@@ -174,12 +176,16 @@ class BoundPoint:
         The parameter point, parameter units.
     bounds : dict of str to Bound
         {kind: Bound}.
+    precision : Precision, optional
+        With a precision target (`BoundService.at(precision=...)`): the target, what was reached and the
+        pixel-samples spent (`bounds.precision.Precision`); None without one.
     """
 
     noise_index: int
     noise: str
     theta: np.ndarray
     bounds: dict[str, Bound]
+    precision: Precision | None = None
 
     def row(self, names: Sequence[str]) -> dict:
         """A CSV row: noise, θ per parameter, then every bound's columns.
@@ -192,12 +198,15 @@ class BoundPoint:
         Returns
         -------
         dict
-            noise_index, noise, theta_<name> per parameter, then `Bound.columns` of every bound.
+            noise_index, noise, theta_<name> per parameter, then `Bound.columns` of every bound, and with a
+            precision target the precision_* columns.
         """
         out = {"noise_index": self.noise_index, "noise": self.noise,
                **{f"theta_{n}": float(v) for n, v in zip(names, self.theta, strict=True)}}
         for b in self.bounds.values():
             out.update(b.columns())
+        if self.precision is not None:
+            out.update(self.precision.columns())
         return out
 
 
@@ -347,8 +356,10 @@ class BoundService:
         return self.noises if noises is None else {j: self.noises[j] for j in noises}
 
     # -- render sets -----------------------------------------------------------------------------------
-    def replicates(self, points, spp: int, seeds: str, R: int, desc: str = "bound renders") -> torch.Tensor:
-        """Renders (R, N, *S) of points (N, P) in the R replicate sets (see the module docstring).
+    def replicates(self, points, spp: int, seeds: str, R: int, desc: str = "bound renders",
+                   first: int = 0) -> torch.Tensor:
+        """Renders (R, N, *S) of points (N, P) in the R replicate sets first … first + R − 1 (see the module
+        docstring).
 
         Parameters
         ----------
@@ -363,6 +374,8 @@ class BoundService:
             The number of replicate sets (replicate r = 0 … R−1 of purpose "bounds").
         desc : str, optional
             Progress label.
+        first : int, default 0
+            The first replicate index (a precision target's fresh sets start after the pilot's).
 
         Returns
         -------
@@ -372,7 +385,7 @@ class BoundService:
         _check(seeds, R)
         pts = np.asarray(points, dtype=np.float64).reshape(-1, self.params.dim)
         return torch.stack([self.bank.at(pts, spp, PURPOSE, seeds == "common", r, desc=f"{desc} (replicate {r})")
-                            for r in range(R)])
+                            for r in range(first, first + R)])
 
     def _stencils(self, thetas: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
         """FD stencil points (T, P, 2, P): θ ± ξ e_j clipped into Θ (one-sided at its edge), and their
@@ -389,19 +402,22 @@ class BoundService:
         return st, sep
 
     def _stages(self, thetas: np.ndarray, center: torch.Tensor | None, spp: int, seeds: str, R: int,
-                step: float) -> list[Stage]:
+                step: float, first: int = 0) -> list[Stage]:
         """One FD Stage at step ξ per θ of thetas (T, P), R rounds, each independent of the others and with
         common random numbers inside each stencil. Common seeds: the central differences of replicate r's
         stencil renders (θ ± ξ e_j clipped into Θ) and, from the θ renders `center` (R, T, *S) of the same
         replicates (their seed is the stencils'), the forward and backward differences; independent seeds: the
-        bank's central FD Jacobians (a seed per θ and round, the same at every step, so stages pair)."""
+        bank's central FD Jacobians (a seed per θ and round, the same at every step, so stages pair). Rounds are
+        the replicate sets first … first + R − 1."""
         T, P = thetas.shape
         if seeds == "independent":
             J = torch.stack([self.bank.jacobians_at(thetas, spp, step, PURPOSE, False, r,
-                                                    desc=f"FD Jacobians (round {r})") for r in range(R)]).double()
+                                                    desc=f"FD Jacobians (round {r})")
+                             for r in range(first, first + R)]).double()
             return [Stage(step, {"central": J[:, t].reshape(R, P, -1).numpy()}) for t in range(T)]
         st, sep = self._stencils(thetas, step)
-        X = self.replicates(st.reshape(-1, P), spp, seeds, R, "FD stencil renders").double().reshape(R, T, P, 2, -1)
+        X = self.replicates(st.reshape(-1, P), spp, seeds, R, "FD stencil renders", first).double().reshape(
+            R, T, P, 2, -1)
         diag = np.arange(P)
         out = []
         for t in range(T):
@@ -611,7 +627,8 @@ class BoundService:
     def at(self, thetas, spp: int, want: Sequence[str] = ("hcr", "crlb"), seeds: str = "common",
            replicates: int = 3, test_grid: int = 21, offsets: int = 4, fd_step: float = 0.01,
            levels: Sequence[int] = (1024, 2048), noises=None, step_tol: float = 0.1,
-           max_halvings: int = 3) -> list[BoundPoint]:
+           max_halvings: int = 3, precision: float | None = None, budget: int | None = None,
+           looks: int = 3) -> list[BoundPoint]:
         """Every bound in `want` (hcr, crlb, hcr_neff, barankin, hcr_hat) at each θ* (T, P).
 
         Test Δ: a `test_grid`^P grid over Θ (shared by every θ*, points equal to θ* skipped) and the
@@ -619,6 +636,10 @@ class BoundService:
         ξ, halved (with the same seeds) until F is shown to have stopped rising within 1 + `step_tol`, at
         most `max_halvings` times (`fd_step`); HCR-hat fits λ over the spp `levels`. "hcr" also reports the
         paper's hcr_neff. Poisson weights come from one independent render per θ*.
+        With a `precision` target p (relative half-width, linear units): fresh replicate sets are added only
+        where an interval is wider than p, within `budget` pixel-samples, in at most `looks` looks with ends
+        at level 1 − (1 − level)/looks, so coverage holds whatever the stopping (`bounds.precision`); each
+        BoundPoint then carries a `precision` record.
 
         Parameters
         ----------
@@ -646,6 +667,15 @@ class BoundService:
             Relative tolerance of the step check (0.1: F within 10 %).
         max_halvings : int, optional
             The most halvings of ξ, in [0, 12].
+        precision : float, optional
+            The target p > 0: every interval bound asked for (hcr, crlb) has upper/point ≤ 1 + p and
+            point/lower ≤ 1 + p (an open end or one that is not a confidence limit does not meet it). None:
+            one fixed set of `replicates` (today's behaviour).
+        budget : int, optional
+            A cap on the pixel-samples (spp × H × W × renders) this call may spend; None: unlimited (with a
+            precision target only).
+        looks : int, optional
+            K ≥ 2: the pilot and at most K − 1 looks at fresh sets, each at level 1 − (1 − level)/K.
 
         Returns
         -------
@@ -660,18 +690,42 @@ class BoundService:
             raise ValueError(f"barankin bounds a scalar θ; this model has {list(self.params.names)}")
         p, R = self.params, _need_replicates(replicates)
         _check_step(fd_step, step_tol, max_halvings)
+        check_precision(precision, budget, looks, want, R)
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, p.dim)
+        args = (spp, want, seeds, test_grid, offsets, fd_step, levels, noises, step_tol, max_halvings)
+        if precision is None:
+            return self._at(thetas, R, 0, *args)
+        need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
+        need_fi = bool({"hcr", "crlb"} & set(want))
+        cost = SetCost(p.grid(test_grid).shape[0] if need_alt else 0,
+                       np.array([1 + (len(axis_offsets(p, t, offsets, fd_step)) if need_alt else 0) for t in thetas]),
+                       2 * p.dim if need_fi else 0, max_halvings + 1)
+
+        def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict) -> list[BoundPoint]:
+            sub = copy.copy(self)
+            sub.level = level
+            return sub._at(thetas[idx], reps, first, *args, keep=keep)
+
+        return refine(look, len(thetas), list(self._select(noises)), R, precision, budget, looks, 1 - self.level,
+                      cost, spp, self.bank)
+
+    def _at(self, thetas: np.ndarray, R: int, first: int, spp: int, want: Sequence[str], seeds: str, test_grid: int,
+            offsets: int, fd_step: float, levels: Sequence[int], noises, step_tol: float, max_halvings: int,
+            keep: dict | None = None) -> list[BoundPoint]:
+        """`at` on the replicate sets first … first + R − 1 at the service's level; `keep`, when given, is filled
+        with {(noise index, θ index): the raw data a precision plan needs (`precision.Raw`)}."""
+        p = self.params
         grid = p.grid(test_grid)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
         need_fi = bool({"hcr", "crlb"} & set(want))
-        center = self.replicates(thetas, spp, seeds, R, "bound renders at θ*").double()
-        grid_X = self.replicates(grid, spp, seeds, R, "bound test renders").double() if need_alt else None
+        center = self.replicates(thetas, spp, seeds, R, "bound renders at θ*", first).double()
+        grid_X = self.replicates(grid, spp, seeds, R, "bound test renders", first).double() if need_alt else None
         weights = self._weights(thetas, spp, center.mean(dim=0), noises)
         stages = None
         if need_fi:
             common = center if seeds == "common" else None
-            stages = self._refine(thetas, lambda idx, xi: self._stages(thetas[idx], None if common is None else
-                                                                       common[:, idx], spp, seeds, R, xi),
+            stages = self._refine(thetas, lambda idx, xi: self._stages(  # a torch index: a numpy one is ~500× slower
+                thetas[idx], None if common is None else common[:, torch.as_tensor(idx)], spp, seeds, R, xi, first),
                                   {j: [w for w, _ in rows] for j, rows in weights.items()}, fd_step, step_tol,
                                   max_halvings)
         rows: dict[tuple[int, int], BoundPoint] = {}
@@ -681,9 +735,10 @@ class BoundService:
             pts = np.concatenate([grid[near], offs])
             alt = None
             if need_alt:
-                alt = grid_X[:, near]
+                alt = grid_X[:, torch.as_tensor(near)]  # a torch index: a numpy one is ~500× slower
                 if len(offs):
-                    alt = torch.cat([alt, self.replicates(offs, spp, seeds, R, "bound offset renders").double()], dim=1)
+                    alt = torch.cat([alt, self.replicates(offs, spp, seeds, R, "bound offset renders",
+                                                                     first).double()], dim=1)
             lower, upper = p.lower - theta, p.upper - theta
             deltas = pts - theta if p.dim > 1 else (pts - theta)[:, 0]
             lv = None
@@ -698,6 +753,7 @@ class BoundService:
                 sf = converge(stages[i], wflat, self.level, step_tol, spp) if need_fi else None
                 if "crlb" in want:
                     b["crlb"] = crlb_bound(sf, self.level, zero_flags)
+                D = lam = None
                 if need_alt and {"hcr", "hcr_neff"} & set(want):
                     if "hcr" in want:
                         D = (alt - center[:, i][:, None]).reshape(R, alt.shape[1], -1).numpy()  # (R, K, N)
@@ -713,6 +769,9 @@ class BoundService:
                                     alt.mean(dim=0)[None], spp * R, lower, upper)
                     b["hcr_hat"] = hcr_bound(r.hcr_hat, "hcr_hat")
                 rows[j, i] = BoundPoint(j, str(noise), theta.copy(), b)
+                if keep is not None:
+                    keep[j, i] = Raw(D, lam, sf, stages[i] if need_fi else [], wflat, deltas, lower, upper,
+                                     int(np.prod(center.shape[2:4])))
         return [rows[j, i] for j in self._select(noises) for i in range(len(thetas))]
 
     # -- Fisher information ------------------------------------------------------------------------------

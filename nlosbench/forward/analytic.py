@@ -3,6 +3,9 @@
 Optional synthetic rendering noise mimics a Monte Carlo renderer: L̃ = L + ε with
 ε ~ N(0, render_noise² · L / N^p) per pixel, N = spp, p = `render_noise_power` (1 for a path tracer),
 independent across seeds. With render_noise = 0 the image is exact for every spp and seed.
+`render_noise_dist` "t3" draws ε heavy-tailed instead: Student's t with 3 degrees of freedom scaled to the same
+variance (t/√3; kurtosis infinite), as a renderer's rare bright paths make it; "gauss" (the default) is the
+normal draw above, unchanged.
 """
 from __future__ import annotations
 
@@ -15,17 +18,23 @@ from ..params import Param, ParamSpace
 from ..seeds import derive
 from .model import ForwardModel
 
+#: synthetic rendering-noise distributions (unit variance before scaling)
+NOISE_DISTS = ("gauss", "t3")
+
 
 class AnalyticModel(ForwardModel):
     """Base for closed-form models: subclasses give `clean(θ)` as a differentiable torch function."""
 
     def __init__(self, name: str, params: ParamSpace, render_noise: float = 0.0,
-                 render_noise_power: float = 1.0, cache=None):
+                 render_noise_power: float = 1.0, cache=None, render_noise_dist: str = "gauss"):
         super().__init__(name, params, cache)
         if render_noise < 0:
             raise ValueError(f"render_noise must be >= 0, got {render_noise}")
+        if render_noise_dist not in NOISE_DISTS:
+            raise ValueError(f"render_noise_dist must be one of {list(NOISE_DISTS)}, got {render_noise_dist!r}")
         self.render_noise = float(render_noise)
         self.render_noise_power = float(render_noise_power)
+        self.render_noise_dist = render_noise_dist
         self.exact = self.render_noise == 0.0
 
     @abstractmethod
@@ -42,6 +51,9 @@ class AnalyticModel(ForwardModel):
             return L
         g = torch.Generator().manual_seed(derive(seed, "analytic-render-noise"))
         z = torch.randn(L.shape, generator=g, dtype=torch.float64)
+        if self.render_noise_dist == "t3":  # t₃ = z / √(χ²₃/3) has variance 3: divided by √3, unit variance
+            chi2 = (torch.randn((3,) + tuple(L.shape), generator=g, dtype=torch.float64) ** 2).sum(dim=0)
+            z = z / chi2.sqrt()
         return L + z * self.noise_variance(L, spp).sqrt()
 
     def _render(self, theta: np.ndarray, spp: int, seed: int) -> torch.Tensor:
@@ -64,8 +76,10 @@ class AnalyticModel(ForwardModel):
         return g.numpy()
 
     def content_key(self) -> dict:
+        # the default Gaussian draw is left out, so keys made before the option existed stay valid
         return {"model": type(self).__name__, **{k: v for k, v in vars(self).items()
-                                                 if isinstance(v, (int, float, str, tuple))}}
+                                                 if isinstance(v, (int, float, str, tuple))
+                                                 and (k, v) != ("render_noise_dist", "gauss")}}
 
 
 class Blob2D(AnalyticModel):

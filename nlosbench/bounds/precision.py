@@ -1,0 +1,400 @@
+"""Precision on demand: replicate render sets added only where a bound's interval is wider than asked,
+with confidence limits that survive the data-dependent stopping.
+
+Precision of an interval bound (kinds "hcr" and "crlb": log10 ends `lower`, `upper` and estimate `point`)
+is its relative half-width in linear units,
+
+    reached = max(10^(upper − point), 10^(point − lower)) − 1,
+
++inf where an end is open (±inf), the point is not finite, or an end is not a confidence limit (a
+lower_note / upper_note). A θ* meets the target p when every interval bound asked for, for every noise
+model, has reached ≤ p.
+
+The stopping rule (`refine`). Let α = 1 − level and K = `looks`. Every interval is computed at level
+1 − α/K.
+  look 0, the pilot: the R0 replicate sets 0 … R0 − 1. θ* that meet p stop here.
+  plan: for every other θ*, from the pilot alone, R* = the smallest number of fresh sets on the ladder
+      3, 4, 6, 8, 12, 16, 24, … (at most what the budget allows) predicted to meet p (below);
+  looks k = 1 … K − 1: the fresh sets R0 … R0 + R*·2^(k−1) − 1 only (never the pilot's); stop at the first
+      look that meets p, or before a look whose worst-case cost would exceed the budget.
+The reported interval is that of the last look made.
+
+Proof that P(reported interval misses the true value) ≤ α whatever the stopping. Let E_k be the event that
+look k's interval misses. Look 0's interval is a fixed-R interval on the pilot sets: P(E_0) ≤ α/K.
+Conditional on the pilot (and on the Poisson weight render, which is independent of every replicate set and
+the same at every look), R* is fixed, so look k uses a fixed number R*·2^(k−1) of sets, whose seeds the bank
+derives from their replicate indices (nothing is drawn) and which are independent of the pilot: its interval
+is a fixed-R interval at level 1 − α/K on fresh data, P(E_k | pilot) ≤ α/K. Whichever look is reported, a
+miss of the reported interval implies some E_k, so P(miss) ≤ P(∪ E_k) ≤ Σ P(E_k) ≤ K·α/K = α. (Looks
+1 … K − 1 share sets — look k's are a prefix of look k+1's — which the union bound does not mind.) The
+argument is exact given that each fixed-R interval has its stated level; that is the t-approximation of
+`ustat` and `fd_step`, the same as without a target.
+
+Planning model. A U-statistic over R replicates of Σ_pixels w·x_r·x_s, with per-pixel mean d and variance s²
+of x (Gaussian errors, independent pixels), has
+
+    Var ≈ a/R + b/(R(R − 1)),  a = 4 Σ w² d² s²,  b = 2 Σ w² s⁴.
+
+`variance_terms` estimates a and b from a look's raw replicate data (λ(Δ): the replicate differences D
+(R, K, N); F: the FD rounds (R, P, N) of every stage and variant): s² the per-pixel sample variance over
+replicates, d² s² and s⁴ their unbiased (Gaussian) estimates, the sum clipped at 0. `Fit.bounds` builds UStats
+with the look's estimates and SE √(a/R + b/(R(R − 1))) (degrees of freedom the look's Satterthwaite df ×
+(R − 1)/(R0 − 1); for a vector θ, leave-one-outs scaled to that variance) and calls the same interval code as
+the service (`hcr_interval`, `crlb_term`), so an open end (λ_L ≤ 0), the Bonferroni share and the FD stages are
+predicted the way they are computed. Where a look's λ̂(Δ) ≤ 0 (no information on λ at that Δ), the plan uses the
+local quadratic ΔᵀF̂Δ instead. Plans only choose R; the proof above does not depend on them. This is not
+n·(width/target)² (SE ∝ R^−½): where the noise × noise part b dominates, SE falls like 1/R.
+
+Budget: pixel-samples = spp × H × W × renders made by the call (the bank's `renders` counter). The pilot is
+always made; a fresh look is made only if the pixel-samples spent so far plus its worst-case cost (every FD
+halving taken) stay within the budget.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from nlosbench.bounds.fd_step import Stage, StepFisher, crlb_term
+from nlosbench.bounds.hcr_interval import hcr_interval
+from nlosbench.bounds.ustat import UStat
+
+#: interval bound kinds a precision target applies to
+KINDS = ("hcr", "crlb")
+#: the most fresh sets a plan considers when no budget is given, and when predicting what more would cost
+MAX_SETS, MAX_PREDICT = 1024, 2**20
+
+
+def check_precision(precision, budget, looks, want: Sequence[str], replicates: int) -> None:
+    """ValueError (one line) unless precision is None or a finite number > 0 (relative half-width), budget
+    None or a positive integer (pixel-samples, only with a precision), looks an integer ≥ 2, and, with a
+    precision, an interval bound (hcr, crlb) is asked for from ≥ 3 replicates."""
+    if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1):
+        raise ValueError(f"budget must be a positive integer number of pixel-samples or None, got {budget!r}")
+    if isinstance(looks, bool) or not isinstance(looks, (int, np.integer)) or looks < 2:
+        raise ValueError(f"looks must be an integer >= 2 (the pilot and at least one fresh look), got {looks!r}")
+    if precision is None:
+        if budget is not None:
+            raise ValueError("a budget needs a precision target (precision=...)")
+        return
+    if isinstance(precision, bool) or not isinstance(precision, (int, float)) or not (
+            math.isfinite(precision) and precision > 0):
+        raise ValueError(f"precision must be a finite number > 0 (relative half-width, e.g. 0.25), got {precision!r}")
+    if not set(KINDS) & set(want):
+        raise ValueError(f"a precision target needs an interval bound (one of {list(KINDS)}) in want, got {list(want)}")
+    if replicates < 3:
+        raise ValueError(f"a precision target needs replicates >= 3 (confidence limits), got {replicates}")
+
+
+def reached(b) -> float:
+    """Precision reached by an interval Bound (linear units): max(10^(upper − point), 10^(point − lower)) − 1;
+    +inf for an open end, a non-finite point or an end that is not a confidence limit."""
+    ends = (b.lower, b.upper, b.point)
+    if any(v is None or not math.isfinite(v) for v in ends) or b.lower_note or b.upper_note:
+        return math.inf
+    return max(10.0 ** (b.upper - b.point), 10.0 ** (b.point - b.lower), 1.0) - 1.0
+
+
+@dataclass(frozen=True)
+class Raw:
+    """What a plan needs from one look at one θ* for one noise model: λ's replicate differences D (R, K, N)
+    and U-statistic (None without "hcr"), the StepFisher and the FD stages (rounds (R, P, N)), the weight w
+    (N,), the tested Δ (K,) or (K, P) and their limits (Θ − θ*), and H·W pixels."""
+
+    D: np.ndarray | None
+    lam: UStat | None
+    sf: StepFisher | None
+    stages: list[Stage]
+    w: np.ndarray
+    deltas: np.ndarray
+    lower: np.ndarray
+    upper: np.ndarray
+    pixels: int
+
+
+@dataclass(frozen=True)
+class SetCost:
+    """Worst-case renders per replicate set: `grid` test-grid renders (shared by every θ*), per θ* its own
+    `per_theta` (T,) (θ* and offsets), and `fd` FD renders per θ* and stage, at most `stages` stages."""
+
+    grid: int
+    per_theta: np.ndarray
+    fd: int
+    stages: int
+
+    def look(self, new: dict[int, tuple[int, int, int]], grid_new: int) -> int:
+        """Worst-case renders of a look: new {θ index: (sets before, sets now, stages cached per set)} and
+        `grid_new` test-grid sets not rendered yet; every FD stage not cached may be needed."""
+        n = self.grid * grid_new
+        for i, (before, now, cached) in new.items():
+            n += int(self.per_theta[i]) * (now - before)
+            n += self.fd * ((now - before) * self.stages + before * (self.stages - cached))
+        return n
+
+    def one(self, i: int, stages: int) -> int:
+        """Renders of one more set for θ* i alone, with `stages` FD stages."""
+        return self.grid + int(self.per_theta[i]) + self.fd * stages
+
+
+@dataclass(frozen=True)
+class Precision:
+    """What a precision target got at one θ* for one noise model.
+
+    target: the relative half-width asked for; reached: {kind: precision reached} for this noise model;
+    met: every interval bound of every noise model at this θ* reached the target; looks: looks made for this
+    θ* (1: the pilot only); pilot_sets / fresh_sets: replicate sets of the pilot and of the reported look
+    (0: the pilot's are reported); level: the one-sided level of each end (1 − α/K); pixel_samples: spent by
+    the whole call (every θ*; spp × H × W × renders); extra_sets / extra_pixel_samples: predicted fresh sets
+    and pixel-samples still needed to meet it (0 when met, +inf when no number of sets is predicted to);
+    note: why it stopped."""
+
+    target: float
+    reached: dict[str, float]
+    met: bool
+    looks: int
+    pilot_sets: int
+    fresh_sets: int
+    level: float
+    pixel_samples: int
+    extra_sets: float = 0.0
+    extra_pixel_samples: float = 0.0
+    note: str = ""
+
+    @property
+    def worst(self) -> float:
+        """The largest precision reached over the bound kinds."""
+        return max(self.reached.values(), default=math.inf)
+
+    def columns(self) -> dict:
+        """CSV cells precision_target, precision_reached (the worst kind), precision_pixel_samples,
+        precision_extra_pixel_samples."""
+        return {"precision_target": self.target, "precision_reached": self.worst,
+                "precision_pixel_samples": self.pixel_samples,
+                "precision_extra_pixel_samples": self.extra_pixel_samples}
+
+
+# -- the planning model ---------------------------------------------------------------------------------
+def variance_terms(X: np.ndarray, w) -> tuple[np.ndarray, np.ndarray]:
+    """(a (K,), b (K,)) of the U-statistics of Σ_pixels w·x_r·x_s over R replicates X (R, K, N) (w scalar or
+    (N,)): Var ≈ a/R + b/(R(R − 1)), a = 4 Σ w² d² s², b = 2 Σ w² s⁴. Per pixel, from the mean x̄ and sample
+    variance ŝ² over replicates, unbiased for Gaussian errors (x̄ and ŝ² independent, E ŝ⁴ = s⁴ (R + 1)/(R − 1)):
+    s⁴ ≈ ŝ⁴ (R − 1)/(R + 1) and d² s² ≈ x̄² ŝ² − s⁴/R, summed over pixels and the sum clipped at 0. (Clipping
+    d² per pixel instead would add ≈ s⁴/R from every signal-free pixel; the plug-in ŝ⁴ is 2× s⁴ at R = 3:
+    measured on blob2d, both doubled the predicted SE where b dominates.)"""
+    X = np.asarray(X, dtype=np.float64)
+    R = X.shape[0]
+    m, s2 = X.mean(axis=0), X.var(axis=0, ddof=1)
+    s4 = s2 * s2 * (R - 1.0) / (R + 1.0)
+    w2 = np.asarray(w, dtype=np.float64) ** 2
+    return np.clip(4.0 * (w2 * (m * m * s2 - s4 / R)).sum(axis=-1), 0.0, None), 2.0 * (w2 * s4).sum(axis=-1)
+
+
+def _var(a, b, R: int):
+    return a / R + b / (R * (R - 1.0))
+
+
+def _predict_ustat(u: UStat, ab: tuple[np.ndarray, np.ndarray], R: int) -> UStat:
+    """u as it would be from R replicates: the same estimate, SE √(a/R + b/(R(R−1))) from the variance terms
+    ab = (a, b), df × (R − 1)/(R0 − 1). For F (P, P) with P > 1 (a jackknife over rounds): R0 leave-one-outs whose
+    jackknife variance, taken with R replicates, is u's scaled by the predicted variance ratio (√ of the two
+    diagonal ratios off the diagonal)."""
+    R0, (a, b) = u.replicates, ab
+    df = u.dof * (R - 1.0) / (R0 - 1.0)
+    if u.est.ndim == 1 or u.est.shape == (1, 1):
+        se = np.sqrt(np.maximum(_var(a, b, R), 0.0)).reshape(u.est.shape)
+        return UStat(u.est, se, np.empty((0,) + u.est.shape), R, df)
+    v0 = _var(a, b, R0)
+    ratio = np.sqrt(np.divide(_var(a, b, R), v0, out=np.ones_like(a), where=v0 > 0))
+    c2 = np.sqrt(np.outer(ratio, ratio))
+    # the R0 pilot deviations, rescaled: `crlb_term` takes the jackknife as (R − 1)/R Σ (loo − mean)² over the rows
+    # given with R = u.replicates, so R0 rows carry the variance of R (no R-row array: R reaches MAX_PREDICT)
+    dev = u.loo - u.loo.mean(axis=0)
+    s = np.sqrt(c2 * c2 * (R0 - 1.0) / R0 * R / (R - 1.0))
+    return UStat(u.est, u.se * c2, u.est + s * dev, R, df)
+
+
+@dataclass(frozen=True)
+class Fit:
+    """The planning model of one look at one θ* for one noise model: its Raw and the variance terms (a, b) of
+    λ (per Δ) and of F (per stage and variant, per parameter)."""
+
+    raw: Raw
+    lam: tuple | None
+    stages: list[dict[str, tuple]]
+
+    @classmethod
+    def of(cls, raw: Raw) -> Fit:
+        """The variance terms of `raw` (`variance_terms`)."""
+        lam = variance_terms(raw.D, raw.w) if raw.D is not None else None
+        return cls(raw, lam, [{name: variance_terms(J, raw.w) for name, J in stage.rounds.items()}
+                              for stage in raw.stages])
+
+    def bounds(self, kinds: Sequence[str], R: int, level: float) -> dict[str, tuple[float, float, float]]:
+        """{kind: (lower, point, upper)} log10 ends predicted at R replicate sets, through the interval code
+        itself (`hcr_interval`, `crlb_term`)."""
+        raw, sf = self.raw, self.raw.sf
+        stats = [{name: _predict_ustat(u, ab[name], R) for name, u in st.items()}
+                 for st, ab in zip(sf.stats, self.stages, strict=True)]
+        # steps NaN and no halvings: every stage's limits and the extrapolations as `crlb_term` takes them, no step note
+        pred = StepFisher(stats, [math.nan] * len(stats), step_tol=sf.step_tol, spp=sf.spp, level=level)
+        out = {}
+        if "crlb" in kinds:
+            t = crlb_term(pred, level)
+            out["crlb"] = (t.lower, t.point, t.upper)
+        if "hcr" in kinds and self.lam is not None:
+            # a look's λ̂ ≤ 0 says nothing about λ (that Δ would never resolve): plan with the local quadratic
+            # ΔᵀF̂Δ there instead (a guess for the plan only; the looks' limits do not depend on it)
+            D = raw.deltas.reshape(len(raw.deltas), -1)
+            quad = np.einsum("kp,pq,kq->k", D, sf.final.est, D)
+            lam = _predict_ustat(raw.lam, self.lam, R)
+            lam = UStat(np.where(raw.lam.est > 0, raw.lam.est, quad), lam.se, lam.loo, lam.replicates, lam.df)
+            iv = hcr_interval(lam, raw.deltas, pred, level, raw.lower, raw.upper)
+            out["hcr"] = (iv.lower, iv.point, iv.upper)
+        return out
+
+
+@dataclass(frozen=True)
+class _Ends:
+    lower: float
+    point: float
+    upper: float
+    lower_note: str = ""
+    upper_note: str = ""
+
+
+def predicted_reached(fits: Sequence[Fit], kinds: Sequence[str], R: int, level: float) -> float:
+    """The worst precision reached predicted at R fresh sets over the noise models' fits."""
+    return max((reached(_Ends(*e)) for f in fits for e in f.bounds(kinds, R, level).values()), default=math.inf)
+
+
+def ladder(cap: int, above: int = 0) -> list[int]:
+    """Set counts 3, 4, 6, 8, 12, 16, 24, … in (above, cap]."""
+    out, k = [], 0
+    while 3 * 2**k <= cap or 4 * 2**k <= cap:
+        out += [n for n in (3 * 2**k, 4 * 2**k) if above < n <= cap]
+        k += 1
+    return out
+
+
+def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float, cap: int,
+         above: int = 0) -> tuple[int | None, float]:
+    """(the smallest ladder count in (above, cap] predicted to meet `target`, None if none is; the precision
+    predicted at that count, or at `cap` when none meets)."""
+    fits = [Fit.of(r) for r in raws]
+    steps = ladder(cap, above)
+    got = predicted_reached(fits, kinds, steps[-1], level) if steps else math.inf
+    if got > target:  # not even at the cap (the prediction falls with R): no scan
+        return None, got
+    for R in steps:
+        got = predicted_reached(fits, kinds, R, level)
+        if got <= target:
+            return R, got
+    return None, got
+
+
+# -- the looks --------------------------------------------------------------------------------------------
+@dataclass
+class _State:
+    points: dict = field(default_factory=dict)  # (noise, θ index) → BoundPoint
+    raws: dict = field(default_factory=dict)  # (noise, θ index) → Raw
+    looks: dict = field(default_factory=dict)  # θ index → looks made
+    fresh: dict = field(default_factory=dict)  # θ index → fresh sets of the reported look (0: pilot)
+    stages: dict = field(default_factory=dict)  # θ index → FD stages of its last look
+    notes: dict = field(default_factory=dict)
+
+
+def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float, budget: int | None, K: int,
+           alpha: float, cost: SetCost, spp: int, bank) -> list:
+    """The stopping rule of the module docstring over T θ*. look(index array, R, first, level, keep) gives the
+    BoundPoints (noise-major) of those θ* from replicate sets first … first + R − 1 at `level`, filling keep
+    {(noise, position): Raw}; `bank.renders` counts renders. Returns the BoundPoints (noise-major), each with
+    its `precision` record."""
+    level = 1.0 - alpha / K
+    start = bank.renders
+    st = _State()
+
+    def run(idx: np.ndarray, R: int, first: int, k: int) -> None:
+        keep: dict = {}
+        pts = look(idx, R, first, level, keep)
+        for m, j in enumerate(noises):
+            for n, i in enumerate(idx):
+                st.points[j, int(i)] = pts[m * len(idx) + n]
+                st.raws[j, int(i)] = keep[j, n]
+        for i in idx:
+            st.looks[int(i)], st.fresh[int(i)] = k + 1, (R if first else 0)
+            st.stages[int(i)] = max(len(st.raws[j, int(i)].stages) for j in noises)
+
+    def kinds(i: int) -> list[str]:
+        return [k for k in KINDS if k in st.points[noises[0], i].bounds]
+
+    def worst(i: int) -> float:
+        return max(reached(st.points[j, i].bounds[k]) for j in noises for k in kinds(i))
+
+    run(np.arange(T), R0, 0, 0)
+    pixels = st.raws[noises[0], 0].pixels
+    per_sample = spp * pixels
+
+    def spent() -> int:
+        return (bank.renders - start) * per_sample
+
+    active = [i for i in range(T) if worst(i) > target]
+    for i in range(T):
+        st.notes[i] = "met at the pilot" if i not in active else ""
+    # plan from the pilot alone
+    r_max = MAX_SETS
+    if budget is not None and active:
+        affordable = [R for R in ladder(MAX_SETS) if spent() + cost.look({i: (0, R, 0) for i in active}, R)
+                      * per_sample <= budget]
+        r_max = max(affordable, default=0)
+    star: dict[int, int] = {}
+    for i in active:
+        need, got = plan([st.raws[j, i] for j in noises], kinds(i), target, level, MAX_PREDICT)
+        if need is None:
+            st.notes[i] = (f"not met: no number of fresh sets is predicted to meet the target (predicted {got:.3g} at "
+                           f"{MAX_PREDICT} sets: more sets do not move an end set by a coarse FD stage, nor one from "
+                           "an F̂ ≤ 0)")
+        elif need <= r_max:
+            star[i] = need
+        elif r_max >= 3:
+            star[i] = r_max
+        else:
+            st.notes[i] = "not met: the budget allows no fresh look"
+    grid_done = 0
+    for k in range(1, K):
+        todo = [i for i in star if worst(i) > target]
+        if not todo:
+            break
+        now = {i: star[i] * 2 ** (k - 1) for i in todo}
+        new = {i: (star[i] * 2 ** (k - 2) if k > 1 else 0, now[i], st.stages[i] if k > 1 else 0) for i in todo}
+        grid_new = max(0, max(now.values()) - grid_done)
+        c = cost.look(new, grid_new) * per_sample
+        if budget is not None and spent() + c > budget:
+            for i in todo:
+                st.notes[i] = (f"not met: look {k} (worst case {c} pixel-samples) would exceed the budget "
+                               f"({budget - spent()} left)")
+            break
+        for R in sorted(set(now.values())):
+            run(np.array([i for i in todo if now[i] == R]), R, R0, k)
+        grid_done = max(grid_done, max(now.values()))
+        for i in todo:
+            st.notes[i] = f"met at look {k}" if worst(i) <= target else f"not met after look {k}"
+    total = spent()
+    extra = {}
+    for i in range(T):  # where unmet: predicted from the reported look's own data, fresh sets beyond those it used
+        need = R_last = 0
+        if worst(i) > target:
+            R_last = st.fresh[i]
+            need = plan([st.raws[m, i] for m in noises], kinds(i), target, level, MAX_PREDICT, R_last)[0]
+        extra[i] = math.inf if need is None else float(need - R_last)
+    out = []
+    for j in noises:
+        for i in range(T):
+            pt = st.points[j, i]
+            pt.precision = Precision(
+                float(target), {k: reached(pt.bounds[k]) for k in kinds(i)}, worst(i) <= target, st.looks[i], R0,
+                st.fresh[i], level, int(total), extra[i],
+                extra[i] * cost.one(i, st.stages[i]) * per_sample if extra[i] else 0.0, st.notes[i])
+            out.append(pt)
+    return out
