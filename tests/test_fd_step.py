@@ -184,3 +184,26 @@ def test_an_unresolved_halving_is_named_unresolved_not_a_nan_ratio():
                     [Halving(0.02, math.nan, math.nan, False, False)])
     note = crlb_term(sf, 0.95).lower_note
     assert "F unresolved from ξ = 0.02" in note and "nan" not in note, note
+
+
+def test_a_stage_shown_biased_low_does_not_hold_the_upper_end():
+    """Three FD stages of a scalar F with SE 0.01 (df 30): 1.0 at ξ, 2.0 at ξ/2, 2.02 at ξ/4. The first halving
+    is shown to rise (F ×2: ξ's F is biased low by the FD smoothing), so the CRLB's upper end is 1/(the
+    smallest lower limit of F over ξ/2 and ξ/4) ≈ 0.5, not 1/(1.0 − t·0.01) ≈ 1.02, which no number of
+    replicates could lower. Without a rise (1.0, 1.02, 1.0) every stage counts."""
+    from nlosbench.bounds.fd_step import StepFisher, crlb_term, settled_from
+
+    def sf(values, halvings):
+        stats = [{"central": UStat(np.array([[v]]), np.array([[0.01]]), np.empty((0, 1, 1)), 8, np.array([[30.0]]))}
+                 for v in values]
+        return StepFisher(stats, [0.04, 0.02, 0.01][:len(values)], halvings)
+
+    from nlosbench.bounds.fd_step import Halving
+    rose = sf([1.0, 2.0, 2.02], [Halving(0.04, 2.0, 0.01, False, True), Halving(0.02, 1.01, 0.01, True, False)])
+    assert settled_from(rose) == 1
+    upper = 10 ** crlb_term(rose, 0.95).upper
+    t = float(nb.bounds.ustat.t_quantile(0.95, 30.0))
+    assert upper == pytest.approx(1 / (2.0 - t * 0.01), rel=1e-12)
+    flat = sf([1.0, 1.02, 1.0], [Halving(0.04, 1.02, 0.01, False, False), Halving(0.02, 0.98, 0.01, True, False)])
+    assert settled_from(flat) == 0
+    assert 10 ** crlb_term(flat, 0.95).upper == pytest.approx(1 / (1.0 - t * 0.01), rel=1e-12)

@@ -20,8 +20,9 @@ The rule (`converge`, used by the bound service):
   limit of F(ξ/2) − c·F(ξ) is ≤ 0;
 * ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage and variant and the
   Richardson extrapolations of the last two stages to ξ → 0 (F that still creeps up within the tolerance
-  must not leave the lower end above the limit), upper ends from the *smallest* lower limit, the point from
-  the finest stage's central F. For a vector θ the same with
+  must not leave the lower end above the limit), upper ends from the *smallest* lower limit over the stages
+  from the last one shown to rise on (`settled_from`: a coarser stage is biased low, and finer ones guard
+  an F that falls), the point from the finest stage's central F. For a vector θ the same with
   the jackknife limits of trace(F⁻¹);
 * one FD step only (no check asked for): the lower end is labelled "not a confidence limit: FD step not
   checked"; AD gradients (step NaN) and an F given directly are taken as they are;
@@ -207,11 +208,13 @@ def crlb_term(sf: StepFisher, level: float, tests: int = 1) -> CRLBTerm:
     of `sf` (see the module docstring)."""
     point = trace_inv(sf.final.est)
     lows, ups = [], []
-    for stage in sf.stats:
+    settled = settled_from(sf)
+    for k, stage in enumerate(sf.stats):
         for u in stage.values():
             lo, hi = _ends(u, level, tests)
             lows.append(lo)
-            ups.append(hi)
+            if k >= settled:
+                ups.append(hi)
     lows += [_ends(u, level, tests)[0] for u in _extrapolated(sf)]
     lower, upper = min(lows), max(ups)
     note = zero = ""
@@ -230,6 +233,15 @@ def crlb_term(sf: StepFisher, level: float, tests: int = 1) -> CRLBTerm:
     final = sf.final
     loo = np.array([_log(trace_inv(Fk)) for Fk in final.loo]) if final.loo.size else np.empty(0)
     return CRLBTerm(_log(point), _log(lower), _log(upper), note, zero, loo)
+
+
+def settled_from(sf: StepFisher) -> int:
+    """The first stage that may set an upper end: the one after the last halving shown to rise (F(ξ/2) above
+    (1 + step_tol)·F(ξ) at the paired lower limit). A stage F is shown to exceed is biased low by the FD
+    smoothing; its lower limit guards nothing the finer stages do not (they guard an F that falls as ξ
+    shrinks), and would hold the upper end at a value no number of replicates can lower."""
+    rising = [i for i, h in enumerate(sf.halvings) if h.rising]
+    return rising[-1] + 1 if rising else 0
 
 
 def _extrapolated(sf: StepFisher) -> list[UStat]:
