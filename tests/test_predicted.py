@@ -131,3 +131,40 @@ def test_grid_search_and_multi_start_give_no_prediction(setup):
                        predictions={(0, 0, "grid-search"): nb.estimators.get("grid-search").no_prediction})
     assert math.isnan(row["var_predicted"]) and row["predicted_note"].startswith("no linearised")
     assert row["vs_predicted"] == ""
+
+
+def test_the_trials_study_reports_and_plots_the_prediction(tmp_path):
+    """A local `trials` study on blob2d (12 trials, 4 clean-image renders): the Gauss–Newton row gets a finite
+    var_predicted with its parts and a verdict in the vocabulary; grid-search gets NaN and its reason; the report
+    shows the predicted MSE and Var beside the measured ones; the trials plot has a predicted-MSE marker with its
+    legend entry."""
+    from pathlib import Path
+
+    from nlosbench.experiment.config import resolve
+    from nlosbench.studies import trials as study
+    from nlosbench.studies.context import RunContext
+    from nlosbench.studies.plots import _plt, mse_figure
+
+    cfg = resolve({"seed": 2, "scene": {"name": "blob2d", "options": {"width": 0.15, "render_noise": 0.5}},
+                   "noise": [{"model": "awgn", "sigma": SIGMA}],
+                   "studies": [{"type": "trials", "theta": [THETA.tolist()], "n": 12, "n_eff": 256, "hcr_grid": 5,
+                                "bounds": ["crlb"], "fd_step": 0.002, "start_width": START, "bootstrap": 10,
+                                "predict_jacobians": 4,
+                                "estimators": [{"name": "gauss-newton", "options": {"spp": 64, "iterations": 5},
+                                                "gradient": {"method": "ad"}},
+                                               {"name": "grid-search", "options": {"num": 9, "spp": 64,
+                                                                                   "refine_evals": 6}}]}]})
+    ctx = RunContext.create(cfg, Path(tmp_path), quiet=True)
+    res = study.run(ctx, cfg["studies"][0])
+    gn, grid = res["summary"]
+    assert gn["var_predicted"] > 0 and gn["var_predicted_fit"] > 0 and gn["var_predicted_truth"] > 0
+    assert gn["vs_predicted"].split(" (")[0] in ("as predicted", "above prediction", "below prediction"), gn
+    assert 0.3 < gn["var_over_predicted"] < 3, gn  # 12 trials: a loose sanity window, the tests above are the check
+    assert math.isnan(grid["var_predicted"]) and grid["predicted_note"].startswith("no linearised update")
+    md = study.report(ctx.dir / "trials", res)
+    assert "predicted MSE" in md and "predicted Var: verdict" in md and f"{gn['vs_predicted']}" in md
+    fig = mse_figure(res["summary"], res["bound_rows"], ["crlb"], res["params"], res["units"], {0: "awgn"})
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert "predicted MSE (var + bias²), gauss-newton" in labels
+    assert not any(lab.startswith("predicted MSE (var + bias²), grid-search") for lab in labels)
+    _plt().close(fig)

@@ -168,8 +168,10 @@ def jacobian_covariance(reps: np.ndarray, spp: int, gradient: GradientSettings) 
 
 
 def weight(noise: NoiseModel, L: torch.Tensor) -> np.ndarray:
-    """The noise model's per-pixel Fisher weight w(L) (N,) float64: the information per unit dL²."""
-    return noise.fisher(L, torch.ones_like(L)).reshape(-1).numpy()
+    """The noise model's per-pixel Fisher weight w(L) (N,) float64: the information per unit dL² (0 where it is
+    infinite, a Poisson pixel rendered as 0: the linearisation does not hold there)."""
+    w = noise.fisher(L, torch.ones_like(L)).reshape(-1).numpy()
+    return np.where(np.isfinite(w), w, 0.0)
 
 
 def variance(noise: NoiseModel, L: torch.Tensor) -> np.ndarray:
