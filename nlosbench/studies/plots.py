@@ -189,7 +189,7 @@ def mse_figure(rows: list[dict], bound_rows: list[dict], bounds, names: list[str
             ax.errorbar([float(r[xkey]) + shift[label] for r in rs], [r["mse"] for r in rs],
                         yerr=[[min(r["mse_se"], 0.999 * r["mse"]) for r in rs], [r["mse_se"] for r in rs]],
                         fmt="o", ls="none", color=f"C{i}", capsize=3, label=f"MSE ± SE, {label}")
-            pred = [(float(r[xkey]) + shift[label], r["mse_predicted"]) for r in rs
+            pred = [(float(r[xkey]) + shift[label] + 0.4 * dx, r["mse_predicted"]) for r in rs
                     if isinstance(r.get("mse_predicted"), float) and r["mse_predicted"] > 0]
             if pred:
                 ax.plot(*zip(*pred, strict=True), marker="x", ms=8, mew=2, ls="none", color=f"C{i}",

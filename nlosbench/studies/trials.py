@@ -13,7 +13,9 @@ Two protocols (`mode`):
 
 Per θ* the bound service gives the HCR interval (with its Δ → 0 term), the CRLB from an unbiased Fisher
 information, and the paper's HCR_Neff / HCR-hat; in bayesian mode its curve over a uniform `hcr_grid` on
-Θ gives the ZZB. Estimators get the bound sets' grid renders as `Problem.bank` (a profile-likelihood
+Θ gives the ZZB. In local mode every row also gets its estimator's predicted variance
+(`Estimator.predicted_variance`, from its linearised update at θ*: `predict`), tested against the measured one
+(`montecarlo.variance_verdict`). Estimators get the bound sets' grid renders as `Problem.bank` (a profile-likelihood
 start costs no render: estimator option `start: profile`); those sets never share a seed with the
 observation's mean (the bank's TRUTH set). Trials resume from trials.jsonl. Outputs: summary.csv,
 bounds.csv (zzb.csv), plots/mse_vs_theta.png, plots/speed_vs_error.png.
