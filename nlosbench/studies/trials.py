@@ -43,7 +43,7 @@ from ..bank import TRUTH
 from ..bounds import BoundService
 from ..diagnostics import resolve_gradient
 from ..diagnostics.images import label as gradient_label
-from ..estimators import BankGrid, Budget, Problem
+from ..estimators import BankGrid, Budget, Estimator, Problem
 from ..estimators.predict import Linearisation, jacobian_covariance, variance, weight
 from ..forward.gradients import GradientSettings, jacobian
 from ..io import write_csv
@@ -279,11 +279,27 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
             pts = T * (G + 2 * P * cfg["hcr_offsets"])
             renders, samples = renders + pts * len(cfg["levels"]), samples + pts * sum(cfg["levels"])
         fits = len(p.noises) * T * p.n
+        if cfg["predict_jacobians"] > 0:  # the predicted variance: R FD Jacobians per θ*, K gradients per setting
+            renders, samples = renders + T * R * 2 * P, samples + T * R * 2 * P * bspp
+            for s in (s for s in p.settings if _predicts(s.name)):
+                r, spp = _fit_cost(s.name, {**s.options, "iterations": 1}, s.gradient, P, Budget())
+                k = T * cfg["predict_jacobians"]
+                renders, samples = renders + k * max(r - 1, 0), samples + k * spp
     for s in p.settings:
         r, spp = _fit_cost(s.name, s.options, s.gradient, P, p.budget)
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
     return Estimate(renders, samples * px, "fits estimated from each estimator's iterations × spp (an upper bound "
                                            "where fits stop early)")
+
+
+def _predicts(est) -> bool:
+    """Whether an estimator (an instance, or the name it is registered under) offers a predicted variance: its
+    class overrides `Estimator.fit_cov`."""
+    try:
+        cls = estimators.factory(est) if isinstance(est, str) else type(est)
+    except (KeyError, ImportError):
+        return False
+    return getattr(cls, "fit_cov", None) not in (None, estimators.Estimator.fit_cov)
 
 
 def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budget: Budget) -> tuple[float, float]:
@@ -391,8 +407,10 @@ def run(ctx, cfg: dict) -> dict:
     renders = ctx.bank.renders - before
     records = run_trials(ctx.bank.executor, trials, folder / LOG_NAME, resume=ctx.resume, progress=ctx.progress)
     labels = [s.label for s in p.settings]
+    mark = ctx.bank.renders
     predictions = {} if p.mode == "bayesian" or cfg["predict_jacobians"] < 1 else \
         predict(ctx, cfg, p, cleans, records, svc)
+    renders += ctx.bank.renders - mark
     if p.mode == "bayesian":
         zmap = {j: bound_entry(b.columns(), "zzb") for j, b in zzb.items()}
         rows = summarize_bayes(records, zmap, labels, cfg["level"])
@@ -466,7 +484,7 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
         est = estimators.get(s.name, **s.options)
         spp = _fit_spp(est)
         grads: dict[int, list] = {}
-        if type(est).fit_cov is not estimators.Estimator.fit_cov:
+        if _predicts(est):
             purpose = f"predict {cfg.get('id') or NAME}"
             items = [((i, k), p.thetas[i].tolist(), spp, ctx.seed_for(purpose, si, i, k), s.gradient)
                      for i in range(len(p.thetas)) for k in range(K)]
@@ -485,8 +503,8 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
             jcov = jacobian_covariance(np.stack(grads[i]), spp, s.gradient) if len(grads.get(i, [])) > 1 else None
             for j, noise in p.noises.items():
                 key = (j, i, s.label)
-                if type(est).fit_cov is estimators.Estimator.fit_cov:
-                    out[key] = est.no_prediction
+                if not _predicts(est):
+                    out[key] = getattr(est, "no_prediction", Estimator.no_prediction)
                     continue
                 lin = Linearisation(theta.copy(), Js[:, i].reshape(R, params.dim, -1), weight(noise, L),
                                     variance(noise, L), render_var(p.n_eff // p.clusters), render_var, jcov,
