@@ -19,8 +19,8 @@ and θ̂ − ê = −F⁻¹ JᵀW ε_last: the last accepted step's render enter
 F⁻¹ JᵀW Σ_render(s) WJ F⁻¹. With noisy ones (NLOS: F̂ far above F) each step removes only F̂⁻¹F of the
 error, so (I − F̂⁻¹F)^k of the start's error survives k iterations, and the forcing adds
 F̂⁻¹ [JᵀW Σ_render WJ + Σ_ω w² (Σ_obs + Σ_truth + Σ_render) Cov δJ] F̂⁻¹ per iteration (`predict.score_noise`).
-The second moment follows V_{k+1} = B V_k Bᵀ + Q, B = I − F̂⁻¹F, from V_0 = the start's covariance about θ*
-plus the target's, averaged over the fits' iteration counts. Damping (μ → 0 after a few accepted steps),
+The second moment follows V_{k+1} = B V_k Bᵀ + Q, B = I − F̂⁻¹F, from V_0 = the start's second moment about ê
+(`predict.start_moment`), averaged over the fits' iteration counts. Damping (μ → 0 after a few accepted steps),
 rejected steps and Θ's box are not modelled: a fit that stops on a rejected step near ê is not this recursion.
 """
 from __future__ import annotations
@@ -34,7 +34,7 @@ from ..bounds.crlb import fisher_matrix
 from ..forward.gradients import jacobian
 from ..seeds import derive
 from .base import Budget, Estimator, Outcome, Problem, Tracker, check_start, finite_or_raise, floored, nll, render_seed
-from .predict import Linearisation, propagate, score_noise, target
+from .predict import Linearisation, propagate, score_noise, start_moment
 
 
 class GaussNewton(Estimator):
@@ -113,9 +113,8 @@ class GaussNewton(Estimator):
         Fhi = np.linalg.inv(Fh)
         B = np.eye(len(F)) - Fhi @ F
         Q = Fhi @ score_noise(lin, self.spp, g) @ Fhi.T
-        obs, truth = target(lin)
         ks = list(iterations) if iterations is not None else [budget.cap(self.iterations)]
-        V = propagate(B, Q, lin.start_cov + obs + truth, ks)
+        V = propagate(B, Q, start_moment(lin), ks)
         ratio = float(np.trace(Fh) / np.trace(F))
         return V, (f"Gauss–Newton fixed point at {self.spp} spp; one Jacobian's plug-in F̂ / F = {ratio:.3g}, "
                    f"contraction (1 − F/F̂) per step; {np.mean(ks):.3g} iterations on average")

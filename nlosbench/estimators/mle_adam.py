@@ -18,7 +18,7 @@ score_noise`). Adam on u = θ/width then is a linear stochastic recursion with m
 with the per-component step η_k = lr_k / √v̂_k, where v̂_k (Adam's second moment, bias-corrected) is taken at
 its expectation E[g²] over the trials (the start's spread early, the gradient noise late) — so the step
 size and the schedule (lr_k, s_k) set how much of the noise the last iterates average. The covariance of
-(d, m) is propagated through every iteration from the start's covariance about θ* (plus the target's) and
+(d, m) is propagated through every iteration from the start's second moment about ê (`predict.start_moment`) and
 read at the fits' iteration counts; with a constant η it tends to the stationary η Q / (F (2 − η F)) (no
 momentum). Not modelled: Θ's box (clipping), a v̂ that differs from fit to fit, and anything nonlinear far
 from θ* (a start outside the basin is a local minimum, not this recursion).
@@ -34,7 +34,7 @@ import torch
 from ..forward.autograd import render
 from ..seeds import derive
 from .base import Budget, Estimator, Outcome, Problem, Tracker, check_start, finite_or_raise, render_seed
-from .predict import Linearisation, score_noise, target
+from .predict import Linearisation, score_noise, start_moment
 
 LR_SCHEDULES = ("constant", "cosine", "exponential")
 #: steps that stop moving once the schedule has cut the learning rate below this fraction have stalled
@@ -167,9 +167,8 @@ class AdamMLE(Estimator):
         wd = problem.params.upper - problem.params.lower
         Wu = np.diag(wd)
         b1, b2 = self.betas
-        obs, truth = target(lin)
         X = np.zeros((2 * P, 2 * P))
-        X[:P, :P] = lin.start_cov + obs + truth
+        X[:P, :P] = start_moment(lin)
         v = np.zeros(P)
         eye = np.eye(P)
         noise = {}

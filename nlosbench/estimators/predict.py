@@ -45,8 +45,9 @@ class Linearisation:
     w: the noise model's per-pixel weight (N,) (units: 1 / radiance²); obs_var: the observation noise's
     per-pixel variance Σ_obs (N,); truth_var: the clean image's per-pixel rendering variance Σ_truth (N,)
     (0 for an exact model); render_var: Σ_render(s); jacobian_cov: the covariance of one gradient
-    Jacobian at s spp (None: exact gradients); start_cov: covariance (P, P) of the fits' starts about θ*
-    (parameter units²)."""
+    Jacobian at s spp (None: exact gradients); start_cov: second moment (P, P) of the fits' starts about θ*
+    (start_about "truth": a start drawn independently of y) or about ê (start_about "target": a start computed
+    from y itself, e.g. the profile-likelihood minimum over grid renders) (parameter units²)."""
 
     theta: np.ndarray
     J: torch.Tensor
@@ -56,6 +57,7 @@ class Linearisation:
     render_var: RenderVariance
     jacobian_cov: JacobianCovariance | None
     start_cov: np.ndarray
+    start_about: str = "truth"
 
     def quad(self, a: np.ndarray) -> np.ndarray:
         """Jᵀ diag(a) J (P, P) float64 for a per-pixel array a (N,): unbiased over the K Jacobians."""
@@ -69,8 +71,14 @@ class Linearisation:
 
     @property
     def F(self) -> np.ndarray:
-        """Fisher information Jᵀ W J (P, P) of one observation (1 / units²)."""
-        return self.quad(self.w)
+        """Fisher information Jᵀ W J (P, P) of one observation (1 / units²); ValueError when the unbiased
+        estimate is not positive definite (rendering noise above the signal: unresolved, not clipped)."""
+        F = self.quad(self.w)
+        e = np.linalg.eigvalsh(0.5 * (F + F.T))
+        if not np.all(e > 0):
+            raise ValueError(f"Fisher information unresolved: the unbiased F from {self.J.shape[0]} Jacobians has "
+                             f"eigenvalues {e.tolist()}")
+        return F
 
     def sandwich(self, a: np.ndarray) -> np.ndarray:
         """F⁻¹ Jᵀ W diag(a) W J F⁻¹ (P, P): the covariance of θ̂ from a zero-mean per-pixel error of variance a
@@ -122,6 +130,15 @@ def target(lin: Linearisation) -> tuple[np.ndarray, np.ndarray]:
     return lin.sandwich(lin.obs_var), lin.sandwich(lin.truth_var)
 
 
+def start_moment(lin: Linearisation) -> np.ndarray:
+    """Second moment (P, P) of the start's error about ê: the start's about θ* plus the target's covariance for a
+    start independent of y (start_about "truth"), or as given for a start computed from y ("target")."""
+    if lin.start_about == "target":
+        return lin.start_cov
+    obs, truth = target(lin)
+    return lin.start_cov + obs + truth
+
+
 def score_noise(lin: Linearisation, spp: int, gradient: GradientSettings) -> np.ndarray:
     """Covariance (P, P) of the noise of one evaluation of the score −Ĵᵀ W (y − L̃(θ)) near ê at `spp`: the fit
     render's error through J, Jᵀ W Σ_render W J, plus the Jacobian's own error against the whole residual,
@@ -133,7 +150,7 @@ def score_noise(lin: Linearisation, spp: int, gradient: GradientSettings) -> np.
 def model_linearisation(model: ForwardModel, noise: NoiseModel, theta, clean: torch.Tensor,
                         truth_var, render_var: RenderVariance, start_cov, gradient: GradientSettings,
                         jacobian_spp: int, jacobians: int = 8, seed: int = 0,
-                        exact_jacobian: torch.Tensor | None = None) -> Linearisation:
+                        exact_jacobian: torch.Tensor | None = None, start_about: str = "truth") -> Linearisation:
     """A Linearisation at θ from renders made here: J from `jacobians` independent Jacobians with `gradient` at
     `jacobian_spp` (or `exact_jacobian` (P, *S) where it is known), the weight from the clean image (*S),
     and `jacobian_cov` from the spread of the same Jacobians scaled by jacobian_spp / s (rendering variance
@@ -146,7 +163,7 @@ def model_linearisation(model: ForwardModel, noise: NoiseModel, theta, clean: to
     J = reps if exact_jacobian is None else to_float64(exact_jacobian).reshape(1, P, -1)
     return Linearisation(np.asarray(theta, dtype=np.float64), J, weight(noise, L), variance(noise, L),
                          np.broadcast_to(np.asarray(truth_var, dtype=np.float64).reshape(-1), (L.numel(),)),
-                         render_var, cov, np.atleast_2d(np.asarray(start_cov, dtype=np.float64)))
+                         render_var, cov, np.atleast_2d(np.asarray(start_cov, dtype=np.float64)), start_about)
 
 
 def jacobian_covariance(reps: np.ndarray, spp: int, gradient: GradientSettings) -> JacobianCovariance | None:

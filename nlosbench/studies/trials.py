@@ -456,15 +456,19 @@ def _fit_spp(est) -> int:
     return int(max(n for _, n in spp)) if isinstance(spp, (tuple, list)) else int(spp)
 
 
-def start_cov(params, theta: np.ndarray, width: float | None, est, grid_points: int) -> np.ndarray:
-    """Second moment (P, P) of the start about θ*: uniform in θ* ± width·|Θ|/2 (clipping ignored), uniform over Θ
-    (width None: |Θ|²/12 plus the offset of Θ's middle), or a profile start (within a bank-grid cell)."""
+def start_cov(params, theta: np.ndarray, width: float | None, est, grid_points: int,
+              bank_var: np.ndarray | None = None, lin_sandwich=None) -> tuple[np.ndarray, str]:
+    """(second moment (P, P), about what) of the fits' starts: uniform in θ* ± width·|Θ|/2 (clipping ignored) or
+    over Θ (width None: |Θ|²/12 plus the offset of Θ's middle), about θ*; a profile start (the NLL minimum of y
+    over the bank grid, refined by a parabola) about ê: a grid cell's spacing²/12 (an upper value: the parabola
+    refines it) plus the grid renders' own noise through the score, `lin_sandwich(bank_var)`."""
     span = params.upper - params.lower
     if getattr(est, "start", "given") == "profile":
-        return np.diag((span / max(grid_points - 1, 1)) ** 2 / 12)
+        cov = np.diag((span / max(grid_points - 1, 1)) ** 2 / 12)
+        return (cov + lin_sandwich(bank_var) if lin_sandwich is not None else cov), "target"
     if width is None:
-        return np.diag(span**2 / 12 + (0.5 * (params.lower + params.upper) - theta) ** 2)
-    return np.diag((width * span) ** 2 / 12)
+        return np.diag(span**2 / 12 + (0.5 * (params.lower + params.upper) - theta) ** 2), "truth"
+    return np.diag((width * span) ** 2 / 12), "truth"
 
 
 def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: BoundService) -> dict:
@@ -508,13 +512,17 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                     continue
                 lin = Linearisation(theta.copy(), Js[:, i].reshape(R, params.dim, -1), weight(noise, L),
                                     variance(noise, L), render_var(p.n_eff // p.clusters), render_var, jcov,
-                                    start_cov(params, theta, cfg["start_width"], est, cfg["hcr_grid"]))
+                                    np.zeros((params.dim, params.dim)))
                 its = [r["iterations"] for r in records if r["error"] is None and r["estimator"] == s.label
                        and r["noise"] == j and r["theta_index"] == i]
                 try:
+                    cov, about = start_cov(params, theta, cfg["start_width"], est, cfg["hcr_grid"],
+                                           render_var(R * p.bound_spp), lin.sandwich)
+                    lin = dataclasses.replace(lin, start_cov=cov, start_about=about)
                     pred = est.predicted_variance(Problem(model, noise, s.gradient), lin, its or None, p.budget)
-                except np.linalg.LinAlgError as e:
-                    pred = f"no prediction: singular Fisher matrix ({e})"
+                except (ValueError, np.linalg.LinAlgError) as e:
+                    out[key] = f"no prediction: {e}"
+                    continue
                 out[key] = pred if pred is not None else est.no_prediction
     return out
 
