@@ -168,3 +168,18 @@ def test_the_trials_study_reports_and_plots_the_prediction(tmp_path):
     assert "predicted MSE (var + bias²), gauss-newton" in labels
     assert not any(lab.startswith("predicted MSE (var + bias²), grid-search") for lab in labels)
     _plt().close(fig)
+
+
+def test_the_clean_image_share_and_the_helmert_contrasts():
+    """κ: the sample variance of 12 trials in 4 clean-image clusters of 3 sees 9/11 of a cluster-shared variance
+    (all of it with independent trials, none with one clean image); the Helmert contrasts are n − 1 orthonormal
+    rows orthogonal to 1 carrying the centred sum of squares."""
+    from nlosbench.estimators.predict import cluster_share
+    from nlosbench.montecarlo import helmert
+
+    assert cluster_share(np.arange(12) % 4) == pytest.approx(9 / 11)
+    assert cluster_share(np.arange(12)) == pytest.approx(1.0) and cluster_share(np.zeros(12)) == 0.0
+    H = helmert(7)
+    assert np.allclose(H @ H.T, np.eye(6)) and np.allclose(H @ np.ones(7), 0)
+    E = np.random.default_rng(1).standard_normal((7, 2))
+    assert ((H @ E) ** 2).sum() == pytest.approx(((E - E.mean(axis=0)) ** 2).sum())

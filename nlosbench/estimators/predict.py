@@ -167,19 +167,20 @@ def model_linearisation(model: ForwardModel, noise: NoiseModel, theta, clean: to
 
 
 def jacobian_covariance(reps: np.ndarray, spp: int, gradient: GradientSettings) -> JacobianCovariance | None:
-    """From K ≥ 2 Jacobians (K, P, N) made with `gradient` at `spp`: (s, settings) → their per-pixel sample
-    covariance (P, P, N) × spp / s, for the same step, rounds and CRN as `gradient` (else ValueError); None
-    when they do not vary (exact gradients)."""
+    """From K ≥ 2 Jacobians (K, P, N) made with `gradient` at `spp` (or at the gradient's own spp): (s, settings) →
+    their per-pixel sample covariance (P, P, N) × that spp / s (or / the gradient's own spp), for the same step,
+    rounds and CRN as `gradient` (else ValueError); None when they do not vary (exact gradients)."""
     d = reps - reps.mean(axis=0)
     if not np.any(d):
         return None
     C = np.einsum("kpn,kqn->pqn", d, d) / (len(reps) - 1)
+    made = gradient.spp or spp  # the gradient's own spp, where it names one, is what the Jacobians used
     key = (gradient.method, np.asarray(gradient.step).tolist(), gradient.rounds, gradient.crn)
 
     def at(s: int, g: GradientSettings) -> np.ndarray:
         if (g.method, np.asarray(g.step).tolist(), g.rounds, g.crn) != key:
             raise ValueError(f"Jacobian noise was measured for {key}, not for {g}")
-        return C * (spp / float(g.spp or s))
+        return C * (made / float(g.spp or s))
 
     return at
 
