@@ -13,8 +13,9 @@ iteration) and Ĵ_k = J + δJ_k its Jacobian. The undamped step F̂⁻¹ Ĵᵀ W
 
     d_{k+1} = (I − F̂⁻¹ F) d_k + F̂⁻¹ (δJ_kᵀ W r − Ĵ_kᵀ W ε_k),   F̂ = F + E[δJᵀ W δJ]
 
-(F̂: the plug-in FI of one FD pair, in expectation; the fluctuation of δJᵀ W J around 0 is neglected, it
-is small when many pixels carry the information). With exact Jacobians the start is gone after one step
+(F̂: the plug-in FI of one FD pair, in expectation). The contraction itself is random, F̂⁻¹(F + δJᵀ W J): its
+fluctuation adds F̂⁻¹ E[δJᵀ W J d dᵀ Jᵀ W δJ] F̂⁻¹ (`Linearisation.drift_noise`), which matters when few pixels
+carry the information. With exact Jacobians the start is gone after one step
 and θ̂ − ê = −F⁻¹ JᵀW ε_last: the last accepted step's render enters like the truth's,
 F⁻¹ JᵀW Σ_render(s) WJ F⁻¹. With noisy ones (NLOS: F̂ far above F) each step removes only F̂⁻¹F of the
 error, so (I − F̂⁻¹F)^k of the start's error survives k iterations, and the forcing adds
@@ -114,7 +115,7 @@ class GaussNewton(Estimator):
         B = np.eye(len(F)) - Fhi @ F
         Q = Fhi @ score_noise(lin, self.spp, g) @ Fhi.T
         ks = list(iterations) if iterations is not None else [budget.cap(self.iterations)]
-        V = propagate(B, Q, start_moment(lin), ks)
+        V = propagate(B, Q, start_moment(lin), ks, lambda V: Fhi @ lin.drift_noise(self.spp, g, V) @ Fhi.T)
         ratio = float(np.trace(Fh) / np.trace(F))
         return V, (f"Gauss–Newton fixed point at {self.spp} spp; one Jacobian's plug-in F̂ / F = {ratio:.3g}, "
                    f"contraction (1 − F/F̂) per step; {np.mean(ks):.3g} iterations on average")

@@ -11,7 +11,8 @@ learning rate decays (cosine or exponential) so the last iterates settle.
 Predicted variance (`fit_cov`). Linearised at ê (the score's fixed point on y, `predict.target`), the NLL's
 gradient at θ_k is F d_k + ξ_k, d_k = θ_k − ê, with ξ_k the noise of iteration k's render and Jacobian at
 its spp s_k, Cov ξ_k = JᵀW Σ_render(s_k) WJ + Σ_ω w² (Σ_obs + Σ_truth + Σ_render) Cov δJ (`predict.
-score_noise`). Adam on u = θ/width then is a linear stochastic recursion with momentum,
+score_noise`), plus the Jacobian's noise against the model's change, δJᵀ W J d (`Linearisation.drift_noise`).
+Adam on u = θ/width then is a linear stochastic recursion with momentum,
 
     g_k = width·(F d_k + ξ_k),   m_{k+1} = β₁ m_k + (1 − β₁) g_k,   d_{k+1} = d_k − width·η_k m_{k+1} / (1 − β₁^{k+1}),
 
@@ -177,7 +178,7 @@ class AdamMLE(Estimator):
             s = self.spp_at(k, n)
             if s not in noise:
                 noise[s] = score_noise(lin, s, g)
-            Q = noise[s]
+            Q = noise[s] + lin.drift_noise(s, g, X[:P, :P])  # + the Jacobian's noise against J d
             G = np.hstack([Wu @ F, np.zeros((P, P))])  # g = G (d, m) + width·ξ
             v = b2 * v + (1 - b2) * np.diag(G @ X @ G.T + Wu @ Q @ Wu)
             t = k + 1

@@ -95,6 +95,22 @@ class Linearisation:
         return self.jacobian_cov(int(spp), gradient) @ a
 
 
+    def drift_noise(self, spp: int, gradient: GradientSettings, V: np.ndarray) -> np.ndarray:
+        """E[δJᵀ W J d dᵀ Jᵀ W δJ] (P, P) for an error d of second moment V (P, P): the Jacobian's noise against the
+        model's own change J d, Σ_ω w² (J_ω V J_ωᵀ) Cov(Ĵ(ω)) (J_ω V J_ωᵀ per pixel unbiased over the K Jacobians).
+        It makes the contraction F̂⁻¹ Ĵᵀ W J random from step to step."""
+        if self.jacobian_cov is None:
+            return np.zeros_like(V)
+        J = self.J.numpy()
+        K = J.shape[0]
+        if K == 1:
+            q = np.einsum("pn,pq,qn->n", J[0], V, J[0])
+        else:
+            S = J.sum(axis=0)
+            q = (np.einsum("pn,pq,qn->n", S, V, S) - np.einsum("kpn,pq,kqn->n", J, V, J)) / (K * (K - 1))
+        return self.jacobian_excess(spp, gradient, self.w**2 * q)
+
+
 @dataclass(frozen=True)
 class Prediction:
     """A predicted covariance (P, P) of θ̂ in parts: `obs` (the observation noise), `truth` (the clean image's
@@ -197,12 +213,13 @@ def variance(noise: NoiseModel, L: torch.Tensor) -> np.ndarray:
     return to_float64(noise.variance(L)).expand(L.shape).reshape(-1).numpy()
 
 
-def propagate(B: np.ndarray, Q: np.ndarray, V0: np.ndarray, ks) -> np.ndarray:
-    """Mean over k in `ks` of V_k for V_{k+1} = B V_k Bᵀ + Q from V_0 (all (P, P)): the second moment of a linear
-    recursion d_{k+1} = B d_k + q_k with independent forcing q_k of covariance Q."""
+def propagate(B: np.ndarray, Q: np.ndarray, V0: np.ndarray, ks, extra: Callable | None = None) -> np.ndarray:
+    """Mean over k in `ks` of V_k for V_{k+1} = B V_k Bᵀ + Q + extra(V_k) from V_0 (all (P, P)): the second moment
+    of a linear recursion d_{k+1} = B d_k + q_k with independent forcing q_k of covariance Q, and a forcing whose
+    covariance grows with the state (`extra`, e.g. a random contraction; None: none)."""
     ks = np.asarray(list(ks), dtype=int)
     V, out = V0.copy(), np.zeros_like(V0)
     for k in range(int(ks.max()) + 1):
         out += (ks == k).sum() * V
-        V = B @ V @ B.T + Q
+        V = B @ V @ B.T + Q + (extra(V) if extra is not None else 0.0)
     return out / len(ks)
