@@ -219,20 +219,21 @@ class Estimator(ABC):
     no_prediction: ClassVar[str] = "the estimator offers no linearised update"
 
     def predicted_variance(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None = None,
-                           budget: Budget = Budget()) -> Prediction | None:
+                           budget: Budget = Budget(), statuses: Sequence[str] | None = None) -> Prediction | None:
         """The covariance of θ̂ (P, P, in parts) that this estimator's linearised update predicts at θ*, or None
         (no prediction: `no_prediction` says why). Every linearised estimator aims at the fixed point ê of the
         score on the observation (`predict.target`: F⁻¹ JᵀW (Σ_obs + Σ_truth) WJ F⁻¹); what its own iterations
         leave is `fit_cov`'s. iterations: the fits' iteration counts (None: the estimator's maximum, capped by
-        `budget`)."""
-        fit = self.fit_cov(problem, lin, iterations, budget)
+        `budget`); statuses: how each of those fits stopped (`Estimate.status`), where the estimator counts an
+        iteration that applied no step."""
+        fit = self.fit_cov(problem, lin, iterations, budget, statuses)
         if fit is None:
             return None
         obs, truth = target(lin)
         return Prediction(obs, truth, fit[0], fit[1])
 
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
-                budget: Budget) -> tuple[np.ndarray, str] | None:
+                budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str] | None:
         """(covariance (P, P) of θ̂ − ê that the estimator's iterations leave, what was assumed), or None when the
         estimator has no linearised update (the default; a plug-in overrides this)."""
         return None

@@ -106,7 +106,7 @@ class GaussNewton(Estimator):
         return Outcome(theta, n, "max-iterations", f"reached max iterations ({n})", loss)
 
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
-                budget: Budget) -> tuple[np.ndarray, str]:
+                budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str]:
         """Covariance of θ̂ − ê after the fits' iterations (module docstring): the last step's render noise, the
         Jacobian noise, and the start's error that the contraction F̂⁻¹F has not removed."""
         F, g = lin.F, problem.gradient
@@ -114,8 +114,12 @@ class GaussNewton(Estimator):
         Fhi = np.linalg.inv(Fh)
         B = np.eye(len(F)) - Fhi @ F
         Q = Fhi @ score_noise(lin, self.spp, g) @ Fhi.T
-        ks = list(iterations) if iterations is not None else [budget.cap(self.iterations)]
+        if iterations is None:
+            ks = [budget.cap(self.iterations)]
+        else:  # a fit that stopped on a rejected step or a stall counted that iteration, which applied no step
+            sts = list(statuses) if statuses is not None else [""] * len(iterations)
+            ks = [max(int(k) - (st in ("step-rejected", "stalled")), 0) for k, st in zip(iterations, sts, strict=True)]
         V = propagate(B, Q, start_moment(lin), ks, lambda V: Fhi @ lin.drift_noise(self.spp, g, V) @ Fhi.T)
         ratio = float(np.trace(Fh) / np.trace(F))
         return V, (f"Gauss–Newton fixed point at {self.spp} spp; one Jacobian's plug-in F̂ / F = {ratio:.3g}, "
-                   f"contraction (1 − F/F̂) per step; {np.mean(ks):.3g} iterations on average")
+                   f"contraction (1 − F/F̂) per step; {np.mean(ks):.3g} steps on average")

@@ -159,7 +159,7 @@ class AdamMLE(Estimator):
         return Outcome(problem.from_unit(u.detach().numpy()), done, status, reason, loss)
 
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
-                budget: Budget) -> tuple[np.ndarray, str]:
+                budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str]:
         """Covariance of θ̂ − ê after the fits' iterations from the linear recursion of the module docstring
         (covariance of the state (d, m), 2P × 2P, propagated through the schedule)."""
         n = budget.cap(self.iterations)

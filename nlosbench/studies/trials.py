@@ -513,13 +513,15 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                 lin = Linearisation(theta.copy(), Js[:, i].reshape(R, params.dim, -1), weight(noise, L),
                                     variance(noise, L), render_var(p.n_eff // p.clusters), render_var, jcov,
                                     np.zeros((params.dim, params.dim)))
-                its = [r["iterations"] for r in records if r["error"] is None and r["estimator"] == s.label
-                       and r["noise"] == j and r["theta_index"] == i]
+                fits = [r for r in records if r["error"] is None and r["estimator"] == s.label and r["noise"] == j
+                        and r["theta_index"] == i]
+                its, sts = [r["iterations"] for r in fits], [r.get("status", "") for r in fits]
                 try:
                     cov, about = start_cov(params, theta, cfg["start_width"], est, cfg["hcr_grid"],
                                            render_var(R * p.bound_spp), lin.sandwich)
                     lin = dataclasses.replace(lin, start_cov=cov, start_about=about)
-                    pred = est.predicted_variance(Problem(model, noise, s.gradient), lin, its or None, p.budget)
+                    pred = est.predicted_variance(Problem(model, noise, s.gradient), lin, its or None, p.budget,
+                                                  sts or None)
                 except (ValueError, np.linalg.LinAlgError) as e:
                     out[key] = f"no prediction: {e}"
                     continue
