@@ -460,11 +460,12 @@ def start_cov(params, theta: np.ndarray, width: float | None, est, grid_points: 
               bank_var: np.ndarray | None = None, lin_sandwich=None) -> tuple[np.ndarray, str]:
     """(second moment (P, P), about what) of the fits' starts: uniform in θ* ± width·|Θ|/2 (clipping ignored) or
     over Θ (width None: |Θ|²/12 plus the offset of Θ's middle), about θ*; a profile start (the NLL minimum of y
-    over the bank grid, refined by a parabola) about ê: a grid cell's spacing²/12 (an upper value: the parabola
-    refines it) plus the grid renders' own noise through the score, `lin_sandwich(bank_var)`."""
+    over the bank grid) about ê: the grid renders' own noise through the score, `lin_sandwich(bank_var)`, plus for
+    P > 1 a grid cell's spacing²/12 (for a scalar θ the parabola through the minimum and its neighbours has its
+    vertex at ê when the NLL is quadratic, as in the linear model)."""
     span = params.upper - params.lower
     if getattr(est, "start", "given") == "profile":
-        cov = np.diag((span / max(grid_points - 1, 1)) ** 2 / 12)
+        cov = np.diag((span / max(grid_points - 1, 1)) ** 2 / 12) if params.dim > 1 else np.zeros((1, 1))
         return (cov + lin_sandwich(bank_var) if lin_sandwich is not None else cov), "target"
     if width is None:
         return np.diag(span**2 / 12 + (0.5 * (params.lower + params.upper) - theta) ** 2), "truth"
