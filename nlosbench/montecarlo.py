@@ -29,6 +29,7 @@ import torch
 from . import estimators
 from .estimators import Budget, Problem
 from .estimators.base import BankGrid
+from .estimators.predict import Prediction, cluster_share
 from .forward.gradients import GradientSettings
 from .forward.model import ForwardModel
 from .noise import NoiseModel
@@ -290,6 +291,7 @@ def summarize(
     seed: int = 0,
     labels: Sequence[str] | None = None,
     level: float = 0.95,
+    predictions: dict | None = None,
 ) -> list[dict]:
     """One row per (noise, θ*, estimator label): counts (failed shown and excluded from the statistics;
     each fit's stopping status counted), MSE over the successful fits with its SE and one-sided limits
@@ -301,14 +303,23 @@ def summarize(
     undetermined / not tested: why), each a one-sided test at (1 − level)/m, m the (row, bound) pairs of that
     noise model's table that can be tested (`_testable`; Bonferroni), failed fits named after it. `far_above`
     lists the bounds with MSE / bound > far_above. Variance is never flagged against a bound (that needs the
-    bias gradient). Rows follow `labels`."""
+    bias gradient). Rows follow `labels`.
+
+    predictions[(noise, θ index, label)]: the estimator's `Prediction` (its linearised update's covariance), or
+    a string saying why there is none. A row then gets `var_predicted` (`predicted_var`: the expectation of its
+    `var` under the prediction, for its clean-image clusters), `mse_predicted` = var_predicted + bias² (the
+    measured bias, for display only: it is not part of the prediction nor of its test), the parts, `var_over_
+    predicted` and `vs_predicted` (`variance_verdict`, at (1 − level)/m, m the rows of that noise model's table
+    with a prediction), or NaN and `predicted_note`."""
     groups: dict[tuple, list[dict]] = {}
     for r in sorted(records, key=record_key):
         groups.setdefault((r["noise"], r["theta_index"], r["estimator"]), []).append(r)
     labels = list(labels or sorted({k[2] for k in groups}))
     tests: dict[int, int] = {}
-    for j, i, _ in groups:
+    predicted: dict[int, int] = {}
+    for j, i, label in groups:
         tests[j] = tests.get(j, 0) + sum(map(_testable, (bounds or {}).get((j, i), {}).values()))
+        predicted[j] = predicted.get(j, 0) + isinstance((predictions or {}).get((j, i, label)), Prediction)
     rows = []
     for (j, i, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], labels.index(kv[0][2]))):
         truth = np.array(rs[0]["theta_true"])
@@ -355,6 +366,8 @@ def summarize(
                        bias_t_stat=math.nan,
                        bias_p=math.nan, bias_dof=0, biased=False, bias_clusters=0, bias_se_has_truth_error=False,
                        **{f"bias_{n}": math.nan for n in names}, **{f"bias_se_{n}": math.nan for n in names})
+        row.update(predicted_columns((predictions or {}).get((j, i, label), "not computed"), E, clusters, row,
+                                     (1 - level) / max(predicted.get(j, 0), 1), status_counts(ok)))
         secs, rend, grads = ([r[k] for r in rs] for k in ("seconds", "renders", "grad_passes"))
         row.update(
             mean_seconds=float(np.mean(secs)),
@@ -377,6 +390,57 @@ def summarize(
                                 if row.get(f"vs_{b}", "").startswith("below"))
         rows.append(row)
     return rows
+
+
+def predicted_var(pred: Prediction, clusters: np.ndarray) -> float:
+    """The expectation of the trials' sample variance (trace, ddof 1) under `pred`: tr(obs + fit) + κ tr(truth),
+    κ = `predict.cluster_share` of the trials' clean-image clusters (independent clean images: κ = 1; one: 0,
+    where the clean image's error is a fixed offset, seen in the bias)."""
+    return pred.var(cluster_share(clusters) if len(clusters) > 1 else math.nan)
+
+
+def helmert(n: int) -> np.ndarray:
+    """The (n − 1, n) Helmert contrasts: orthonormal rows orthogonal to the ones vector, so for n independent
+    errors e_k with covariance Σ the rows of H E are n − 1 independent errors with covariance Σ and
+    Σ‖(HE)_k‖² = Σ‖e_k − ē‖²."""
+    H = np.zeros((n - 1, n))
+    for k in range(1, n):
+        H[k - 1, :k], H[k - 1, k] = 1.0, -k
+        H[k - 1] /= math.sqrt(k * (k + 1))
+    return H
+
+
+def variance_verdict(E: np.ndarray, clusters: np.ndarray, var_pred: float, alpha: float, statuses: str) -> str:
+    """The measured variance of errors E (n, P) against a predicted one, by `verdicts`' one-sided tests at alpha
+    each (the MSE limits of the centred errors, whose mean square is the sample variance): "as predicted",
+    "above prediction" (optimisation error or a local minimum; the fits' statuses named), "below prediction",
+    or "not tested: why". Independent trials (one clean image, or one each): the Helmert contrasts of E, n − 1
+    independent errors, so the limits are exact for Gaussian errors; C clusters of several trials: the centred
+    errors scaled by √(n / (n − 1)) (their between-cluster part then counts C degrees of freedom, not C − 1)."""
+    n = len(E)
+    if n < 2 or not (var_pred > 0 and math.isfinite(var_pred)):
+        return "not tested: " + ("fewer than 2 fits" if n < 2 else f"predicted variance {var_pred:g}")
+    C = len(np.unique(clusters))
+    if C in (1, n):
+        lim = mse_limits(helmert(n) @ E, None, alpha)
+    else:
+        lim = mse_limits((E - E.mean(axis=0)) * math.sqrt(n / (n - 1)), clusters, alpha)
+    lg = math.log10(var_pred)
+    v = verdict(lim, lg, lg)
+    return {"inside": "as predicted", "below": "below prediction",
+            "above": f"above prediction (optimisation error or a local minimum; fits: {statuses})"}.get(v, v)
+
+
+def predicted_columns(pred, E: np.ndarray, clusters: np.ndarray, row: dict, alpha: float, statuses: str) -> dict:
+    """The prediction's columns of a summary row (see `summarize`); `pred` a Prediction or why there is none."""
+    if not isinstance(pred, Prediction) or not len(E):
+        return {"var_predicted": math.nan, "mse_predicted": math.nan, "var_over_predicted": math.nan,
+                "vs_predicted": "", "predicted_note": pred if isinstance(pred, str) else "no successful fit"}
+    vp = predicted_var(pred, clusters)
+    parts = pred.parts()
+    return {"var_predicted": vp, "mse_predicted": vp + row["bias"] ** 2, "var_over_predicted": row["var"] / vp,
+            "var_predicted_obs": parts["obs"], "var_predicted_truth": parts["truth"], "var_predicted_fit": parts["fit"],
+            "vs_predicted": variance_verdict(E, clusters, vp, alpha, statuses), "predicted_note": pred.note}
 
 
 def summarize_bayes(records: Sequence[dict], zzb: dict | None = None,

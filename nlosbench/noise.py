@@ -195,6 +195,13 @@ class NoiseModel(ABC):
             matrix.
         """
 
+    def variance(self, L) -> torch.Tensor:
+        """Per-pixel variance of an observation of the image L (radiance², float64, broadcastable to L). The
+        default, 1 / (Fisher information per unit dL²), is exact for exponential families in their mean
+        (AWGN, Poisson); a model where it is not overrides this."""
+        L = to_float64(L, "L")
+        return 1.0 / self.fisher(L, torch.ones_like(L))
+
     def binned(self, b: int) -> NoiseModel:
         """The model of one b×b-binned pixel whose value is the mean of the block's b² independent
         observations (radiance units; see `nlosbench.binning`). Models that support binning override this.

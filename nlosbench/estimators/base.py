@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import time
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import ClassVar
 
@@ -28,6 +29,7 @@ from ..forward.gradients import GradientSettings
 from ..forward.model import ForwardModel, RenderStats
 from ..noise import NoiseModel, Poisson, check_finite
 from ..params import ParamSpace
+from .predict import Linearisation, Prediction, target
 
 #: Poisson NLL policy: model means below this many expected photons per pixel are raised to it
 POISSON_FLOOR = 1e-3
@@ -443,6 +445,29 @@ class Estimator(ABC):
     def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,
              tracker: Tracker) -> Outcome:
         """The estimator proper: start at θ0 (in Θ), stop when `tracker.exhausted()` says so."""
+
+    #: why `predicted_variance` gives no prediction for this estimator (shown in the summary)
+    no_prediction: ClassVar[str] = "the estimator offers no linearised update"
+
+    def predicted_variance(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None = None,
+                           budget: Budget = Budget(), statuses: Sequence[str] | None = None) -> Prediction | None:
+        """The covariance of θ̂ (P, P, in parts) that this estimator's linearised update predicts at θ*, or None
+        (no prediction: `no_prediction` says why). Every linearised estimator aims at the fixed point ê of the
+        score on the observation (`predict.target`: F⁻¹ JᵀW (Σ_obs + Σ_truth) WJ F⁻¹); what its own iterations
+        leave is `fit_cov`'s. iterations: the fits' iteration counts (None: the estimator's maximum, capped by
+        `budget`); statuses: how each of those fits stopped (`Estimate.status`), where the estimator counts an
+        iteration that applied no step."""
+        fit = self.fit_cov(problem, lin, iterations, budget, statuses)
+        if fit is None:
+            return None
+        obs, truth = target(lin)
+        return Prediction(obs, truth, fit[0], fit[1])
+
+    def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
+                budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str] | None:
+        """(covariance (P, P) of θ̂ − ê that the estimator's iterations leave, what was assumed), or None when the
+        estimator has no linearised update (the default; a plug-in overrides this)."""
+        return None
 
     def __repr__(self) -> str:
         opts = ", ".join(f"{k}={v!r}" for k, v in vars(self).items() if not k.startswith("_"))

@@ -6,8 +6,27 @@ F = `bounds.fisher_matrix(L, J, noise)` (for AWGN this is Gauss–Newton: F = J�
 FD pair, biased high by rendering noise, which only scales the step (not the FI any bound uses). The step is
 clipped to Θ and accepted when the NLL at the new θ, rendered with the *same* seed (so rendering noise
 cancels in the comparison), is not higher; otherwise μ grows and the step shrinks.
+
+Predicted variance (`fit_cov`). Near ê (the score's fixed point on y, `predict.target`) write d_k = θ_k − ê,
+r = y's residual at ê (JᵀW r = 0), ε_k the render error of iteration k (s = `spp` samples, fresh seed each
+iteration) and Ĵ_k = J + δJ_k its Jacobian. The undamped step F̂⁻¹ Ĵᵀ W (r − J d_k − ε_k) gives
+
+    d_{k+1} = (I − F̂⁻¹ F) d_k + F̂⁻¹ (δJ_kᵀ W r − Ĵ_kᵀ W ε_k),   F̂ = F + E[δJᵀ W δJ]
+
+(F̂: the plug-in FI of one FD pair, in expectation). The contraction itself is random, F̂⁻¹(F + δJᵀ W J): its
+fluctuation adds F̂⁻¹ E[δJᵀ W J d dᵀ Jᵀ W δJ] F̂⁻¹ (`Linearisation.drift_noise`), which matters when few pixels
+carry the information. With exact Jacobians the start is gone after one step
+and θ̂ − ê = −F⁻¹ JᵀW ε_last: the last accepted step's render enters like the truth's,
+F⁻¹ JᵀW Σ_render(s) WJ F⁻¹. With noisy ones (NLOS: F̂ far above F) each step removes only F̂⁻¹F of the
+error, so (I − F̂⁻¹F)^k of the start's error survives k iterations, and the forcing adds
+F̂⁻¹ [JᵀW Σ_render WJ + Σ_ω w² (Σ_obs + Σ_truth + Σ_render) Cov δJ] F̂⁻¹ per iteration (`predict.score_noise`).
+The second moment follows V_{k+1} = B V_k Bᵀ + Q, B = I − F̂⁻¹F, from V_0 = the start's second moment about ê
+(`predict.start_moment`), averaged over the fits' iteration counts. Damping (μ → 0 after a few accepted steps),
+rejected steps and Θ's box are not modelled: a fit that stops on a rejected step near ê is not this recursion.
 """
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -15,7 +34,8 @@ import torch
 from ..bounds.crlb import fisher_matrix
 from ..forward.gradients import jacobian
 from ..seeds import derive
-from .base import Estimator, Outcome, Problem, Tracker, check_start, finite_or_raise, floored, nll, render_seed
+from .base import Budget, Estimator, Outcome, Problem, Tracker, check_start, finite_or_raise, floored, nll, render_seed
+from .predict import Linearisation, propagate, score_noise, start_moment
 
 
 class GaussNewton(Estimator):
@@ -97,3 +117,22 @@ class GaussNewton(Estimator):
             if moved < self.tol:
                 return Outcome(theta, it + 1, "converged", f"step < {self.tol:g} of Θ's width", loss)
         return Outcome(theta, n, "max-iterations", f"reached max iterations ({n})", loss)
+
+    def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
+                budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str]:
+        """Covariance of θ̂ − ê after the fits' iterations (module docstring): the last step's render noise, the
+        Jacobian noise, and the start's error that the contraction F̂⁻¹F has not removed."""
+        F, g = lin.F, problem.gradient
+        Fh = F + lin.jacobian_excess(self.spp, g, lin.w)
+        Fhi = np.linalg.inv(Fh)
+        B = np.eye(len(F)) - Fhi @ F
+        Q = Fhi @ score_noise(lin, self.spp, g) @ Fhi.T
+        if iterations is None:
+            ks = [budget.cap(self.iterations)]
+        else:  # a fit that stopped on a rejected step or a stall counted that iteration, which applied no step
+            sts = list(statuses) if statuses is not None else [""] * len(iterations)
+            ks = [max(int(k) - (st in ("step-rejected", "stalled")), 0) for k, st in zip(iterations, sts, strict=True)]
+        V = propagate(B, Q, start_moment(lin), ks, lambda V: Fhi @ lin.drift_noise(self.spp, g, V) @ Fhi.T)
+        ratio = float(np.trace(Fh) / np.trace(F))
+        return V, (f"Gauss–Newton fixed point at {self.spp} spp; one Jacobian's plug-in F̂ / F = {ratio:.3g}, "
+                   f"contraction (1 − F/F̂) per step; {np.mean(ks):.3g} steps on average")

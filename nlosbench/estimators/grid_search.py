@@ -48,6 +48,8 @@ class GridSearch(Estimator):
     """
 
     name = "grid-search"
+    no_prediction = ("no linearised update: a profile over grid renders and a derivative-free search, whose "
+                     "error depends on the grid's renders and the search's tolerance")
     valid_when = ("Any likelihood shape (multimodal, kinked at hard edges or occlusions, flat regions) as long "
                   "as the grid spacing is finer than the likelihood's main lobe. Costs num^P renders once per "
                   "process plus the refinement per fit: practical for P ≤ 2. Without refinement θ̂ is quantised "

@@ -7,17 +7,35 @@ so one learning rate suits parameters of any unit, and after each step u is clip
 (Θ's bounds are respected; FD stencils turn one-sided at the box). Every iteration renders with a
 fresh seed (stochastic gradients), the spp follows a schedule (the paper: 512 then 1024) and the
 learning rate decays (cosine or exponential) so the last iterates settle.
+
+Predicted variance (`fit_cov`). Linearised at ê (the score's fixed point on y, `predict.target`), the NLL's
+gradient at θ_k is F d_k + ξ_k, d_k = θ_k − ê, with ξ_k the noise of iteration k's render and Jacobian at
+its spp s_k, Cov ξ_k = JᵀW Σ_render(s_k) WJ + Σ_ω w² (Σ_obs + Σ_truth + Σ_render) Cov δJ (`predict.
+score_noise`), plus the Jacobian's noise against the model's change, δJᵀ W J d (`Linearisation.drift_noise`).
+Adam on u = θ/width then is a linear stochastic recursion with momentum,
+
+    g_k = width·(F d_k + ξ_k),   m_{k+1} = β₁ m_k + (1 − β₁) g_k,   d_{k+1} = d_k − width·η_k m_{k+1} / (1 − β₁^{k+1}),
+
+with the per-component step η_k = lr_k / √v̂_k, where v̂_k (Adam's second moment, bias-corrected) is taken at
+its expectation E[g²] over the trials (the start's spread early, the gradient noise late) — so the step
+size and the schedule (lr_k, s_k) set how much of the noise the last iterates average. The covariance of
+(d, m) is propagated through every iteration from the start's second moment about ê (`predict.start_moment`) and
+read at the fits' iteration counts; with a constant η it tends to the stationary η Q / (F (2 − η F)) (no
+momentum). Not modelled: Θ's box (clipping), a v̂ that differs from fit to fit, and anything nonlinear far
+from θ* (a start outside the basin is a local minimum, not this recursion).
 """
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import torch
 
 from ..forward.autograd import render
 from ..seeds import derive
-from .base import Estimator, Outcome, Problem, Tracker, check_start, finite_or_raise, render_seed
+from .base import Budget, Estimator, Outcome, Problem, Tracker, check_start, finite_or_raise, render_seed
+from .predict import Linearisation, score_noise, start_moment
 
 LR_SCHEDULES = ("constant", "cosine", "exponential")
 #: steps that stop moving once the schedule has cut the learning rate below this fraction have stalled
@@ -182,3 +200,40 @@ class AdamMLE(Estimator):
                           f"{factor:.3g} × the initial learning rate")
                 break
         return Outcome(problem.from_unit(u.detach().numpy()), done, status, reason, loss)
+
+    def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
+                budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str]:
+        """Covariance of θ̂ − ê after the fits' iterations from the linear recursion of the module docstring
+        (covariance of the state (d, m), 2P × 2P, propagated through the schedule)."""
+        n = budget.cap(self.iterations)
+        F, g = lin.F, problem.gradient
+        P = len(F)
+        wd = problem.params.upper - problem.params.lower
+        Wu = np.diag(wd)
+        b1, b2 = self.betas
+        X = np.zeros((2 * P, 2 * P))
+        X[:P, :P] = start_moment(lin)
+        v = np.zeros(P)
+        eye = np.eye(P)
+        noise = {}
+        Vd = [X[:P, :P].copy()]
+        for k in range(n):
+            s = self.spp_at(k, n)
+            if s not in noise:
+                noise[s] = score_noise(lin, s, g)
+            Q = noise[s] + lin.drift_noise(s, g, X[:P, :P])  # + the Jacobian's noise against J d
+            G = np.hstack([Wu @ F, np.zeros((P, P))])  # g = G (d, m) + width·ξ
+            v = b2 * v + (1 - b2) * np.diag(G @ X @ G.T + Wu @ Q @ Wu)
+            t = k + 1
+            eta = self.lr * self.lr_factor(k, n) / (np.sqrt(v / (1 - b2**t)) + 1e-8) / (1 - b1**t)
+            S = np.diag(wd * eta)
+            Mm = np.hstack([(1 - b1) * Wu @ F, b1 * eye])
+            Md = np.hstack([eye, np.zeros((P, P))]) - S @ Mm
+            M = np.vstack([Md, Mm])
+            N = np.vstack([-S @ ((1 - b1) * Wu), (1 - b1) * Wu])
+            X = M @ X @ M.T + N @ Q @ N.T
+            Vd.append(X[:P, :P].copy())
+        ks = list(iterations) if iterations is not None else [n]
+        V = sum(Vd[min(int(k), n)] for k in ks) / len(ks)
+        return V, (f"Adam as a linear recursion with momentum β₁ = {b1:g}, step lr/√E[g²] under the "
+                   f"{self.lr_schedule} schedule, {np.mean(ks):.3g} iterations on average")

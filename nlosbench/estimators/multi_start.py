@@ -30,6 +30,8 @@ class MultiStart(Estimator):
     """
 
     name = "multi-start"
+    no_prediction = ("no linearised update: the fit kept is chosen among starts by a noisy NLL, which selects on "
+                     "the error itself")
     valid_when = ("Multimodal likelihoods (hard edges, NLOS, weak signal far from θ*) where a local estimator "
                   "finds the global optimum from some starts; costs `starts` times the base estimator.")
 

@@ -162,8 +162,9 @@ def plot_mse(
 def mse_figure(rows: list[dict], bound_rows: list[dict], bounds, names: list[str], units: list[str],
                noise_names: dict):
     """A figure of the MSE (± SE) of every estimator and the bounds at each θ*, log scale, one panel per noise
-    model (trials summary rows and bound-service rows; parameter names and units). Points only: θ* are separate
-    experiments (e.g. one LOS, one NLOS), so nothing joins them. A bound is its quoted value (—) with its
+    model (trials summary rows and bound-service rows; parameter names and units), with each estimator's
+    predicted MSE (×: its linearised update's variance + the measured bias²) beside its MSE. Points only: θ* are
+    separate experiments (e.g. one LOS, one NLOS), so nothing joins them. A bound is its quoted value (—) with its
     interval as a bar, an open upper end (∞) as ▲, an end that is not a confidence limit as a hollow marker;
     the y-range follows the MSEs and the bounds within 3 decades of them (others marked off scale)."""
     plt = _plt()
@@ -178,8 +179,9 @@ def mse_figure(rows: list[dict], bound_rows: list[dict], bounds, names: list[str
     for ax, j in zip(axes[0], noises, strict=True):
         mine = [r for r in rows if r["noise"] == j and r["mse"] > 0]
         brs = [r for r in bound_rows if r["noise_index"] == j]
-        core = [math.log10(v) for r in mine for v in (r["mse"], r["mse"] + r["mse_se"], r["mse"] - r["mse_se"])
-                if v > 0]
+        core = [math.log10(v) for r in mine for v in (r["mse"], r["mse"] + r["mse_se"], r["mse"] - r["mse_se"],
+                                                      r.get("mse_predicted", math.nan))
+                if isinstance(v, float) and v > 0]
         others = [cell(r.get(k)) for r in brs for b in bounds for k in (f"log10_{b}", f"{b}_lower", f"{b}_upper")]
         bottom, top = view(core, others, reach=3.0)
         for i, label in enumerate(labels):
@@ -187,6 +189,11 @@ def mse_figure(rows: list[dict], bound_rows: list[dict], bounds, names: list[str
             ax.errorbar([float(r[xkey]) + shift[label] for r in rs], [r["mse"] for r in rs],
                         yerr=[[min(r["mse_se"], 0.999 * r["mse"]) for r in rs], [r["mse_se"] for r in rs]],
                         fmt="o", ls="none", color=f"C{i}", capsize=3, label=f"MSE ± SE, {label}")
+            pred = [(float(r[xkey]) + shift[label] + 0.4 * dx, r["mse_predicted"]) for r in rs
+                    if isinstance(r.get("mse_predicted"), float) and r["mse_predicted"] > 0]
+            if pred:
+                ax.plot(*zip(*pred, strict=True), marker="x", ms=8, mew=2, ls="none", color=f"C{i}",
+                        label=f"predicted MSE (var + bias²), {label}")
         for m, b in enumerate(bounds, start=len(labels)):
             _draw_bound(ax, brs, b, xkey, shift[b], f"C{m}", bottom, top, mse_units(units)[:-1])
         ax.set_yscale("log")

@@ -13,7 +13,9 @@ Two protocols (`mode`):
 
 Per θ* the bound service gives the HCR interval (with its Δ → 0 term), the CRLB from an unbiased Fisher
 information, and the paper's HCR_Neff / HCR-hat; in bayesian mode its curve over a uniform `hcr_grid` on
-Θ gives the ZZB. Estimators get the bound sets' grid renders as `Problem.bank` (a profile-likelihood
+Θ gives the ZZB. In local mode every row also gets its estimator's predicted variance
+(`Estimator.predicted_variance`, from its linearised update at θ*: `predict`), tested against the measured one
+(`montecarlo.variance_verdict`). Estimators get the bound sets' grid renders as `Problem.bank` (a profile-likelihood
 start costs no render: estimator option `start: profile`); those sets never share a seed with the
 observation's mean (the bank's TRUTH set). An estimator that renders a grid before its fits (grid-search:
 `Estimator.grid_wanted`) gets it from the bank as replicate 0 of the bound service's render sets at its spp
@@ -37,14 +39,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .. import estimators, io
 from ..bank import TRUTH
 from ..bounds import BoundService
 from ..diagnostics import resolve_gradient
 from ..diagnostics.images import label as gradient_label
-from ..estimators import BankGrid, Budget
-from ..forward.gradients import GradientSettings
+from ..estimators import BankGrid, Budget, Estimator, Problem
+from ..estimators.predict import Linearisation, jacobian_covariance, variance, weight
+from ..forward.gradients import GradientSettings, jacobian
 from ..io import write_csv
 from ..montecarlo import LOG_NAME, Setting, make_bayes_trials, make_trials, run_trials, summarize, summarize_bayes
 from ..schema import (
@@ -127,6 +131,9 @@ SCHEMA = {
     "far_above": Field(float, 3.0, "flag MSE / bound above this factor"),
     "bootstrap": Field(int, 1000, "bootstrap resamples for the variance's standard error"),
     "traces": Field(bool, False, "store each fit's loss/θ trace in trials.jsonl"),
+    "predict_jacobians": Field(int, 8, "local mode: independent gradient Jacobians per θ* and estimator setting (at "
+                                       "its spp, with its gradient settings) that measure its Jacobian noise for the "
+                                       "predicted variance; 0: no prediction"),
 }
 
 
@@ -292,6 +299,12 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
             pts = T * (G + 2 * P * cfg["hcr_offsets"])
             renders, samples = renders + pts * len(cfg["levels"]), samples + pts * sum(cfg["levels"])
         fits = len(p.noises) * T * p.n
+        if cfg["predict_jacobians"] > 0:  # the predicted variance: R FD Jacobians per θ*, K gradients per setting
+            renders, samples = renders + T * R * 2 * P, samples + T * R * 2 * P * bspp
+            for s in (s for s in p.settings if _predicts(s.name)):
+                r, spp = _fit_cost(s.name, {**s.options, "iterations": 1}, s.gradient, P, Budget())
+                k = T * cfg["predict_jacobians"]
+                renders, samples = renders + k * max(r - 1, 0), samples + k * spp
     for thetas, spp in p.grids.values():  # made once by the bank; the bound grid's renders when they are the same
         if not (spp == bspp and len(thetas) == G):
             renders, samples = renders + len(thetas), samples + len(thetas) * spp
@@ -300,6 +313,16 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
     return Estimate(renders, samples * px, "fits estimated from each estimator's iterations × spp (an upper bound "
                                            "where fits stop early)")
+
+
+def _predicts(est) -> bool:
+    """Whether an estimator (an instance, or the name it is registered under) offers a predicted variance: its
+    class overrides `Estimator.fit_cov`."""
+    try:
+        cls = estimators.factory(est) if isinstance(est, str) else type(est)
+    except (KeyError, ImportError):
+        return False
+    return getattr(cls, "fit_cov", None) not in (None, estimators.Estimator.fit_cov)
 
 
 def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budget: Budget) -> tuple[float, float]:
@@ -409,12 +432,17 @@ def run(ctx, cfg: dict) -> dict:
     renders = ctx.bank.renders - before
     records = run_trials(ctx.bank.executor, trials, folder / LOG_NAME, resume=ctx.resume, progress=ctx.progress)
     labels = [s.label for s in p.settings]
+    mark = ctx.bank.renders
+    predictions = {} if p.mode == "bayesian" or cfg["predict_jacobians"] < 1 else \
+        predict(ctx, cfg, p, cleans, records, svc)
+    renders += ctx.bank.renders - mark
     if p.mode == "bayesian":
         zmap = {j: bound_entry(b.columns(), "zzb") for j, b in zzb.items()}
         rows = summarize_bayes(records, zmap, labels, cfg["level"])
     else:
         rows = summarize(records, params.names, bounds_map(bound_rows, cfg["bounds"]), cfg["far_above"],
-                         cfg["bootstrap"], ctx.seed_for("summary"), labels=labels, level=cfg["level"])
+                         cfg["bootstrap"], ctx.seed_for("summary"), labels=labels, level=cfg["level"],
+                         predictions=predictions)
     write_csv(folder / "summary.csv", rows)
     errors = sorted({r["error"] for r in records if r["error"]})
     fit_renders = sum(r["renders"] + r["grad_passes"] for r in records)
@@ -435,6 +463,96 @@ def run(ctx, cfg: dict) -> dict:
             "errors": errors[:20],
             "files": [LOG_NAME, "summary.csv"] + (["zzb.csv"] if zzb else ["bounds.csv", "plots/mse_vs_theta.png"])
             + ["plots/speed_vs_error.png"]}
+
+
+# -- predicted variance --------------------------------------------------------------------------------
+def gradient_task(model, item: tuple) -> tuple:
+    """Executor task: (tag, θ, spp, seed, GradientSettings) → (tag, Jacobian (P, *S) float32, renders + AD passes)."""
+    tag, theta, spp, seed, settings = item
+    before = model.stats.snapshot()
+    J = jacobian(model, theta, spp, seed, settings)
+    used = model.stats.since(before)
+    return tag, J, used.renders + used.grad_passes
+
+
+def _fit_spp(est) -> int:
+    """The spp of an estimator's fit renders (the largest of a schedule; 1 when it names none)."""
+    spp = getattr(est, "spp", 1)
+    return int(max(n for _, n in spp)) if isinstance(spp, (tuple, list)) else int(spp)
+
+
+def start_cov(params, theta: np.ndarray, width: float | None, est, grid_points: int,
+              bank_var: np.ndarray | None = None, lin_sandwich=None) -> tuple[np.ndarray, str]:
+    """(second moment (P, P), about what) of the fits' starts: uniform in θ* ± width·|Θ|/2 (clipping ignored) or
+    over Θ (width None: |Θ|²/12 plus the offset of Θ's middle), about θ*; a profile start (the NLL minimum of y
+    over the bank grid) about ê: the grid renders' own noise through the score, `lin_sandwich(bank_var)`, plus for
+    P > 1 a grid cell's spacing²/12 (for a scalar θ the parabola through the minimum and its neighbours has its
+    vertex at ê when the NLL is quadratic, as in the linear model)."""
+    span = params.upper - params.lower
+    if getattr(est, "start", "given") == "profile":
+        cov = np.diag((span / max(grid_points - 1, 1)) ** 2 / 12) if params.dim > 1 else np.zeros((1, 1))
+        return (cov + lin_sandwich(bank_var) if lin_sandwich is not None else cov), "target"
+    if width is None:
+        return np.diag(span**2 / 12 + (0.5 * (params.lower + params.upper) - theta) ** 2), "truth"
+    return np.diag((width * span) ** 2 / 12), "truth"
+
+
+def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: BoundService) -> dict:
+    """(noise, θ index, label) → each local-trials row's `Prediction` (or why none): the estimator's
+    `predicted_variance` from a `Linearisation` at θ* built from the bank. J: R independent FD Jacobians at the
+    bound spp and `fd_step` (purpose "predict", unbiased products); Σ_render(s): the model's own variance where it
+    has one (the analytic toys), else the per-pixel variance of the bound service's R replicate renders at θ* ×
+    bound_spp / s; Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from `predict_jacobians`
+    Jacobians with the setting's own gradient at its spp; the start from the study's start rule."""
+    model, params, R, K = ctx.model, ctx.model.params, p.replicates, cfg["predict_jacobians"]
+    reps = svc.replicates(p.thetas, p.bound_spp, cfg["seeds"], R, "bound renders at θ*").double()  # (R, T, *S)
+    Js = torch.stack([ctx.bank.jacobians_at(p.thetas, p.bound_spp, cfg["fd_step"], "predict", replicate=r)
+                      for r in range(R)]).double()  # (R, T, P, *S)
+    own = getattr(model, "noise_variance", None)
+    out: dict = {}
+    for si, s in enumerate(p.settings):
+        est = estimators.get(s.name, **s.options)
+        spp = _fit_spp(est)
+        grads: dict[int, list] = {}
+        if _predicts(est):
+            purpose = f"predict {cfg.get('id') or NAME}"
+            items = [((i, k), p.thetas[i].tolist(), spp, ctx.seed_for(purpose, si, i, k), s.gradient)
+                     for i in range(len(p.thetas)) for k in range(K)]
+            for (i, _), J in ctx.bank.map(gradient_task, items, f"{s.label} Jacobian noise"):
+                grads.setdefault(i, []).append(J.double().reshape(params.dim, -1).numpy())
+        for i, theta in enumerate(p.thetas):
+            L = sum(cleans[i, c] for c in range(p.clusters)).double() / p.clusters
+            if own is not None:
+                def render_var(n: int, L=L) -> np.ndarray:
+                    return own(L, n).reshape(-1).numpy()
+            else:
+                var = reps[:, i].var(dim=0).reshape(-1).numpy() if R > 1 else np.zeros(L.numel())
+
+                def render_var(n: int, var=var) -> np.ndarray:
+                    return var * p.bound_spp / n
+            jcov = jacobian_covariance(np.stack(grads[i]), spp, s.gradient) if len(grads.get(i, [])) > 1 else None
+            for j, noise in p.noises.items():
+                key = (j, i, s.label)
+                if not _predicts(est):
+                    out[key] = getattr(est, "no_prediction", Estimator.no_prediction)
+                    continue
+                lin = Linearisation(theta.copy(), Js[:, i].reshape(R, params.dim, -1), weight(noise, L),
+                                    variance(noise, L), render_var(p.n_eff // p.clusters), render_var, jcov,
+                                    np.zeros((params.dim, params.dim)))
+                fits = [r for r in records if r["error"] is None and r["estimator"] == s.label and r["noise"] == j
+                        and r["theta_index"] == i]
+                its, sts = [r["iterations"] for r in fits], [r.get("status", "") for r in fits]
+                try:
+                    cov, about = start_cov(params, theta, cfg["start_width"], est, cfg["hcr_grid"],
+                                           render_var(R * p.bound_spp), lin.sandwich)
+                    lin = dataclasses.replace(lin, start_cov=cov, start_about=about)
+                    pred = est.predicted_variance(Problem(model, noise, s.gradient), lin, its or None, p.budget,
+                                                  sts or None)
+                except (ValueError, np.linalg.LinAlgError) as e:
+                    out[key] = f"no prediction: {e}"
+                    continue
+                out[key] = pred if pred is not None else est.no_prediction
+    return out
 
 
 #: caps on estimator options in a smoke run (known option names of the built-in estimators; nested
@@ -543,7 +661,15 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
               "cluster; Graybill–Wang upper limit, Satterthwaite lower limit), so an efficient estimator is called "
               "below its bound at most at the stated level. An unbiased estimator can still be below by chance at "
               f"that rate; below at {lvl} means bias (the measured bias is given) or a bug. Var is shown without "
-              "a verdict: comparing it with a bound for unbiased estimators would need the bias gradient. The bias "
+              "a verdict against a bound (that would need the bias gradient); it is tested against the **predicted** "
+              "variance of its estimator's linearised update at θ* (`Estimator.predicted_variance`: the "
+              "observation's noise and the clean image's rendering noise through F⁻¹JᵀW, plus what the fit's own "
+              "renders, noisy Jacobians and unfinished contraction from the start leave; none for grid-search and "
+              "multi-start, with the reason), by the same one-sided tests on the centred errors (Bonferroni over the "
+              "rows with a prediction): **as predicted**, **above prediction** (optimisation error or a local minimum: "
+              "the fit statuses are named), **below prediction** (the model of the fit overstates its noise). "
+              "Predicted MSE = predicted Var + the measured bias² (the bias is not predicted; shown for comparison "
+              "only). The bias "
               "test: mean error against its SE over the clean-image replicates (which holds the clean image's own "
               "Monte Carlo error), Student t with (clean-image replicates − 1) degrees of freedom, two-sided 95 %; "
               "p is its two-sided p-value (with 4 replicates a t below 3.18 is not significant at 95 %: more "
@@ -553,7 +679,8 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
         paper = [b for b in ("hcr_neff", "hcr_hat") if b in bounds]
         lines += paper_table(rows, results["bound_rows"], paper, results["params"], results["units"], j)
         lines += ["", f"### Against the bounds that apply (noise {j}; {units})", ""]
-        head = ["θ*", "estimator", "n (failed)", "MSE [lower, upper limit]", "Var", "bias ± SE (t, p)"]
+        head = ["θ*", "estimator", "n (failed)", "MSE [lower, upper limit]", "predicted MSE", "Var",
+                "predicted Var: verdict", "bias ± SE (t, p)"]
         head += [f"{b} [{lvl} ends]" for b in bounds if b in ("hcr", "crlb")] + ["verdict", "fit status",
                                                                                 "s / trial", "renders / trial"]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -562,7 +689,8 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
                       if b["noise_index"] == j and b["theta_index"] == r["theta_index"]), {})
             theta = ", ".join(fmt(r[f"theta_{n}"], 4) for n in results["params"])
             bias = ", ".join(f"{fmt(r[f'bias_{n}'], 3)} ± {fmt(r[f'bias_se_{n}'], 2)}" for n in results["params"])
-            cells = [theta, r["estimator"], f"{r['n']} ({r['n_failed']})", _mse_cell(r, "mse"), fmt(r["var"]),
+            cells = [theta, r["estimator"], f"{r['n']} ({r['n_failed']})", _mse_cell(r, "mse"),
+                     fmt(r.get("mse_predicted", math.nan)), fmt(r["var"]), _predicted_cell(r),
                      f"{bias} ({fmt(r['bias_t_stat'], 2)}, {fmt(float(r.get('bias_p', 'nan')), 2)})"]
             for k in (k for k in bounds if k in ("hcr", "crlb")):
                 cells.append(f"{fmt_log10(float(b[f'log10_{k}']))} [{_end(b, k, 'lower')}, {_end(b, k, 'upper')}]"
@@ -585,6 +713,14 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
         lines += [f"**Far above** (MSE > {results['far_above']:g} × the quoted bound): " + "; ".join(
             f"{r['estimator']} at θ* #{r['theta_index']} ({r['far_above']})" for r in rows if r["far_above"])]
     return lines
+
+
+def _predicted_cell(r: dict) -> str:
+    """The predicted variance and the verdict of the measured one against it, or why there is none."""
+    v = r.get("var_predicted", math.nan)
+    if isinstance(v, float) and math.isnan(v):
+        return f"– ({r['predicted_note']})" if r.get("predicted_note") else "–"
+    return f"{fmt(v)}: {r.get('vs_predicted', '')}"
 
 
 def _end(b: dict, kind: str, end: str) -> str:
