@@ -198,7 +198,18 @@ class NoiseModel(ABC):
     def variance(self, L) -> torch.Tensor:
         """Per-pixel variance of an observation of the image L (radiance², float64, broadcastable to L). The
         default, 1 / (Fisher information per unit dL²), is exact for exponential families in their mean
-        (AWGN, Poisson); a model where it is not overrides this."""
+        (AWGN, Poisson); a model where it is not overrides this.
+
+        Parameters
+        ----------
+        L : torch.Tensor
+            The clean image (*S), radiance.
+
+        Returns
+        -------
+        torch.Tensor
+            The per-pixel variance, float64: σ² for AWGN, L/scale for Poisson.
+        """
         L = to_float64(L, "L")
         return 1.0 / self.fisher(L, torch.ones_like(L))
 

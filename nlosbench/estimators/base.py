@@ -456,7 +456,28 @@ class Estimator(ABC):
         score on the observation (`predict.target`: F⁻¹ JᵀW (Σ_obs + Σ_truth) WJ F⁻¹); what its own iterations
         leave is `fit_cov`'s. iterations: the fits' iteration counts (None: the estimator's maximum, capped by
         `budget`); statuses: how each of those fits stopped (`Estimate.status`), where the estimator counts an
-        iteration that applied no step."""
+        iteration that applied no step.
+
+        Parameters
+        ----------
+        problem : Problem
+            The estimation problem (its gradient settings and Θ).
+        lin : Linearisation
+            The linearisation at θ*: Jacobian, weight, Fisher matrix and the variances of the observation, the
+            clean image, the fit renders and the Jacobian noise (`estimators.predict`).
+        iterations : sequence of int, optional
+            The fits' iteration counts (None: the estimator's maximum, capped by `budget`).
+        budget : Budget, optional
+            The fits' budget.
+        statuses : sequence of str, optional
+            How each fit stopped (`Estimate.status`).
+
+        Returns
+        -------
+        Prediction or None
+            The predicted covariance in parts (observation, clean image, fit), parameter units²; None without a
+            linearised update.
+        """
         fit = self.fit_cov(problem, lin, iterations, budget, statuses)
         if fit is None:
             return None
@@ -466,7 +487,27 @@ class Estimator(ABC):
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
                 budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str] | None:
         """(covariance (P, P) of θ̂ − ê that the estimator's iterations leave, what was assumed), or None when the
-        estimator has no linearised update (the default; a plug-in overrides this)."""
+        estimator has no linearised update (the default; a plug-in overrides this).
+
+        Parameters
+        ----------
+        problem : Problem
+            The estimation problem (its gradient settings and Θ).
+        lin : Linearisation
+            The linearisation at θ*: Jacobian, weight, Fisher matrix and the variances of the observation, the
+            clean image, the fit renders and the Jacobian noise (`estimators.predict`).
+        iterations : sequence of int, optional
+            The fits' iteration counts (None: the estimator's maximum, capped by `budget`).
+        budget : Budget
+            The fits' budget.
+        statuses : sequence of str, optional
+            How each fit stopped (`Estimate.status`).
+
+        Returns
+        -------
+        tuple of (numpy.ndarray, str) or None
+            The covariance (P, P) in parameter units² and a note of what was assumed; None: no prediction.
+        """
         return None
 
     def __repr__(self) -> str:

@@ -121,7 +121,27 @@ class GaussNewton(Estimator):
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
                 budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str]:
         """Covariance of θ̂ − ê after the fits' iterations (module docstring): the last step's render noise, the
-        Jacobian noise, and the start's error that the contraction F̂⁻¹F has not removed."""
+        Jacobian noise, and the start's error that the contraction F̂⁻¹F has not removed.
+
+        Parameters
+        ----------
+        problem : Problem
+            The estimation problem (its gradient settings and Θ).
+        lin : Linearisation
+            The linearisation at θ*: Jacobian, weight, Fisher matrix and the variances of the observation, the
+            clean image, the fit renders and the Jacobian noise (`estimators.predict`).
+        iterations : sequence of int, optional
+            The fits' iteration counts (None: the estimator's maximum, capped by `budget`).
+        budget : Budget
+            The fits' budget.
+        statuses : sequence of str, optional
+            How each fit stopped (`Estimate.status`).
+
+        Returns
+        -------
+        tuple of (numpy.ndarray, str)
+            The covariance (P, P) in parameter units² and a note of what was assumed.
+        """
         F, g = lin.F, problem.gradient
         Fh = F + lin.jacobian_excess(self.spp, g, lin.w)
         Fhi = np.linalg.inv(Fh)

@@ -204,7 +204,27 @@ class AdamMLE(Estimator):
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
                 budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str]:
         """Covariance of θ̂ − ê after the fits' iterations from the linear recursion of the module docstring
-        (covariance of the state (d, m), 2P × 2P, propagated through the schedule)."""
+        (covariance of the state (d, m), 2P × 2P, propagated through the schedule).
+
+        Parameters
+        ----------
+        problem : Problem
+            The estimation problem (its gradient settings and Θ).
+        lin : Linearisation
+            The linearisation at θ*: Jacobian, weight, Fisher matrix and the variances of the observation, the
+            clean image, the fit renders and the Jacobian noise (`estimators.predict`).
+        iterations : sequence of int, optional
+            The fits' iteration counts (None: the estimator's maximum, capped by `budget`).
+        budget : Budget
+            The fits' budget.
+        statuses : sequence of str, optional
+            How each fit stopped (`Estimate.status`).
+
+        Returns
+        -------
+        tuple of (numpy.ndarray, str)
+            The covariance (P, P) in parameter units² and a note of what was assumed.
+        """
         n = budget.cap(self.iterations)
         F, g = lin.F, problem.gradient
         P = len(F)
