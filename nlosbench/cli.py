@@ -259,6 +259,9 @@ def main(argv: list[str] | None = None) -> int:
         if e.errno is None:  # raised by nlosbench for a path given to it (a scene or spec that does not exist)
             return _fail(BAD_INPUT, str(e))
         return _fail(ENVIRONMENT, _describe(e), resume)
+    except BrokenPipeError:  # the reader stopped reading (`nlosbench list | head`): not an error of ours
+        _quiet_stdout()
+        return OK
     except OSError as e:  # disk full, read-only or missing path, permissions, an unreachable scheduler
         return _fail(ENVIRONMENT, _describe(e), resume)
     except BrokenProcessPool as e:
@@ -270,6 +273,16 @@ def main(argv: list[str] | None = None) -> int:
     except Exception as e:  # noqa: BLE001 - not caused by the input: a bug, reported with its traceback kept
         return _fail(INTERNAL, _internal(e, prepared.dir if prepared is not None else None), resume)
     return OK
+
+
+def _quiet_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's final flush into a closed pipe raises nothing."""
+    import os
+
+    try:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+    except (OSError, ValueError):  # no file descriptor (stdout replaced, e.g. under a test's capture)
+        pass
 
 
 def _internal(e: BaseException, run_dir: Path | None) -> str:

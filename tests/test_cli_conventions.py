@@ -101,3 +101,14 @@ def test_licence_and_citation():
     paper = cff["references"][0]
     assert [a["family-names"] for a in paper["authors"]] == ["Sambasivan", "Coulter", "Paxman", "Haupt"]
     assert paper["status"] == "preprint" and not {"year", "doi", "journal"} & set(paper)
+
+
+def test_a_reader_that_stops_reading_is_not_an_error():
+    """`nlosbench list | head -1`: the pipe closes before nlosbench has written; exit 0 and nothing on stderr
+    (it printed "nlosbench: error: Broken pipe (EPIPE)", exit 1, which fails a `set -o pipefail` script)."""
+    r, w = os.pipe()
+    os.close(r)  # the reader is gone before the first write: every write is EPIPE
+    proc = subprocess.run([sys.executable, "-m", "nlosbench", "list"], stdout=w, stderr=subprocess.PIPE, text=True,
+                          cwd=ROOT, timeout=120)
+    os.close(w)
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
