@@ -132,8 +132,8 @@ def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
         extra = cfg["precision_budget"] or 0
         renders += pilot + extra // (p.spp * pixels(ctx.model))
         samples += pilot * p.spp * pixels(ctx.model) + extra
-    return Estimate(renders, samples, "precision: the fresh looks counted at their budget" if len(p.precision_at)
-                    and cfg["precision_budget"] is None else "")
+    unbudgeted = len(p.precision_at) and cfg["precision_budget"] is None
+    return Estimate(renders, samples, "precision: the fresh looks not counted (no precision_budget)" * bool(unbudgeted))
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:

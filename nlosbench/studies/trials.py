@@ -311,8 +311,10 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
     for s in p.settings:
         r, spp = _fit_cost(s.name, s.options, s.gradient, P, p.budget)
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
-    return Estimate(renders, samples * px, "fits estimated from each estimator's iterations × spp (an upper bound "
-                                           "where fits stop early)")
+    note = "fits estimated from each estimator's iterations × spp (an upper bound where fits stop early)"
+    if cfg["precision"] is not None and cfg["precision_budget"] is None:
+        note += "; precision: the fresh looks not counted (no precision_budget)"
+    return Estimate(renders, samples * px, note)
 
 
 def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budget: Budget) -> tuple[float, float]:
