@@ -82,6 +82,8 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     ({**TRIALS, "precision": 0.2, "looks": 1}, "studies[0].looks: expected an integer in [2, 64], got 1"),
     ({**TRIALS, "precision": 0.2, "replicates": 2}, "t.replicates: a precision target needs >= 3 replicates"),
     ({**TRIALS, "precision": 0.2, "bounds": ["hcr_neff"]}, "t.precision: a precision target needs an interval bound"),
+    ({**TRIALS, "mode": "bayesian", "theta": None, "hcr_grid": 5, "precision": 0.2},
+     "t.precision: a precision target applies to the bounds at θ* (local mode)"),
     ({**BOUNDS, "precision": 0.0, "precision_at": [0.5]}, "studies[0].precision: expected a finite number > 0"),
     ({**BOUNDS, "precision_budget": 10**6, "precision": None}, "b.precision_budget: a budget needs a precision"),
     ({**BOUNDS, "precision_at": [0.5]}, "b.precision_at: quoting bounds at θ needs a `precision` target"),
