@@ -42,6 +42,14 @@ def positive_number(value, path: str) -> float:
     return v
 
 
+def positive_integer(value, path: str) -> int:
+    """An integer > 0 (a Field type)."""
+    v = _check_type(value, int, path)
+    if v < 1:
+        raise ConfigError(path, f"expected an integer > 0, got {value!r}")
+    return v
+
+
 def halvings(value, path: str) -> int:
     """An integer in [0, 12] (a Field type: how often an FD step may be halved)."""
     v = _check_type(value, int, path)
@@ -266,7 +274,7 @@ GRID = Field(grid_spec, help="θ values: a list, {start, stop, num}, or a list o
 
 
 # -- the keys of a schema as rows (for `nlosbench list keys` and the documentation's config reference) -----
-_KINDS = {folder_name: "name", path_string: "path", positive_number: "number > 0",
+_KINDS = {folder_name: "name", path_string: "path", positive_number: "number > 0", positive_integer: "integer > 0",
           grid_spec: "θ grid", point_spec: "θ point", points_spec: "θ points", noise_spec: "noise choice"}
 
 

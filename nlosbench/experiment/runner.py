@@ -144,6 +144,7 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
     fp = rundir.fingerprint(cfg, ctx.model.content_key(), plans)
     rundir.check(run_dir, fp, resume, anyway)
     rate = estimate.rate(ctx.model)
+    ctx.rate = rate.seconds_per_sample  # what a study predicts further work's time from
     total = sum(rate.seconds(e) for e in estimates.values())
     lines = [f"[{sid}] plan: {e.renders} renders, {e.samples:.3g} pixel-samples, ≈ {estimate.describe(rate.seconds(e))}"
              + (f" ({e.note})" if e.note else "") for sid, e in estimates.items()]

@@ -4,6 +4,10 @@ the paper's HCR_Neff (and optionally Barankin) over a 1-D grid of θ, and the Zi
 Plan: the grid, spp, seeds and replicates from the block. Work: one call to the bound service's `curve`
 (R·G renders from the render bank: every grid render serves as θ* and as a test point for all others,
 the grid neighbours as FD stencils). Tables: bounds.csv (a row per noise and θ), zzb.csv (a row per noise).
+With `precision_at` (θ on or off the grid) and a `precision` target, the θ the study quotes: after the curve, one
+call to the service's `at` there (its test grid the curve's own when the grid is `params.grid(G)`), which adds
+fresh replicate sets where an interval is wider than asked (`bounds.precision`): precise.csv (a row per noise and
+quoted θ, with the precision_* columns), a report table "Precision at the quoted θ" and those points on the plot.
 Report: from those and results.json only.
 """
 from __future__ import annotations
@@ -16,7 +20,8 @@ import numpy as np
 from ..bounds import BoundService
 from ..io import read_csv, write_csv, write_exr
 from ..noise import Poisson
-from ..schema import GRID, STEP_TOL, ConfigError, Field, grid_values, smoke_grid
+from ..schema import GRID, MAX_HALVINGS, STEP_TOL, ConfigError, Field, grid_values, smoke_grid
+from . import precise
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import bound_curves_plot
@@ -24,6 +29,8 @@ from .plotstyle import note
 from .tables import fmt_end, fmt_log10
 
 NAME = "bounds"
+#: test points over Θ of the bounds at the quoted θ when the curve's grid is not `params.grid(G)` (the service's)
+TEST_GRID = 21
 SCHEMA = {
     "grid": GRID,
     "spp": Field(int, 1024, "samples per pixel of each grid render"),
@@ -36,6 +43,11 @@ SCHEMA = {
     "fd_step": Field(float, None, "FD step ξ of the Δ → 0 term and the CRLB (parameter units); null: the grid "
                                   "neighbours (no extra render)", nullable=True),
     "step_tol": STEP_TOL,
+    "max_halvings": Field(MAX_HALVINGS.type, MAX_HALVINGS.default, MAX_HALVINGS.help + " (at the `precision_at` θ "
+                          "only: a curve does not halve its step)"),
+    "precision_at": Field(list, [], "θ the study quotes (on or off the grid): after the curve, the bounds there to "
+                                    "the `precision` target (needs `precision`)", items=float),
+    **precise.KEYS,
     "barankin": Field(bool, False, "also compute the multi-point Barankin bound at each grid point (plug-in)"),
     "zzb": Field(bool, True, "the Ziv–Zakai bound on the Bayesian MSE over a uniform prior on the grid's range "
                              "(needs a uniform grid)"),
@@ -46,7 +58,8 @@ SCHEMA = {
 
 @dataclass(frozen=True)
 class Plan:
-    """What the study computes: the θ grid (G,), spp, seeds, replicates, level and which bounds."""
+    """What the study computes: the θ grid (G,), spp, seeds, replicates, level and which bounds; the quoted θ
+    (precision_at, (Q,)) and the test grid of their bounds (the curve's G when the grid is `params.grid(G)`)."""
 
     thetas: np.ndarray
     spp: int
@@ -58,6 +71,8 @@ class Plan:
     zzb: bool
     fd_step: float | None
     step_tol: float
+    precision_at: np.ndarray
+    test_grid: int
 
 
 def plan(ctx: RunContext, cfg: dict) -> Plan:
@@ -83,16 +98,42 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.fd_step", f"expected a step > 0 or null, got {cfg['fd_step']}")
     if not 0 < cfg["level"] < 1:
         raise ConfigError(f"{sid}.level", f"expected a confidence level in (0, 1), got {cfg['level']}")
-    return Plan(np.unique(thetas), cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
-                cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"])
+    if cfg["precision_at"] and cfg["precision"] is None:
+        raise ConfigError(f"{sid}.precision_at", "quoting bounds at θ needs a `precision` target")
+    if cfg["precision"] is not None and not cfg["precision_at"]:
+        raise ConfigError(f"{sid}.precision", "the curve takes no precision target: name the θ to quote in "
+                                              "`precision_at`")
+    precise.check(cfg, sid, ("hcr", "crlb") if cfg["crlb"] else ("hcr",))
+    for i, t in enumerate(cfg["precision_at"]):
+        try:
+            params.validate([t])
+        except ValueError as e:
+            raise ConfigError(f"{sid}.precision_at[{i}]", str(e)) from None
+    grid = np.unique(thetas)
+    G = len(grid)
+    test_grid = G if np.allclose(params.grid(G)[:, 0], grid, rtol=0, atol=1e-9 * (params.upper - params.lower)[0]) \
+        else TEST_GRID
+    return Plan(grid, cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
+                cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"],
+                np.asarray(cfg["precision_at"], dtype=np.float64), test_grid)
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     """R·G grid renders; with an `fd_step`, 4R·G FD stencil renders more (at ξ and at ξ/2, the step check);
-    with a Poisson noise model, G weight renders more."""
+    with a Poisson noise model, G weight renders more; with `precision_at`, the pilot there and the
+    `precision_budget` (none counted for the fresh looks without a budget)."""
     poisson = any(isinstance(n, Poisson) for n in ctx.noises)
     renders = p.replicates * len(p.thetas) * (1 + (4 if p.fd_step is not None else 0)) + poisson * len(p.thetas)
-    return Estimate(renders, renders * p.spp * pixels(ctx.model))
+    samples = renders * p.spp * pixels(ctx.model)
+    if len(p.precision_at):  # the pilot at the quoted θ (θ*, 4 offsets and 2 FD stages per side; a test grid that
+        # is not the curve's), then at most the budget
+        Q = len(p.precision_at)
+        pilot = p.replicates * (Q * (1 + 8 + 4) + (0 if p.test_grid == len(p.thetas) else p.test_grid)) + poisson * Q
+        extra = cfg["precision_budget"] or 0
+        renders += pilot + extra // (p.spp * pixels(ctx.model))
+        samples += pilot * p.spp * pixels(ctx.model) + extra
+    unbudgeted = len(p.precision_at) and cfg["precision_budget"] is None
+    return Estimate(renders, samples, "precision: the fresh looks not counted (no precision_budget)" * bool(unbudgeted))
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:
@@ -103,6 +144,14 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                       fd_step=p.fd_step, step_tol=p.step_tol)
     names = ctx.model.params.names
     write_csv(out / "bounds.csv", [pt.row(names) for pt in curve.points])
+    precision = []
+    if len(p.precision_at):  # the quoted θ, to the target: the service's `at` (its pilot reuses the curve's renders)
+        pts = svc.at(p.precision_at[:, None], p.spp, ("hcr", "crlb") if p.crlb else ("hcr",), p.seeds, p.replicates,
+                     p.test_grid, fd_step=p.fd_step or float(np.diff(p.thetas).min()), step_tol=p.step_tol,
+                     max_halvings=cfg["max_halvings"], **precise.at_kwargs(cfg))
+        Q = len(p.precision_at)
+        write_csv(out / "precise.csv", [{"theta_index": n % Q, **pt.row(names)} for n, pt in enumerate(pts)])
+        precision = precise.records(pts, Q, names)
     zrows = [{"noise_index": j, "noise": str(ctx.noises[j]), **b.columns(), **b.extra}
              for j, b in curve.zzb.items() if b is not None]
     if zrows:
@@ -114,7 +163,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             "replicates": p.replicates, "level": p.level, "step_tol": p.step_tol, "los_until": cfg["los_until"],
             "parameter": names[0],
             "units": ctx.model.params.units[0], "zzb_reason": curve.zzb_reason,
-            "noise": summarize(read_csv(out / "bounds.csv"), zrows)}
+            "noise": summarize(read_csv(out / "bounds.csv"), zrows),
+            **({"precision": precision, "seconds_per_sample": ctx.rate} if precision else {})}
 
 
 def summarize(rows: list[dict], zrows: list[dict]) -> dict:
@@ -139,7 +189,9 @@ def summarize(rows: list[dict], zrows: list[dict]) -> dict:
 
 
 def smoke(block: dict) -> dict:
-    return {**block, "grid": smoke_grid(block["grid"], 4), "spp": min(block["spp"], 16)}
+    """The grid shrunk to about 4 points, ≤ 16 spp; a precision target keeps its quoted θ with a budget of 1
+    pixel-sample (`precise.smoke`: the pilot and the plan, no fresh look)."""
+    return precise.smoke({**block, "grid": smoke_grid(block["grid"], 4), "spp": min(block["spp"], 16)})
 
 
 def report(study_dir: Path, results: dict) -> str:
@@ -147,9 +199,10 @@ def report(study_dir: Path, results: dict) -> str:
     units = results.get("units", "units")
     zzb = {n: s["zzb"]["log10_zzb"] for n, s in results["noise"].items() if s.get("zzb")}
     zrows = read_csv(study_dir / "zzb.csv") if (study_dir / "zzb.csv").exists() else []
+    quoted = read_csv(study_dir / "precise.csv") if (study_dir / "precise.csv").exists() else []
     bound_curves_plot(rows, study_dir / "bounds.png", los_until=results.get("los_until"), units=units,
                       parameter=results.get("parameter", "θ"), zzb=zzb,
-                      zzb_notes={z["noise"]: note(z, "zzb", "lower") for z in zrows})
+                      zzb_notes={z["noise"]: note(z, "zzb", "lower") for z in zrows}, quoted=quoted)
     lvl = f"{results['level']:.0%}"
     lines = [f"Bounds over a {results['grid_points']}-point grid at {results['spp']} spp × {results['replicates']} "
              f"replicate sets, {results['seeds']} seeds ({results['renders']} renders). log10 of {units}².", "",
@@ -183,4 +236,9 @@ def report(study_dir: Path, results: dict) -> str:
                      f"{results['grid_points']} | {s['upper_unbounded']} | {s.get('not_limits', '–')} | {zz} |")
     if results.get("zzb_reason"):
         lines += ["", f"No ZZB: {results['zzb_reason']}."]
+    if results.get("precision"):
+        lines += ["", f"### Precision at the quoted θ ({units}²)", "",
+                  "The bounds at `precision_at` from the bound service's `at` (the Δ → 0 term and the CRLB with their "
+                  "FD step halved until F settles; ◆ HCR, ■ CRLB with their ends on the plot).", ""]
+        lines += precise.table(results["precision"], f"{units}²", results.get("seconds_per_sample"))
     return "\n".join(lines)

@@ -49,6 +49,9 @@ class RunContext:
     bank: RenderBank | None = None
     bounds: BoundService | None = None
     quiet: bool = False
+    #: seconds per pixel-sample of this run's model on this machine (`estimate.rate`, set by the runner); None
+    #: outside a prepared run (no time is predicted from it then)
+    rate: float | None = None
     started: float = field(default_factory=time.perf_counter)
     bars: Progress = field(init=False, repr=False)
 

@@ -24,18 +24,19 @@ def _plt():
 
 
 def bound_curves_plot(rows: list[dict], path: Path, los_until: float | None = None, parameter: str = "θ",
-                      units: str = "units", zzb: dict | None = None, zzb_notes: dict | None = None) -> Path:
+                      units: str = "units", zzb: dict | None = None, zzb_notes: dict | None = None,
+                      quoted: list[dict] | None = None) -> Path:
     """bounds.png: `bounds_figure` saved as PNG."""
-    fig = bounds_figure(rows, los_until, parameter, units, zzb, zzb_notes)
+    fig = bounds_figure(rows, los_until, parameter, units, zzb, zzb_notes, quoted)
     return save_figure(fig, path, dpi=120, bbox_inches="tight")
 
 
 def bounds_figure(rows: list[dict], los_until: float | None = None, parameter: str = "θ", units: str = "units",
-                  zzb: dict | None = None, zzb_notes: dict | None = None):
+                  zzb: dict | None = None, zzb_notes: dict | None = None, quoted: list[dict] | None = None):
     """A figure: `draw_bound_curves` on one panel with an RMS-error axis and the legend below it."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(9, 5.4))
-    draw_bound_curves(ax, rows, los_until, parameter, units, zzb, zzb_notes)
+    draw_bound_curves(ax, rows, los_until, parameter, units, zzb, zzb_notes, quoted)
     rms_axis(ax, units, log10_axis=True)
     ax.grid(alpha=0.3)
     legend_below(ax)
@@ -44,7 +45,8 @@ def bounds_figure(rows: list[dict], los_until: float | None = None, parameter: s
 
 
 def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, parameter: str = "θ",
-                      units: str = "units", zzb: dict | None = None, zzb_notes: dict | None = None) -> None:
+                      units: str = "units", zzb: dict | None = None, zzb_notes: dict | None = None,
+                      quoted: list[dict] | None = None) -> None:
     """log10 bound vs θ from bound-service rows (theta_<parameter>, log10_<kind>, <kind>_upper, optional
     <kind>_<end>_note per noise): per noise model the HCR's lower end (solid) with a band to its finite upper
     end, an open upper end (∞) as ▲ on the lower end, an end that is not a confidence limit as a hollow
@@ -52,7 +54,9 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
     where present; `zzb` {noise: log10} adds the ZZB over Θ as a level line (dotted where `zzb_notes`
     {noise: reason} says its lower end is not a confidence limit). The y-range follows the HCR,
     its finite upper ends, the CRLB and the ZZB; values more than `plotstyle.REACH` decades beyond are
-    marked by an arrow at the frame's edge. Every drawn element has its legend label, nothing else has."""
+    marked by an arrow at the frame's edge. `quoted` (rows of the bounds at the quoted θ, precise.csv) adds
+    per noise the HCR (◆, nudged left) and CRLB (■, nudged right) points there with bars to their finite ends.
+    Every drawn element has its legend label, nothing else has."""
     series = defaultdict(list)
     for r in rows:
         series[r["noise"]].append(r)
@@ -97,6 +101,20 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
             bad = (zzb_notes or {}).get(noise, "")
             ax.axhline(zzb[noise], color=color, lw=0.8, ls=(0, (1, 3)) if bad else (0, (6, 2, 1, 2)),
                        label=f"{name}: lower end {NOT_LIMIT}" if bad else name)
+    names = list(series)
+    xs = [float(r[f"theta_{parameter}"]) for r in rows] or [0.0]
+    nudge = 0.006 * (max(xs) - min(xs))  # HCR left, CRLB right of the quoted θ: both bars stay readable
+    for kind, marker, name, side in (("hcr", "D", "HCR", -1), ("crlb", "s", "CRLB", 1)):
+        for noise in dict.fromkeys(r["noise"] for r in quoted or []):
+            rs = [r for r in quoted if r["noise"] == noise and r.get(f"{kind}_point") not in ("", None)]
+            if not rs:
+                continue
+            x = np.array([float(r[f"theta_{parameter}"]) for r in rs]) + side * nudge
+            y, lo, up = (np.array([cell(r[f"{kind}_{e}"]) for r in rs]) for e in ("point", "lower", "upper"))
+            bars = np.stack([np.where(np.isfinite(lo), y - lo, 0.0), np.where(np.isfinite(up), up - y, 0.0)])
+            color = f"C{names.index(noise)}" if noise in names else "k"
+            ax.errorbar(x, y, yerr=bars, fmt=marker, ms=5, capsize=3, color=color, mec="k", mew=0.6,
+                        label=f"{name} at the quoted θ (point, ends), {noise}")
     ax.set_ylim(bottom, top)
     if los_until is not None:
         ax.axvline(float(los_until), color="gray", lw=0.8)

@@ -20,7 +20,10 @@ start costs no render: estimator option `start: profile`); those sets never shar
 observation's mean (the bank's TRUTH set). An estimator that renders a grid before its fits (grid-search:
 `Estimator.grid_wanted`) gets it from the bank as replicate 0 of the bound service's render sets at its spp
 (`Problem.grids`): rendered once per run, counted with the bank's renders, and the bound grid's own renders
-when its θ and spp are the bound grid's. Trials resume from trials.jsonl. Outputs: summary.csv,
+when its θ and spp are the bound grid's. With a `precision` target (local mode) the service adds fresh replicate
+sets at the θ* whose HCR / CRLB interval is wider than asked, within `precision_budget` pixel-samples and `looks`
+looks (`bounds.precision`); bounds.csv gets its precision_* columns and the report a table of what was reached,
+spent and (where unmet) still needed. Trials resume from trials.jsonl. Outputs: summary.csv,
 bounds.csv (zzb.csv), plots/mse_vs_theta.png, plots/speed_vs_error.png.
 
 An estimator's `gradient: {method: auto}` is resolved once, before any render (`diagnostics.
@@ -62,6 +65,7 @@ from ..schema import (
     positive_number,
     smoke_grid,
 )
+from . import precise
 from .estimate import AD_PASS_RENDERS, Estimate, pixels
 from .plots import plot_mse, plot_speed
 from .tables import fmt, fmt_end, fmt_log10, mse_units, paper_table
@@ -122,6 +126,7 @@ SCHEMA = {
     "fd_step": Field(positive_number, 0.01, "ξ: FD step of the Δ → 0 term and the CRLB, and the smallest HCR offset"),
     "step_tol": STEP_TOL,
     "max_halvings": MAX_HALVINGS,
+    **precise.KEYS,
     "levels": Field(list, [1024, 2048], "spp levels of the λ̂ fit for hcr_hat", items=int),
     "budget": Field({"iterations": Field(int, None, "iterations per fit", nullable=True),
                      "renders": Field(int, None, "renders + AD passes per fit", nullable=True),
@@ -247,6 +252,10 @@ def plan(ctx, cfg: dict) -> Plan:
         clusters = 1 if ctx.model.exact else cfg["truth_replicates"]  # an exact image has no error to sample
         if cfg["n_eff"] % clusters:
             raise ConfigError(f"{sid}.n_eff", f"{cfg['n_eff']} spp do not split over truth_replicates = {clusters}")
+    if bayes and cfg["precision"] is not None:
+        raise ConfigError(f"{sid}.precision", "a precision target applies to the bounds at θ* (local mode); "
+                                              "bayesian mode has none")
+    precise.check(cfg, sid, cfg["bounds"])
     noises = ctx.select_noises(cfg["noise"], f"{sid}.noise")
     settings = parse_settings(cfg["estimators"], f"{sid}.estimators", ctx.model)
     if "barankin" in cfg["bounds"] and params.dim > 1:
@@ -280,7 +289,8 @@ def wanted_grids(settings: list[Setting], params, where: str) -> dict:
 def cost(ctx, cfg: dict, p: Plan) -> Estimate:
     """Renders and pixel-samples: counted for the clean images and the bound renders (the bank grid, θ*, FD
     stencils at ξ and ξ/2 — further halvings, up to max_halvings, where the step has not converged, are not
-    counted —, the axis offsets, the spp levels of hcr_hat, Poisson weight renders), estimated for the fits
+    counted —, the axis offsets, the spp levels of hcr_hat, Poisson weight renders, and with a precision target
+    its `precision_budget`, the most its fresh looks may spend), estimated for the fits
     (`_fit_cost`: each setting's iterations × spp, an upper bound for fits that stop early)."""
     P, R, bspp, px = ctx.model.params.dim, p.replicates, p.bound_spp, pixels(ctx.model)
     G, T = cfg["hcr_grid"] ** P, len(p.thetas)
@@ -305,14 +315,19 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
                 r, spp = _fit_cost(s.name, {**s.options, "iterations": 1}, s.gradient, P, Budget())
                 k = T * cfg["predict_jacobians"]
                 renders, samples = renders + k * max(r - 1, 0), samples + k * spp
+        if cfg["precision"] is not None and cfg["precision_budget"] is not None:  # the fresh looks: at most the budget
+            renders += cfg["precision_budget"] // (bspp * px)
+            samples += cfg["precision_budget"] // px
     for thetas, spp in p.grids.values():  # made once by the bank; the bound grid's renders when they are the same
         if not (spp == bspp and len(thetas) == G):
             renders, samples = renders + len(thetas), samples + len(thetas) * spp
     for s in p.settings:
         r, spp = _fit_cost(s.name, s.options, s.gradient, P, p.budget)
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
-    return Estimate(renders, samples * px, "fits estimated from each estimator's iterations × spp (an upper bound "
-                                           "where fits stop early)")
+    note = "fits estimated from each estimator's iterations × spp (an upper bound where fits stop early)"
+    if cfg["precision"] is not None and cfg["precision_budget"] is None:
+        note += "; precision: the fresh looks not counted (no precision_budget)"
+    return Estimate(renders, samples * px, note)
 
 
 def _predicts(est) -> bool:
@@ -400,7 +415,7 @@ def run(ctx, cfg: dict) -> dict:
     # the settings' own grids (grid-search): replicate 0 of the bound sets at their spp, one render per (θ, spp, seed)
     grids = {label: BankGrid(thetas, svc.replicates(thetas, spp, cfg["seeds"], 1, f"{label} grid")[0], spp)
              for label, (thetas, spp) in p.grids.items()}
-    bound_rows, zzb = [], {}
+    bound_rows, zzb, precision = [], {}, []
     tseed = ctx.seed_for(f"trials {sid}")  # the trials' noise, start and fit seeds: a stream of this study's own
     if p.mode == "bayesian":
         curve = svc.curve(grid[:, 0], p.bound_spp, cfg["seeds"], p.replicates, crlb=False, zzb=True,
@@ -424,7 +439,8 @@ def run(ctx, cfg: dict) -> dict:
         want = cfg["bounds"]
         points = svc.at(p.thetas, p.bound_spp, want, cfg["seeds"], p.replicates, cfg["hcr_grid"], cfg["hcr_offsets"],
                         cfg["fd_step"], cfg["levels"], noises=list(p.noises), step_tol=cfg["step_tol"],
-                        max_halvings=cfg["max_halvings"]) if want else []
+                        max_halvings=cfg["max_halvings"], **precise.at_kwargs(cfg)) if want else []
+        precision = precise.records(points, len(p.thetas), params.names)
         bound_rows = [{"theta_index": i % len(p.thetas), **pt.row(params.names)} for i, pt in enumerate(points)]
         write_csv(folder / "bounds.csv", bound_rows)
         trials = make_trials(p.thetas, p.n, p.settings, p.noises, cleans, tseed, p.budget, cfg["start_width"],
@@ -458,6 +474,7 @@ def run(ctx, cfg: dict) -> dict:
             "far_above": cfg["far_above"], "trials": len(records), "seconds": time.perf_counter() - t0,
             "bank_renders": renders, "fit_renders": fit_renders, "renders": renders + fit_renders,
             "summary": rows, "bound_rows": bound_rows,
+            **({"precision": precision, "seconds_per_sample": ctx.rate} if precision else {}),
             "zzb": {str(j): {"log10": b.log10, "upper": b.upper, "point": b.point, "flags": list(b.flags),
                              "reason": b.reason} for j, b in zzb.items()},
             "errors": errors[:20],
@@ -583,7 +600,8 @@ def _smoke_gradient(gradient: dict) -> dict:
 def smoke(block: dict) -> dict:
     """A reduced copy of a validated `trials` block that runs in seconds through the same code path:
     2 θ* (the list's ends; bayesian: 2 trials), 2 trials, N_eff ≤ 32 spp over ≤ 2 clean replicates, bound
-    renders ≤ 8 spp × 2 replicates, HCR grid ≤ 5 points per parameter and ≤ 2 offsets, spp levels [8, 16],
+    renders ≤ 8 spp × 2 replicates (3 with a `precision`, whose budget becomes 1 pixel-sample: the pilot and the
+    plan, no fresh look), HCR grid ≤ 5 points per parameter and ≤ 2 offsets, spp levels [8, 16],
     ≤ 20 bootstrap resamples, at most 3 iterations per fit (the budget, which caps plug-in estimators too)
     and the built-in estimators' options capped (`SMOKE_OPTIONS`: spp ≤ 4, grid num ≤ 5, starts ≤ 2, ...);
     gradient renders ≤ 4 spp and 1 FD round."""
@@ -598,7 +616,9 @@ def smoke(block: dict) -> dict:
     b.update(n=min(b["n"], 2), n_eff=reps * min(b["n_eff"] // b["truth_replicates"], 16), truth_replicates=reps,
              bound_spp=min(b["bound_spp"] or b["n_eff"], 8), replicates=2, hcr_grid=min(b["hcr_grid"], 5),
              hcr_offsets=min(b["hcr_offsets"], 2), levels=[8, 16], bootstrap=min(b["bootstrap"], 20))
-    return b
+    if b["precision"] is not None:  # confidence limits need 3 sets; `precise.smoke`: the pilot and the plan only
+        b["replicates"] = 3
+    return precise.smoke(b)
 
 
 def report(study_dir, results: dict) -> str:
@@ -636,6 +656,9 @@ def report(study_dir, results: dict) -> str:
         lines += _bayes_section(rows, results, units)
     else:
         lines += _local_section(rows, results, bounds, units, lvl)
+    if results.get("precision"):
+        lines += ["", f"### Precision of the bounds at θ* ({units})", ""]
+        lines += precise.table(results["precision"], units, results.get("seconds_per_sample"))
     if results["errors"]:
         lines += ["", "Failed fits (distinct errors):", ""] + [f"- `{e}`" for e in results["errors"]]
     rel = study_dir.name

@@ -1,0 +1,104 @@
+"""Precision on request for the studies that quote bounds at θ (`trials` at its θ*, `bounds` at `precision_at`):
+the shared config keys, their config-time check, the arguments they give `BoundService.at`, what a run keeps of
+each point's `Precision` record, and the report's table. The stopping rule itself is the bound service's
+(`bounds.precision`); nothing here computes a bound.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+from ..bounds.precision import KINDS
+from ..schema import ConfigError, Field, integer_in, positive_integer, positive_number
+from .estimate import describe
+from .tables import fmt, fmt_end
+
+PRECISION = Field(positive_number, None, "target relative half-width p of every interval bound quoted at θ (HCR, "
+                  "CRLB): the bound service adds fresh replicate render sets where an interval is wider than "
+                  "1 ± p (ends at level 1 − α/looks, so coverage survives the stopping); null: one fixed set of "
+                  "`replicates`", nullable=True)
+PRECISION_BUDGET = Field(positive_integer, None, "cap on the pixel-samples (spp × H × W × renders) the precise bounds "
+                         "may spend (needs `precision`); null: unlimited", nullable=True)
+LOOKS = Field(integer_in(2, 64), 3, "with `precision`: the pilot and at most looks − 1 looks at fresh replicate "
+              "sets, each interval end at level 1 − (1 − level)/looks")
+#: the schema keys, as a study's SCHEMA takes them
+KEYS = {"precision": PRECISION, "precision_budget": PRECISION_BUDGET, "looks": LOOKS}
+
+
+def check(cfg: dict, sid: str, kinds: Sequence[str]) -> None:
+    """ConfigError naming the key: a budget without a precision; a precision without an interval bound among
+    `kinds` (the bounds asked for) or with fewer than 3 replicates (confidence limits)."""
+    if cfg["precision_budget"] is not None and cfg["precision"] is None:
+        raise ConfigError(f"{sid}.precision_budget", "a budget needs a precision target; set `precision` or remove "
+                                                     "`precision_budget`")
+    if cfg["precision"] is None:
+        return
+    if not set(KINDS) & set(kinds):
+        raise ConfigError(f"{sid}.precision", f"a precision target needs an interval bound ({', '.join(KINDS)}), "
+                                              f"got {list(kinds)}")
+    if cfg["replicates"] < 3:
+        raise ConfigError(f"{sid}.replicates", f"a precision target needs >= 3 replicates (confidence limits), got "
+                                               f"{cfg['replicates']}")
+
+
+def at_kwargs(cfg: dict) -> dict:
+    """The keyword arguments of `BoundService.at` from a validated block (precision, budget, looks)."""
+    return {"precision": cfg["precision"], "budget": cfg["precision_budget"], "looks": cfg["looks"]}
+
+
+def smoke(block: dict) -> dict:
+    """A smoke run keeps the target but a budget of 1 pixel-sample: the pilot and the plan, no fresh look."""
+    return {**block, "precision_budget": 1} if block.get("precision") is not None else block
+
+
+def records(points: Sequence, T: int, names: Sequence[str]) -> list[dict]:
+    """What a run keeps (results.json) of each BoundPoint's `Precision`: noise, θ index, θ, per interval bound
+    its log10 point and ends and the precision reached, and the record's target, met, looks, level, pixel-samples
+    (of the whole call), predicted extra sets and pixel-samples, note. [] without a precision target."""
+    out = []
+    for n, pt in enumerate(points):
+        pr = pt.precision
+        if pr is None:
+            continue
+        out.append({"noise_index": pt.noise_index, "noise": pt.noise, "theta_index": n % T,
+                    "theta": {k: float(v) for k, v in zip(names, pt.theta, strict=True)},
+                    "bounds": {k: {"point": pt.bounds[k].point, "lower": pt.bounds[k].lower,
+                                   "upper": pt.bounds[k].upper, "reached": r} for k, r in pr.reached.items()},
+                    "target": pr.target, "met": pr.met, "looks": pr.looks, "fresh_sets": pr.fresh_sets,
+                    "level": pr.level, "pixel_samples": pr.pixel_samples, "extra_sets": pr.extra_sets,
+                    "extra_pixel_samples": pr.extra_pixel_samples, "note": pr.note})
+    return out
+
+
+def _extra(r: dict, seconds_per_sample: float | None) -> str:
+    if r["met"]:
+        return "–"
+    x = r["extra_pixel_samples"]
+    if not math.isfinite(x):
+        return "none predicted to suffice"
+    text = f"{fmt(float(r['extra_sets']), 3)} sets, {x:.3g} pixel-samples"
+    return text + (f", ≈ {describe(x * seconds_per_sample)}" if seconds_per_sample else "")
+
+
+def table(recs: list[dict], units: str, seconds_per_sample: float | None = None) -> list[str]:
+    """Markdown: a row per (noise, θ, interval bound): the point and its ends (units²), the precision reached
+    against the target, met, looks, the pixel-samples the call spent, and where unmet the predicted extra fresh
+    sets and pixel-samples (and time at `seconds_per_sample`, the run's measured rate, when given), the note."""
+    if not recs:
+        return []
+    lvl = f"{recs[0]['level']:.2%}"
+    lines = [f"Target: every interval bound within ±{fmt(100 * recs[0]['target'], 3)} % (relative half-width, linear "
+             f"units); each end a one-sided {lvl} limit (the level divided over the looks, so the reported interval "
+             "keeps its coverage whatever look it stops at). Pixel-samples are those of the whole call (every θ "
+             "listed); the predicted extra is what more fresh replicate sets the service's plan says the target needs" +
+             ("" if seconds_per_sample else " (no time: this run has no measured render rate)") + ".", "",
+             f"| noise | θ | bound | point [{lvl} ends] ({units}) | reached (target) | met | looks | pixel-samples | "
+             "predicted extra | note |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in recs:
+        theta = ", ".join(fmt(v, 4) for v in r["theta"].values())
+        for kind, b in r["bounds"].items():
+            ends = f"{fmt_end(b['point'])} [{fmt_end(b['lower'])}, {fmt_end(b['upper'])}]"
+            lines.append(f"| {r['noise']} | {theta} | {kind} | {ends} | ±{fmt(100 * b['reached'], 3)} % "
+                         f"(±{fmt(100 * r['target'], 3)} %) | {'yes' if r['met'] else 'no'} | {r['looks']} | "
+                         f"{r['pixel_samples']:.3g} | {_extra(r, seconds_per_sample)} | {r['note']} |")
+    return lines

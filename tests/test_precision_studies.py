@@ -1,0 +1,99 @@
+"""Precision on request in the studies (`studies.precise`): the `trials` study's θ* bounds and the `bounds` study's
+quoted θ reach a target the analytic toy can meet and say so; without a target the outputs carry no precision
+columns; bad keys stop the run at config time (one line naming the key, exit 2, nothing written)."""
+import json
+
+import pytest
+import yaml
+
+from nlosbench.cli import main
+from nlosbench.io import read_csv
+
+# blob2d's x with rendering noise 2 (the toy of tests/test_precision.py): θ = 0.7 misses ±25 % at the pilot of 3
+# sets at 16 spp and meets it after fresh sets
+SCENE = {"name": "blob2d", "options": {"width": 0.15, "render_noise": 2.0}, "params": ["x"]}
+TRIALS = {"type": "trials", "id": "t", "theta": [0.7], "n": 2, "n_eff": 16, "truth_replicates": 1,
+          "bounds": ["hcr", "crlb"], "bound_spp": 16, "replicates": 3, "hcr_grid": 3, "hcr_offsets": 1,
+          "fd_step": 0.01, "max_halvings": 1, "bootstrap": 10,
+          "estimators": [{"name": "grid-search", "options": {"spp": 4, "num": 5, "refine": False}}]}
+BOUNDS = {"type": "bounds", "id": "b", "grid": {"start": 0.2, "stop": 0.8, "num": 3}, "spp": 16, "replicates": 3,
+          "fd_step": 0.01, "max_halvings": 1, "zzb": False, "save_images": False}
+
+
+def _run(tmp_path, studies: list[dict], name: str = "run") -> tuple[int, str, object]:
+    cfg = tmp_path / f"{name}.yaml"
+    cfg.write_text(yaml.safe_dump({"name": name, "seed": 5, "scene": SCENE,
+                                   "noise": [{"model": "awgn", "sigma": 0.3}], "executor": {"type": "serial"},
+                                   "cache": None, "studies": studies}))
+    out = tmp_path / name
+    return main(["run", str(cfg), "--out", str(out), "--quiet"]), out
+
+
+def test_trials_and_bounds_reach_a_reachable_target_and_report_it(tmp_path):
+    """Both studies quote θ = 0.7 to ±25 %: the target is met after fresh sets, bounds.csv / precise.csv carry the
+    precision_* columns, results.json the per-bound record, the reports their precision tables (with a time: a
+    prepared run has a measured rate), and the bounds plot is drawn with the quoted points."""
+    rc, out = _run(tmp_path, [{**TRIALS, "precision": 0.25, "looks": 3},
+                              {**BOUNDS, "precision": 0.25, "precision_at": [0.7], "precision_budget": 10**9}])
+    assert rc == 0
+    res = json.loads((out / "results.json").read_text())["studies"]
+    for sid, table in (("t", "bounds.csv"), ("b", "precise.csv")):
+        (rec,) = res[sid]["results"]["precision"]
+        assert rec["met"] and rec["looks"] > 1 and rec["target"] == 0.25, rec
+        assert set(rec["bounds"]) == {"hcr", "crlb"} and max(b["reached"] for b in rec["bounds"].values()) <= 0.25
+        (row,) = read_csv(out / sid / table)
+        assert float(row["precision_reached"]) <= 0.25 and int(row["precision_pixel_samples"]) > 0
+        assert res[sid]["results"]["seconds_per_sample"] > 0
+    report = (out / "report.md").read_text()
+    assert "### Precision of the bounds at θ*" in report and "### Precision at the quoted θ" in report
+    assert report.count("(±25 %) | yes |") == 4, report  # hcr and crlb in each study
+    assert (out / "b" / "bounds.png").stat().st_size > 0
+    # the same θ to the same target in both studies: the same service call, so the same interval
+    t, b = (res[s]["results"]["precision"][0]["bounds"]["hcr"] for s in ("t", "b"))
+    assert t["reached"] <= 0.25 and b["reached"] <= 0.25
+
+
+def test_an_unmet_target_says_what_more_would_cost(tmp_path):
+    """A budget of 1 pixel-sample allows only the pilot: not met, the note says why, the predicted extra sets
+    and pixel-samples are in the record and the report (with a time from the run's rate)."""
+    rc, out = _run(tmp_path, [{**BOUNDS, "precision": 0.25, "precision_at": [0.7], "precision_budget": 1}])
+    assert rc == 0
+    (rec,) = json.loads((out / "results.json").read_text())["studies"]["b"]["results"]["precision"]
+    assert not rec["met"] and rec["looks"] == 1 and "budget" in rec["note"]
+    assert rec["extra_sets"] >= 3 and rec["extra_pixel_samples"] > 0
+    report = (out / "report.md").read_text()
+    assert f"{rec['extra_pixel_samples']:.3g} pixel-samples, ≈ " in report
+
+
+def test_without_a_target_the_outputs_are_unchanged(tmp_path):
+    rc, out = _run(tmp_path, [TRIALS, BOUNDS])
+    assert rc == 0
+    res = json.loads((out / "results.json").read_text())["studies"]
+    assert "precision" not in res["t"]["results"] and "precision" not in res["b"]["results"]
+    assert not any(k.startswith("precision") for k in read_csv(out / "t" / "bounds.csv")[0])
+    assert not any(k.startswith("precision") for k in read_csv(out / "b" / "bounds.csv")[0])
+    assert not (out / "b" / "precise.csv").exists()
+    assert "Precision" not in (out / "report.md").read_text()
+
+
+@pytest.mark.parametrize("study, message", [
+    ({**TRIALS, "precision": 0}, "studies[0].precision: expected a finite number > 0, got 0"),
+    ({**TRIALS, "precision_budget": 10**6}, "t.precision_budget: a budget needs a precision target"),
+    ({**TRIALS, "precision": 0.2, "looks": 1}, "studies[0].looks: expected an integer in [2, 64], got 1"),
+    ({**TRIALS, "precision": 0.2, "replicates": 2}, "t.replicates: a precision target needs >= 3 replicates"),
+    ({**TRIALS, "precision": 0.2, "bounds": ["hcr_neff"]}, "t.precision: a precision target needs an interval bound"),
+    ({**TRIALS, "mode": "bayesian", "theta": None, "hcr_grid": 5, "precision": 0.2},
+     "t.precision: a precision target applies to the bounds at θ* (local mode)"),
+    ({**BOUNDS, "precision": 0.0, "precision_at": [0.5]}, "studies[0].precision: expected a finite number > 0"),
+    ({**BOUNDS, "precision_budget": 10**6, "precision": None}, "b.precision_budget: a budget needs a precision"),
+    ({**BOUNDS, "precision_at": [0.5]}, "b.precision_at: quoting bounds at θ needs a `precision` target"),
+    ({**BOUNDS, "precision": 0.2}, "b.precision: the curve takes no precision target"),
+    ({**BOUNDS, "precision": 0.2, "precision_at": [0.5, 0.95]}, "b.precision_at[1]: θ out of range"),
+])
+def test_bad_precision_keys_stop_the_run_at_config_time(tmp_path, capsys, study, message):
+    """Schema errors name studies[0].<key> (the config is resolved), the rest <id>.<key> (the study's plan, with the
+    scene loaded): both before the run folder is made."""
+    rc, out = _run(tmp_path, [study])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and message in err and len(err.splitlines()) == 1, err
+    assert not out.exists()
