@@ -75,19 +75,23 @@ def spp_schedule(spp) -> tuple[tuple[float, int], ...]:
     return tuple(out)
 
 
-def stopping(d: np.ndarray, sigma: np.ndarray, moves: np.ndarray) -> tuple[str, str] | None:
+def stopping(d: np.ndarray, theta: np.ndarray, sigma: np.ndarray, moves: np.ndarray) -> tuple[str, str] | None:
     """The lr="auto" stopping rule on a window of k iterations: (status, reason), or None to go on.
 
     With d_i = F̂⁻¹ g_i the Gauss–Newton step at iterate i (θ units; ≈ θ_i − θ̂ plus rendering noise), its
     window mean d̄ ≈ θ̄ − θ̂ and SE_j = SD_j(d) / √k: "converged" when every |d̄_j| ≤ 2 SE_j (the gradient is
     not distinguishable from zero given its scatter) or ≤ NEGLIGIBLE · σ̂_j (θ̄ lies within a tenth of the
-    CRLB's standard deviation of θ̂, e.g. noise-free data); "stalled" when the iterates stopped (every step
-    below TINY · σ̂_j) while d̄ is still significantly non-zero.
+    CRLB's standard deviation of θ̂, e.g. noise-free data), and the means of the window's two halves of
+    iterates differ by at most 2 SE (their SDs over √(k/2)) or NEGLIGIBLE · σ̂_j (the iterates have stopped
+    drifting: a window that still holds the approach, whose scattered d can pass the first test, does not);
+    "stalled" when the iterates stopped (every step below TINY · σ̂_j) while d̄ is still significantly non-zero.
 
     Parameters
     ----------
     d : numpy.ndarray
         The window's Gauss–Newton steps (k, P), θ units (components held at Θ's bounds set to 0).
+    theta : numpy.ndarray
+        The window's iterates (k, P), θ units.
     sigma : numpy.ndarray
         The CRLB scale σ̂ = √diag F̂⁻¹ (P,), θ units, averaged over the window.
     moves : numpy.ndarray
@@ -101,7 +105,11 @@ def stopping(d: np.ndarray, sigma: np.ndarray, moves: np.ndarray) -> tuple[str, 
     k = len(d)
     mean, se = d.mean(axis=0), d.std(axis=0, ddof=1) / math.sqrt(k)
     t = np.abs(mean) / np.where(se > 0, se, np.inf)
-    if np.all((np.abs(mean) <= 2 * se) | (np.abs(mean) <= NEGLIGIBLE * sigma)):
+    a, b = theta[: k // 2], theta[k // 2:]
+    drift = np.abs(a.mean(axis=0) - b.mean(axis=0))
+    drift_se = np.sqrt(a.var(axis=0, ddof=1) / len(a) + b.var(axis=0, ddof=1) / len(b))
+    settled = np.all((drift <= 2 * drift_se) | (drift <= NEGLIGIBLE * sigma))
+    if settled and np.all((np.abs(mean) <= 2 * se) | (np.abs(mean) <= NEGLIGIBLE * sigma)):
         return "converged", (f"the mean Gauss–Newton step over the last {k} iterations is not distinguishable from "
                              f"0 (|mean|/SE ≤ {t.max():.2g}) or below {NEGLIGIBLE:g} × the CRLB's SD "
                              f"(|mean|/σ̂ ≤ {np.max(np.abs(mean) / sigma):.2g})")
@@ -308,7 +316,8 @@ class AdamMLE(Estimator):
                 moves.append(np.abs((u.detach() - before).numpy() * width.numpy()))
                 if done >= self.window:
                     w = self.window
-                    verdict = stopping(np.array(steps[-w:]), np.mean(sigmas[-w:], axis=0), np.array(moves[-w:]))
+                    verdict = stopping(np.array(steps[-w:]), np.array(thetas[-w:]), np.mean(sigmas[-w:], axis=0),
+                                       np.array(moves[-w:]))
                     if verdict:
                         status, reason = verdict
                         break
