@@ -9,7 +9,7 @@ import nlosbench as nb
 from nlosbench import estimators
 from nlosbench.bounds import crlb, fisher_matrix
 from nlosbench.estimators import Problem
-from nlosbench.estimators.mle_adam import AUTO_SPP
+from nlosbench.estimators.mle_adam import AUTO_SPP, stopping
 from nlosbench.forward import GradientSettings, ad_jacobian
 from nlosbench.seeds import derive
 
@@ -72,3 +72,31 @@ def test_adam_defaults_match_gauss_newton_on_cornell_ball():
     res = _compare(model, nb.noise.AWGN(0.05), np.array([0.1, 0.6]), 8, 0.05, GradientSettings("fd", step=0.02),
                    clean_spp=1024, seed=37)
     _check(res, 1.5, 3.0)
+
+
+def test_stopping_rule_tells_converged_from_still_moving_and_stalled():
+    """`stopping` on synthetic windows of k = 10 iterations, P = 1, σ̂ = 1: steps d scattered about 0 by
+    rendering noise with settled iterates → converged; d consistently 5 SD from 0 while θ drifts → go on;
+    the same d with θ frozen (steps < TINY σ̂) → stalled; noise-free d below NEGLIGIBLE σ̂ → converged."""
+    rng = np.random.default_rng(41)
+    sigma = np.ones(1)
+    settled = 0.3 * rng.standard_normal((10, 1))
+    noisy = rng.standard_normal((10, 1))
+    assert stopping(noisy, settled, sigma, np.abs(np.diff(settled, axis=0, prepend=0)))[0] == "converged"
+    drifting = np.linspace(5, 1, 10)[:, None]
+    assert stopping(drifting + 0.1 * noisy, drifting, sigma, np.full((10, 1), 0.4)) is None
+    frozen = np.full((10, 1), 3.0)
+    status, reason = stopping(3.0 + 0.1 * noisy, frozen, sigma, np.zeros((10, 1)))
+    assert status == "stalled" and "SE from 0" in reason
+    tiny = np.geomspace(0.05, 1e-4, 10)[:, None]
+    assert stopping(tiny, tiny, sigma, tiny)[0] == "converged"
+
+
+def test_the_trials_cost_estimate_reads_the_spp_that_the_estimator_resolves():
+    """mle-adam's spp default follows its lr (AUTO_SPP with "auto", 512 then 1024 with a number): the trials
+    study's plan counts that, an upper bound (its iterations cap × (1 + 2P) FD renders, at the largest spp)."""
+    from nlosbench.estimators import Budget
+    from nlosbench.studies.trials import _fit_cost
+
+    assert _fit_cost("mle-adam", {}, GradientSettings(), 2, Budget()) == (1000, 1000 * AUTO_SPP)
+    assert _fit_cost("mle-adam", {"lr": 0.05}, GradientSettings(), 2, Budget()) == (1000, 1000 * 1024)

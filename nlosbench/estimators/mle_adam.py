@@ -13,7 +13,7 @@ d = F̂⁻¹ g and the CRLB scale σ̂_j = √(F̂⁻¹)_jj (θ units), and sets
 
     a_j = AUTO_FRACTION · max(σ̂_j, |d_j|)
 
-Adam is fed the whitened gradient AUTO_FRACTION · d_j / a_j ∈ [−1, 1] (so its second moment stays of order 1
+Adam is fed the whitened gradient d_j / max(σ̂_j, |d_j|) ∈ [−1, 1] (so its second moment stays of order 1
 wherever the iterate is, and does not freeze the steps once the gradient has shrunk), and its unit-normalised
 step m̂_j / (√v̂_j + ε) moves θ_j by that many a_j: far from θ̂ a fraction of the Gauss–Newton step, near θ̂ a
 fraction of the CRLB's standard deviation. It stops on the signal-to-noise of d over a window (`stopping`) and
@@ -112,7 +112,7 @@ def stopping(d: np.ndarray, theta: np.ndarray, sigma: np.ndarray, moves: np.ndar
     if settled and np.all((np.abs(mean) <= 2 * se) | (np.abs(mean) <= NEGLIGIBLE * sigma)):
         return "converged", (f"the mean Gauss–Newton step over the last {k} iterations is not distinguishable from "
                              f"0 (|mean|/SE ≤ {t.max():.2g}) or below {NEGLIGIBLE:g} × the CRLB's SD "
-                             f"(|mean|/σ̂ ≤ {np.max(np.abs(mean) / sigma):.2g})")
+                             f"(|mean|/σ̂ ≤ {np.max(np.abs(mean) / sigma):.2g}), and the iterates stopped drifting")
     if np.all(moves <= TINY * sigma):
         return "stalled", (f"θ moved < {TINY:g} × the CRLB's SD per step for {k} iterations while the mean "
                            f"Gauss–Newton step is {t.max():.2g} SE from 0")
@@ -178,7 +178,7 @@ class AdamMLE(Estimator):
                  average: str = "polyak-newton"):
         auto = isinstance(lr, str)
         if auto and lr != "auto" or not auto and not lr > 0:
-            raise ValueError(f"mle-adam: lr must be 'auto' or a number > 0, got {lr!r}")
+            raise ValueError(f"mle-adam: lr must be > 0 (or 'auto'), got {lr!r}")
         if isinstance(iterations, bool) or int(iterations) != iterations or iterations < 1:
             raise ValueError(f"mle-adam: iterations must be a positive integer, got {iterations!r}")
         lr_schedule = lr_schedule or ("constant" if auto else "cosine")
@@ -289,14 +289,16 @@ class AdamMLE(Estimator):
                     status, reason = "stalled", f"singular Fisher matrix at θ = {t.tolist()}: {bound.reason}"
                     break
                 held = ((u.detach().numpy() <= 0) & (g > 0)) | ((u.detach().numpy() >= 1) & (g < 0))
-                d = bound.F_inv @ np.where(held, 0.0, g)  # the Gauss–Newton step, 0 where Θ's bound holds θ_j
+                free = ~held  # the Gauss–Newton step of the components that Θ's bounds do not hold (0 for those)
+                d = np.zeros_like(g)
+                d[free] = np.linalg.solve(bound.F[np.ix_(free, free)], g[free]) if free.any() else 0.0
                 sigma = np.sqrt(bound.component)
                 thetas.append(t)
                 steps.append(d)
                 sigmas.append(sigma)
-                a = AUTO_FRACTION * np.maximum(sigma, np.abs(d))  # the step scale, θ units
-                u.grad = torch.as_tensor(AUTO_FRACTION * d / a)  # the Gauss–Newton step in units of a: |·| ≤ 1
-                scale = torch.as_tensor(a) / width
+                reach = np.maximum(sigma, np.abs(d))  # the step scale is AUTO_FRACTION × this, θ units
+                u.grad = torch.as_tensor(d / reach)  # the whitened gradient, |·| ≤ 1
+                scale = torch.as_tensor(AUTO_FRACTION * reach) / width
             else:
                 L = render(problem.model, theta, spp, seed, grad=problem.gradient)
                 loss_t = problem.nll(y, L)
