@@ -161,9 +161,10 @@ class AdamMLE(Estimator):
         lr "auto": the iterations k the stopping rule looks back over, and whose iterates are averaged into θ̂.
     average : {"polyak-newton", "polyak", "last"}, default "polyak-newton"
         lr "auto": θ̂ is the mean θ̄ of the window's iterates minus the window's mean Gauss–Newton step d̄
-        (≈ θ̄ − θ̂), θ̄ alone, or the last iterate. On blob2d with rendering noise (FD, 48 trials) the correction
-        takes the MSE from 3.9 (θ̄) or 2.2 (last) to 1.7 × CRLB where the noise is high, and changes
-        nothing measurable without rendering noise. A numeric lr returns the last iterate.
+        (≈ θ̄ − θ̂), θ̄ alone, or the last iterate. Measured on blob2d (AWGN σ = 0.05, FD, 128 spp, 96 trials):
+        MSE / CRLB = 1.16 (last), 1.11 (θ̄), 1.04 (θ̄ − d̄) at rendering noise 0.5 (render variance ≈ 0.7 × σ²),
+        2.85, 2.43, 1.97 at rendering noise 2 (≈ 11 × σ²); no difference without rendering noise. A numeric lr
+        returns the last iterate.
     """
 
     name = "mle-adam"
