@@ -162,9 +162,9 @@ class AdamMLE(Estimator):
     average : {"polyak-newton", "polyak", "last"}, default "polyak-newton"
         lr "auto": θ̂ is the mean θ̄ of the window's iterates minus the window's mean Gauss–Newton step d̄
         (≈ θ̄ − θ̂), θ̄ alone, or the last iterate. Measured on blob2d (AWGN σ = 0.05, FD, 128 spp, 96 trials):
-        MSE / CRLB = 1.16 (last), 1.11 (θ̄), 1.04 (θ̄ − d̄) at rendering noise 0.5 (render variance ≈ 0.7 × σ²),
-        2.85, 2.43, 1.97 at rendering noise 2 (≈ 11 × σ²); no difference without rendering noise. A numeric lr
-        returns the last iterate.
+        MSE / CRLB = 1.16 (last), 1.11 (θ̄), 1.04 (θ̄ − d̄) at rendering noise 0.5 (a render's variance up to
+        0.9 σ², at the peak), 2.85, 2.43, 1.97 at rendering noise 2 (up to 14 σ²); no difference without
+        rendering noise. A numeric lr returns the last iterate.
     """
 
     name = "mle-adam"
