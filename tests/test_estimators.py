@@ -190,10 +190,12 @@ def test_poisson_nll_fit():
 
 
 def test_adam_spp_and_lr_schedules():
-    est = estimators.get("mle-adam", spp=[[0, 512], [0.5, 1024]], lr_final=0.01)
+    est = estimators.get("mle-adam", lr=0.05, spp=[[0, 512], [0.5, 1024]], lr_final=0.01)
     assert [est.spp_at(k, 10) for k in (0, 4, 5, 9)] == [512, 512, 1024, 1024]
     assert est.lr_factor(0, 10) == 1.0 and est.lr_factor(9, 10) == pytest.approx(0.01)
     assert estimators.get("mle-adam", lr_schedule="exponential", lr_final=0.01).lr_factor(9, 10) == pytest.approx(0.01)
+    auto = estimators.get("mle-adam")  # lr "auto": a constant schedule (the step follows F̂) and AUTO_SPP
+    assert auto.lr_factor(9, 10) == 1.0 and auto.spp_at(9, 10) == estimators.mle_adam.AUTO_SPP
 
 
 # -- the real Mitsuba scene --------------------------------------------------------------------------

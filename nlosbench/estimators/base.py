@@ -537,6 +537,14 @@ def nll(problem: Problem, y: torch.Tensor, L: torch.Tensor) -> float:
     return float(problem.nll(y, L))
 
 
+def nll_gradient(problem: Problem, y: torch.Tensor, L: torch.Tensor, J: torch.Tensor) -> np.ndarray:
+    """∇_θ NLL = Jᵀ ∂NLL/∂L (float64 (P,), 1/parameter units) from the image L (H, W, C) and its Jacobian J
+    (P, H, W, C); the score is its negative."""
+    Lg = L.to(torch.float64).requires_grad_(True)
+    (dnll,) = torch.autograd.grad(problem.nll(y, Lg), Lg)
+    return torch.einsum("p...,...->p", J.double(), dnll).numpy()
+
+
 def profile_start(problem: Problem, y: torch.Tensor) -> tuple[np.ndarray, int]:
     """(θ0, grid index): the minimum of the NLL of y over the problem's bank grid renders (no render),
     refined for a scalar θ by the vertex of the parabola through the minimum and its two neighbours

@@ -34,7 +34,19 @@ import torch
 from ..bounds.crlb import fisher_matrix
 from ..forward.gradients import jacobian
 from ..seeds import derive
-from .base import Budget, Estimator, Outcome, Problem, Tracker, check_start, finite_or_raise, floored, nll, render_seed
+from .base import (
+    Budget,
+    Estimator,
+    Outcome,
+    Problem,
+    Tracker,
+    check_start,
+    finite_or_raise,
+    floored,
+    nll,
+    nll_gradient,
+    render_seed,
+)
 from .predict import Linearisation, propagate, score_noise, start_moment
 
 
@@ -92,9 +104,7 @@ class GaussNewton(Estimator):
             loss = finite_or_raise(nll(problem, y, L), f"NLL at iteration {it}")
             tracker.record(it, loss, theta)
             J = jacobian(model, theta, self.spp, seed, problem.gradient)
-            Lg = L.to(torch.float64).requires_grad_(True)
-            (dnll,) = torch.autograd.grad(problem.nll(y, Lg), Lg)
-            score = -torch.einsum("p...,...->p", J.double(), dnll).numpy()
+            score = -nll_gradient(problem, y, L, J)
             F = fisher_matrix(floored(problem, L), J, noise)  # the step's plug-in FI (one FD pair: biased high)
             d = np.diag(F)
             if not (d > 0).all():

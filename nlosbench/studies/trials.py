@@ -352,6 +352,11 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
         o = {}
     o.update(options)
     spp = o.get("spp", 256)
+    if spp is None:  # a default the estimator resolves when built (mle-adam's follows its lr)
+        try:
+            spp = getattr(estimators.get(name, **options), "spp", None) or 256
+        except (TypeError, ValueError, KeyError, ImportError):
+            spp = 256
     if isinstance(spp, (list, tuple)):  # an spp schedule [[fraction, spp], ...]
         spp = max(int(n) for _, n in spp)
     if name == "multi-start":
