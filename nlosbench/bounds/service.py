@@ -401,6 +401,33 @@ class BoundService:
             raise ValueError(f"FD step {step} leaves no room inside Θ")
         return st, sep
 
+    def fd_rounds(self, thetas, spp: int, seeds: str, R: int, step: float) -> torch.Tensor:
+        """The R central-FD Jacobian rounds at step ξ that `at` uses for its first FD stage at each θ (the same
+        render sets: no new render once `at` ran with these arguments).
+
+        Parameters
+        ----------
+        thetas : array_like of shape (T, P) or (T,)
+            The points θ, parameter units.
+        spp : int
+            Samples per pixel of each stencil render.
+        seeds : {"common", "independent"}
+            As in `at`.
+        R : int
+            The number of rounds (replicate sets 0 … R − 1).
+        step : float
+            The FD step ξ, parameter units (stencils clipped into Θ turn one-sided).
+
+        Returns
+        -------
+        torch.Tensor of shape (R, T, P, N)
+            The rounds, float64, pixels flattened (N = H·W·C); units radiance per parameter unit.
+        """
+        _check(seeds, R)
+        pts = np.asarray(thetas, dtype=np.float64).reshape(-1, self.params.dim)
+        stages = self._stages(pts, None, spp, seeds, R, float(step))
+        return torch.from_numpy(np.stack([s.rounds["central"] for s in stages], axis=1))
+
     def _stages(self, thetas: np.ndarray, center: torch.Tensor | None, spp: int, seeds: str, R: int,
                 step: float, first: int = 0) -> list[Stage]:
         """One FD Stage at step ξ per θ of thetas (T, P), R rounds, each independent of the others and with

@@ -42,7 +42,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import torch
 
 from .. import estimators, io
 from ..bank import TRUTH
@@ -309,8 +308,7 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
             pts = T * (G + 2 * P * cfg["hcr_offsets"])
             renders, samples = renders + pts * len(cfg["levels"]), samples + pts * sum(cfg["levels"])
         fits = len(p.noises) * T * p.n
-        if cfg["predict_jacobians"] > 0:  # the predicted variance: R FD Jacobians per θ*, K gradients per setting
-            renders, samples = renders + T * R * 2 * P, samples + T * R * 2 * P * bspp
+        if cfg["predict_jacobians"] > 0:  # the predicted variance: K gradients per setting (J: the bound's FD rounds)
             for s in (s for s in p.settings if _predicts(s.name)):
                 r, spp = _fit_cost(s.name, {**s.options, "iterations": 1}, s.gradient, P, Budget())
                 k = T * cfg["predict_jacobians"]
@@ -521,15 +519,18 @@ def start_cov(params, theta: np.ndarray, width: float | None, est, grid_points: 
 
 def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: BoundService) -> dict:
     """(noise, θ index, label) → each local-trials row's `Prediction` (or why none): the estimator's
-    `predicted_variance` from a `Linearisation` at θ* built from the bank. J: R independent FD Jacobians at the
-    bound spp and `fd_step` (purpose "predict", unbiased products); Σ_render(s): the model's own variance where it
+    `predicted_variance` from a `Linearisation` at θ* built from the bank. J: the bound service's R independent
+    central-FD rounds at the bound spp and `fd_step` (`BoundService.fd_rounds`: the renders of `at`'s first FD
+    stage, so no new render when the study asked for bounds; unbiased products); Σ_render(s): the model's own variance where it
     has one (the analytic toys), else the per-pixel variance of the bound service's R replicate renders at θ* ×
     bound_spp / s; Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from `predict_jacobians`
     Jacobians with the setting's own gradient at its spp; the start from the study's start rule."""
     model, params, R, K = ctx.model, ctx.model.params, p.replicates, cfg["predict_jacobians"]
+    if not any(_predicts(s.name) for s in p.settings):
+        return {(j, i, s.label): getattr(estimators.factory(s.name), "no_prediction", Estimator.no_prediction)
+                for s in p.settings for i in range(len(p.thetas)) for j in p.noises}
     reps = svc.replicates(p.thetas, p.bound_spp, cfg["seeds"], R, "bound renders at θ*").double()  # (R, T, *S)
-    Js = torch.stack([ctx.bank.jacobians_at(p.thetas, p.bound_spp, cfg["fd_step"], "predict", replicate=r)
-                      for r in range(R)]).double()  # (R, T, P, *S)
+    Js = svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, cfg["fd_step"])  # (R, T, P, N): the bound's own
     own = getattr(model, "noise_variance", None)
     out: dict = {}
     for si, s in enumerate(p.settings):
