@@ -523,8 +523,9 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
     central-FD rounds at the bound spp and `fd_step` (`BoundService.fd_rounds`: the renders of `at`'s first FD
     stage, so no new render when the study asked for bounds; unbiased products); Σ_render(s): the model's own
     variance where it has one (the analytic toys), else the per-pixel variance of the bound service's R replicate
-    renders at θ* × bound_spp / s; Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from `predict_jacobians`
-    Jacobians with the setting's own gradient at its spp; the start from the study's start rule."""
+    renders at θ* × bound_spp / s; Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from
+    `predict_jacobians` Jacobians with the setting's own gradient at its spp; the start from the study's start
+    rule."""
     model, params, R, K = ctx.model, ctx.model.params, p.replicates, cfg["predict_jacobians"]
     if not any(_predicts(s.name) for s in p.settings):
         return {(j, i, s.label): getattr(estimators.factory(s.name), "no_prediction", Estimator.no_prediction)
