@@ -221,3 +221,19 @@ def test_a_vector_theta_gets_a_precision_record():
     rec = pts[0].precision
     assert set(rec.reached) == {"hcr", "crlb"} and rec.met and rec.worst <= 0.25
     assert rec.looks == 2 and rec.fresh_sets >= 3 and rec.note == "met at look 1"
+
+
+def test_a_pilot_that_predicts_no_number_of_sets_suffices_gets_an_exploratory_look(monkeypatch):
+    """Where the pilot's estimates, held fixed, say no number of sets meets the target (FD stages or λ̂ that
+    disagree by noise alone at a small pilot look like that), the service still makes one look at EXPLORE·R0
+    fresh sets: R* is a function of the pilot alone, so coverage holds as for a planned look. blob2d's x at
+    θ* = 0.7 (precision 0.05, unmet at the pilot) with the plan forced to say "never": the reported interval
+    comes from 4 × 3 fresh sets and the record says the look was exploratory."""
+    from nlosbench.bounds import precision
+
+    monkeypatch.setattr(precision, "plan", lambda *a, **k: (None, math.inf))
+    bank = RenderBank(_blob(2.0), seed=5)
+    (b,) = BoundService(bank, [nb.noise.AWGN(0.3)]).at([[0.7]], 16, replicates=3, precision=0.05, looks=2, **BLOB)
+    assert b.precision.looks == 2 and b.precision.fresh_sets == precision.EXPLORE * 3
+    assert "exploratory" in b.precision.note and f"from {precision.EXPLORE * 3} replicates" in b.bounds["hcr"].reason
+    assert bank.request([0.7], 16, "bounds", True, 3 + precision.EXPLORE * 3 - 1) in bank._memo

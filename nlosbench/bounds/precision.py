@@ -14,7 +14,9 @@ The stopping rule (`refine`). Let α = 1 − level and K = `looks`. Every interv
 1 − α/K.
   look 0, the pilot: the R0 replicate sets 0 … R0 − 1. θ* that meet p stop here.
   plan: for every other θ*, from the pilot alone, R* = the smallest number of fresh sets on the ladder
-      3, 4, 6, 8, 12, 16, 24, … (at most what the budget allows) predicted to meet p (below);
+      3, 4, 6, 8, 12, 16, 24, … (at most what the budget allows) predicted to meet p (below); where none is
+      (the pilot's estimates, held fixed, say more sets never suffice: FD stages or λ̂ that disagree by
+      noise alone look like that at a small pilot), an exploratory R* = EXPLORE·R0 within the budget;
   looks k = 1 … K − 1: the fresh sets R0 … R0 + R*·2^(k−1) − 1 only (never the pilot's); stop at the first
       look that meets p, or before a look whose worst-case cost would exceed the budget.
 The reported interval is that of the last look made.
@@ -65,6 +67,8 @@ from nlosbench.bounds.ustat import UStat
 KINDS = ("hcr", "crlb")
 #: the most fresh sets a plan considers when no budget is given, and when predicting what more would cost
 MAX_SETS, MAX_PREDICT = 1024, 2**20
+#: fresh sets of an exploratory first look, in pilots, where the pilot predicts that no number of sets suffices
+EXPLORE = 4
 
 
 def check_precision(precision, budget, looks, want: Sequence[str], replicates: int) -> None:
@@ -351,10 +355,12 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     star: dict[int, int] = {}
     for i in active:
         need, got = plan([st.raws[j, i] for j in noises], kinds(i), target, level, MAX_PREDICT)
-        if need is None:
-            st.notes[i] = (f"not met: no number of fresh sets is predicted to meet the target (predicted {got:.3g} at "
-                           f"{MAX_PREDICT} sets: more sets do not move an end set by a coarse FD stage, nor one from "
-                           "an F̂ ≤ 0)")
+        if need is None and r_max >= 3:  # the pilot's FD stages or λ̂ may disagree by noise alone: look anyway
+            star[i] = min(r_max, EXPLORE * R0)
+            st.notes[i] = (f"the pilot predicts no number of sets meets the target ({got:.3g} at {MAX_PREDICT} sets, "
+                           f"holding its estimates fixed): an exploratory look at {star[i]} fresh sets")
+        elif need is None:
+            st.notes[i] = "not met: the budget allows no fresh look"
         elif need <= r_max:
             star[i] = need
         elif r_max >= 3:
@@ -379,7 +385,8 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
             run(np.array([i for i in todo if now[i] == R]), R, R0, k)
         grid_done = max(grid_done, max(now.values()))
         for i in todo:
-            st.notes[i] = f"met at look {k}" if worst(i) <= target else f"not met after look {k}"
+            st.notes[i] = (f"met at look {k}" if worst(i) <= target else f"not met after look {k}") + (
+                " (exploratory)" if "exploratory" in st.notes[i] else "")
     total = spent()
     extra = {}
     for i in range(T):  # where unmet: predicted from the reported look's own data, fresh sets beyond those it used
