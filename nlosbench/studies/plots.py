@@ -111,6 +111,10 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
                 continue
             x = np.array([float(r[f"theta_{parameter}"]) for r in rs]) + side * nudge
             y, lo, up = (np.array([cell(r[f"{kind}_{e}"]) for r in rs]) for e in ("point", "lower", "upper"))
+            ok = np.isfinite(y)  # an infinite point (no resolved information) has no place on the axis; its table
+            if not ok.any():
+                continue
+            x, y, lo, up = x[ok], y[ok], lo[ok], up[ok]
             bars = np.stack([np.where(np.isfinite(lo), y - lo, 0.0), np.where(np.isfinite(up), up - y, 0.0)])
             color = f"C{names.index(noise)}" if noise in names else "k"
             ax.errorbar(x, y, yerr=bars, fmt=marker, ms=5, capsize=3, color=color, mec="k", mew=0.6,
