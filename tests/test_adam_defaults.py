@@ -36,11 +36,11 @@ def _compare(model, noise, truth, trials: int, spread: float, gradient: Gradient
     return {k: (np.array(a), np.array(b), c) for k, (a, b, c) in out.items()}
 
 
-def _check(res, mse_ratio: float, samples_ratio: float) -> None:
+def _ratios(res) -> tuple[float, float, list[str]]:
+    """(MSE(mle-adam) / MSE(gauss-newton), pixel-samples(mle-adam) / pixel-samples(gauss-newton), mle-adam's
+    fit statuses)."""
     adam, gn = res["mle-adam"], res["gauss-newton"]
-    assert all(s == "converged" for s in adam[2]), adam[2]
-    assert adam[0].mean() <= mse_ratio * gn[0].mean(), (adam[0].mean(), gn[0].mean())
-    assert adam[1].sum() <= samples_ratio * gn[1].sum(), (adam[1].sum(), gn[1].sum())
+    return float(adam[0].mean() / gn[0].mean()), float(adam[1].sum() / gn[1].sum()), list(adam[2])
 
 
 def test_adam_defaults_match_gauss_newton_on_blob2d_with_rendering_noise():
@@ -56,7 +56,8 @@ def test_adam_defaults_match_gauss_newton_on_blob2d_with_rendering_noise():
     noise = nb.noise.AWGN(0.05)
     truth = np.array([0.45, 0.58])
     res = _compare(model, noise, truth, 24, 0.05, GradientSettings("fd", step=0.005), clean_spp=4096, seed=31)
-    _check(res, 1.5, 3.0)
+    mse, samples, statuses = _ratios(res)
+    assert mse <= 1.5 and samples <= 3.0 and set(statuses) == {"converged"}, (mse, samples, statuses)
     exact = nb.scenes.get("blob2d", width=0.15)
     bound = crlb(fisher_matrix(exact.render(truth, 1, 0), ad_jacobian(exact, truth, 1, 0), noise)).trace
     assert res["mle-adam"][0].mean() <= 1.6 * bound, (res["mle-adam"][0].mean(), bound)
@@ -71,7 +72,8 @@ def test_adam_defaults_match_gauss_newton_on_cornell_ball():
     model = nb.scenes.get("cornell_ball", defines={"res": 16, "max_depth": 3}).restrict(["ball_x", "ball_red"])
     res = _compare(model, nb.noise.AWGN(0.05), np.array([0.1, 0.6]), 8, 0.05, GradientSettings("fd", step=0.02),
                    clean_spp=1024, seed=37)
-    _check(res, 1.5, 3.0)
+    mse, samples, statuses = _ratios(res)
+    assert mse <= 1.5 and samples <= 3.0 and set(statuses) == {"converged"}, (mse, samples, statuses)
 
 
 def test_stopping_rule_tells_converged_from_still_moving_and_stalled():

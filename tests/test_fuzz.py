@@ -245,9 +245,16 @@ def test_mutated_specs_load_or_name_the_file(raw):
         spec = Path(d) / "s.yaml"
         spec.write_text(yaml.safe_dump(raw, allow_unicode=True))
         try:
-            scenes.load_spec(spec, defines={"res": 8})
+            model = scenes.load_spec(spec, defines={"res": 8})
         except ConfigError as e:
             one_line(e)
+            assert str(spec) in str(e) or "params" in str(e) or "defines" in str(e), str(e)
+        else:  # a model: the parameters the spec names, in its order, each with a non-empty range
+            params = raw.get("params") if isinstance(raw, dict) else None
+            ok = isinstance(params, list) and all(isinstance(p, dict) and "name" in p for p in params)
+            names = [p["name"] for p in params] if ok else None
+            assert names is None or list(model.params.names) == [str(n) for n in names]
+            assert all(lo < hi for lo, hi in zip(model.params.lower, model.params.upper, strict=True))
 
 
 BAD_SPECS = {  # name → (file content or None for a folder, where the spec is named)
