@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nlosbench.bounds.fd_step import Stage, StepFisher, crlb_term
+from nlosbench.bounds.fd_step import Stage, StepFisher, crlb_term, settled_from
 from nlosbench.bounds.hcr_interval import hcr_interval
 from nlosbench.bounds.ustat import UStat
 
@@ -239,8 +239,9 @@ class Fit:
         """{kind: (lower, point, upper)} log10 ends predicted at R replicate sets, through the interval code
         itself (`hcr_interval`, `crlb_term`)."""
         raw, sf = self.raw, self.raw.sf
+        first = settled_from(sf)  # stages shown biased low set no end at the look either: leave them out
         stats = [{name: _predict_ustat(u, ab[name], R) for name, u in st.items()}
-                 for st, ab in zip(sf.stats, self.stages, strict=True)]
+                 for st, ab in zip(sf.stats[first:], self.stages[first:], strict=True)]
         # steps NaN and no halvings: every stage's limits and the extrapolations as `crlb_term` takes them, no step note
         pred = StepFisher(stats, [math.nan] * len(stats), step_tol=sf.step_tol, spp=sf.spp, level=level)
         out = {}
