@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..bounds.unbiased_fisher import unbiased_fisher
 from ..forward.gradients import GradientSettings, jacobian
 from ..forward.model import ForwardModel
 from ..noise import NoiseModel, to_float64
@@ -61,13 +62,10 @@ class Linearisation:
 
     def quad(self, a: np.ndarray) -> np.ndarray:
         """Jᵀ diag(a) J (P, P) float64 for a per-pixel array a (N,): unbiased over the K Jacobians."""
-        J = self.J.numpy()
-        K = J.shape[0]
-        if K == 1:
-            return (J[0] * a) @ J[0].T
-        S = J.sum(axis=0)
-        own = np.einsum("kpn,n,kqn->pq", J, a, J)
-        return ((S * a) @ S.T - own) / (K * (K - 1))
+        J = self.J.double()
+        if J.shape[0] == 1:
+            return ((J[0] * torch.as_tensor(a)) @ J[0].T).numpy()
+        return unbiased_fisher(J, torch.as_tensor(np.asarray(a, dtype=np.float64))).F
 
     @property
     def F(self) -> np.ndarray:
