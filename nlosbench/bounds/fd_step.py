@@ -14,10 +14,17 @@ Stages. A `Stage` holds R independent FD rounds at one step ξ in one or more *v
 (paired), so F(ξ/2) − c·F(ξ) is a per-pixel contrast with a jackknife SE (`ustat.sum_terms`).
 
 The rule (`converge`, used by the bound service):
-* halve ξ while, for some variant and parameter, the paired one-sided upper limit of F(ξ/2)/F(ξ) exceeds
+* halve ξ while, for some parameter, the paired one-sided upper limit of the central F(ξ/2)/F(ξ) exceeds
   1 + step_tol (F is not shown to have stopped rising, the direction that breaks lower ends), at most
   `max_halvings` times. The upper limit is Fieller's: F(ξ/2)/F(ξ) ≤ c is shown when the upper confidence
-  limit of F(ξ/2) − c·F(ξ) is ≤ 0;
+  limit of F(ξ/2) − c·F(ξ) is ≤ 0. The central difference decides (the one-sided variants only where there is
+  no central one): a one-sided difference of a smooth L is biased to first order, (J ± J'ξ/2)², so one side
+  keeps rising by ≈ |J'/J|·ξ/2 at every halving — 6 % at ξ = 6 cm in the Π hallway's NLOS — and would never be
+  shown settled at any affordable spp. The one-sided variants still enter every end (below) with their
+  Richardson extrapolations, which remove that first-order drift. Near a kink at distance d from θ* (J⁻ on
+  θ*'s side, J⁺ beyond), a central F that does not move between ξ and ξ/2 (ξ ≫ d: about ((J⁻ + J⁺)/2)²) is not
+  F(θ*) = (J⁻)², but the one-sided variant on θ*'s side measures (J⁻)² at every step, so the largest upper limit
+  (lower end) and the smallest lower limit (upper end) over the variants still bracket it;
 * ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage and variant and the
   Richardson extrapolations of the last two stages to ξ → 0 (F that still creeps up within the tolerance
   must not leave the lower end above the limit), upper ends from the *smallest* lower limit over the stages
@@ -58,14 +65,19 @@ class Stage:
 @dataclass
 class Halving:
     """The paired comparison of F at one step with F at half of it: ratio F(ξ/2)/F(ξ) and its paired SE for
-    the variant and parameter that decide (the largest upper limit); converged: every variant's upper limit
-    ≤ 1 + tol; rising: some variant's lower limit > 1 + tol."""
+    the parameter that decides (the largest upper limit); converged: every deciding variant's upper limit
+    ≤ 1 + tol; rising: some deciding variant's lower limit > 1 + tol; contrasts: per (variant, parameter j) the paired
+    contrast F(ξ/2) − (1 + tol)·F(ξ) as (estimate, SE, df, F(ξ)), which a precision plan rescales to predict the
+    check at more rounds; extrapolated: per variant the Richardson extrapolation of F to ξ → 0 from the two
+    stages (`extrapolate`)."""
 
     step: float
     ratio: float
     se: float
     converged: bool
     rising: bool
+    contrasts: dict = field(default_factory=dict)
+    extrapolated: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -144,11 +156,14 @@ def fisher_stat(J: np.ndarray, w) -> UStat:
 
 
 def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
-    """The paired comparison of F(fine) with F(coarse) over every shared variant and parameter."""
+    """The paired comparison of F(fine) with F(coarse) for every parameter of the central variant (every shared
+    variant where there is no central one), with the extrapolations of each shared variant."""
     c = 1.0 + tol
     worst = None
     converged, rising = True, False
-    for name in fine.rounds.keys() & coarse.rounds.keys():
+    contrasts = {}
+    shared = fine.rounds.keys() & coarse.rounds.keys()
+    for name in sorted({"central"} & shared or shared):  # the central difference decides (module docstring)
         A, B = coarse.rounds[name], fine.rounds[name]
         R, P, N = A.shape
         for j in range(P):
@@ -156,7 +171,8 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
             pb, lb = pixel_terms(B[:, j][:, None], _row(w, N))
             fa, fb = float(pa.sum()), float(pb.sum())
             est, _, se, df = sum_terms(pb - c * pa, lb - c * la, R)
-            t = _t(level, df[0], se[0])
+            contrasts[name, j] = (float(est[0]), float(se[0]), float(df[0]), fa)
+            t = one_sided_t(level, df[0], se[0])
             up, down = est[0] + t * se[0], est[0] - t * se[0]
             converged &= bool(up <= 0) and fa > 0
             rising |= bool(down > 0)
@@ -166,14 +182,44 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
             key = up / fa if fa > 0 else math.inf
             if worst is None or key > worst[0]:
                 worst = (key, ratio, float(rse[0] / fa) if fa > 0 else math.nan)
-    return Halving(coarse.step, worst[1], worst[2], converged, rising)
+    return Halving(coarse.step, worst[1], worst[2], converged, rising, contrasts, extrapolate(coarse, fine, w))
+
+
+#: the share of the change from ξ to ξ/2 that the finer stage keeps, per variant: the smoothing error of a smooth
+#: L is ∝ ξ² for the central difference (1/3 of it) and ∝ ξ for a one-sided one (all of it)
+RICHARDSON = {"central": 1.0 / 3.0, "forward": 1.0, "backward": 1.0}
+
+
+def extrapolate(coarse: Stage, fine: Stage, w) -> dict[str, UStat]:
+    """Per shared variant, the Richardson extrapolation of F to ξ → 0 from two paired stages:
+    F₀ = F(ξ/2) + k·(F(ξ/2) − F(ξ)), k = `RICHARDSON`[variant]. The two stages share each round's seeds, so the
+    contrast is a paired U-statistic: for a scalar θ its SE from the per-pixel terms of (1 + k)·F(ξ/2) − k·F(ξ)
+    (`ustat.sum_terms`, Satterthwaite df); for a vector θ the leave-one-outs combine round by round (the
+    jackknife of trace F⁻¹ uses them)."""
+    out = {}
+    for name in sorted(fine.rounds.keys() & coarse.rounds.keys()):
+        k = RICHARDSON.get(name, 1.0)
+        A, B = coarse.rounds[name], fine.rounds[name]
+        R, P, N = A.shape
+        if P == 1:
+            pa, la = pixel_terms(A, _row(w, N))
+            pb, lb = pixel_terms(B, _row(w, N))
+            est, loo, se, df = sum_terms((1 + k) * pb - k * pa, (1 + k) * lb - k * la, R)
+            out[name] = UStat(est.reshape(1, 1), se.reshape(1, 1), loo.reshape(-1, 1, 1), R, df.reshape(1, 1))
+        else:
+            fa, fb = fisher_stat(A, w), fisher_stat(B, w)
+            loo = (1 + k) * fb.loo - k * fa.loo if fb.loo.size and fa.loo.size else fb.loo
+            se = (np.sqrt((R - 1) / R * ((loo - loo.mean(axis=0)) ** 2).sum(axis=0)) if loo.size
+                  else fb.se * (1 + k))
+            out[name] = UStat((1 + k) * fb.est - k * fa.est, se, loo, R)
+    return out
 
 
 def _row(w, N: int):
     return np.broadcast_to(np.asarray(w, dtype=np.float64), (1, N)) if np.ndim(w) else float(w)
 
 
-def _t(level: float, df: float, se: float, tests: int = 1) -> float:
+def one_sided_t(level: float, df: float, se: float, tests: int = 1) -> float:
     """The one-sided t quantile (Bonferroni share 1/tests); 0 where the SE is 0 (exact rounds), +inf where the
     SE is unknown."""
     if se == 0:
@@ -245,22 +291,10 @@ def settled_from(sf: StepFisher) -> int:
 
 
 def _extrapolated(sf: StepFisher) -> list[UStat]:
-    """Richardson extrapolations of F to ξ → 0 from the last two stages, per variant: the smoothing error of a
-    smooth L is ∝ ξ² for the central difference (the finer stage keeps 1/3 of the change) and ∝ ξ for a
-    one-sided one (all of it). Only lower ends use them (a candidate F, never a point): where F still creeps up
-    within the step tolerance, the lower end is not left above the limit. SE and leave-one-outs combine the
-    two stages' (conservatively: SE × (1 + k))."""
-    if len(sf.stats) < 2:
-        return []
-    out = []
-    for name, fine in sf.stats[-1].items():
-        coarse = sf.stats[-2].get(name)
-        if coarse is None:
-            continue
-        k = 1.0 / 3.0 if name == "central" else 1.0
-        loo = fine.loo + k * (fine.loo - coarse.loo) if fine.loo.size and coarse.loo.size else fine.loo
-        out.append(UStat(fine.est + k * (fine.est - coarse.est), fine.se * (1 + k), loo, fine.replicates, fine.df))
-    return out
+    """The Richardson extrapolations of F to ξ → 0 from the last two stages, per variant (`extrapolate`).
+    Only lower ends use them (a candidate F, never a point): where F still creeps up within the step
+    tolerance, the lower end is not left above the limit."""
+    return list(sf.halvings[-1].extrapolated.values()) if sf.halvings else []
 
 
 def _ends(u: UStat, level: float, tests: int) -> tuple[float, float]:
@@ -271,7 +305,7 @@ def _ends(u: UStat, level: float, tests: int) -> tuple[float, float]:
         return value, value
     if P == 1:
         f, s = float(u.est[0, 0]), float(u.se[0, 0])
-        t = _t(level, float(u.dof[0, 0]), s, tests)
+        t = one_sided_t(level, float(u.dof[0, 0]), s, tests)
         hi_f, lo_f = f + t * s, f - t * s
         return (1.0 / hi_f if hi_f > 0 else math.inf), (1.0 / lo_f if lo_f > 0 else math.inf)
     loo = np.array([trace_inv(Fk) for Fk in u.loo])

@@ -10,15 +10,20 @@ the CRLB term, from an unbiased Fisher information at an FD step shown converged
 Inputs are U-statistics over R independent replicates (`ustat`): λ̂(Δ_k) from the replicate differences
 L̃_r(θ*+Δ_k) − L̃_r(θ*) (each replicate may use common random numbers across θ), and F̂ from R FD
 Jacobians (a `StepFisher`: every FD stage tried), each with its SE and degrees of freedom. With one-sided
-Student-t limits at level 1 − α, Bonferroni over the K tested Δ and the Δ → 0 term (each at α/(K+1)):
+Student-t limits at level 1 − α:
 
   lower end (the bound to quote): max over Δ of f(λ_U(Δ)) and the CRLB term's lower end (F's largest upper
-      limit over the FD stages), where λ_U is an upper confidence limit — so P(lower end ≤ true HCR) ≥ 1 − α
-      (a Δ whose λ_U ≤ 0 is left out, which only lowers the end). Where that end is set by the CRLB term and
-      the FD step did not converge, it is labelled "not a confidence limit" (`lower_note`);
-  upper end: the same with the lower limits λ_L and the CRLB term's upper end. If any tested Δ is unresolved
-      (λ_L ≤ 0, so f(λ_L) = +∞ at that Δ), the upper end is open (+inf): it bounds, at the same level, the HCR
-      over the tested Δ and Δ → 0 (a sup over more Δ may be higher: the tested set is a grid);
+      limit over the FD stages), where λ_U is an upper confidence limit, Bonferroni over the K tested Δ and the
+      Δ → 0 term (each at α/(K+1)): the end is too high only if λ_U(Δ) < λ(Δ) at *some* Δ, so
+      P(lower end ≤ true HCR) ≥ 1 − α (a Δ whose λ_U ≤ 0 is left out, which only lowers the end). Where that
+      end is set by the CRLB term and the FD step did not converge, it is labelled "not a confidence limit"
+      (`lower_note`);
+  upper end: the same with the lower limits λ_L and the CRLB term's upper end, each at α (no Bonferroni): the
+      HCR over the tested Δ and Δ → 0 is f at one fixed (unknown) term k*, the one whose true f is largest,
+      and max_k f(λ_L(Δ_k)) ≥ f(λ_L(Δ_k*)) ≥ f(λ(Δ_k*)) unless λ_L(Δ_k*) > λ(Δ_k*), an event of probability
+      ≤ α; so P(upper end ≥ HCR over the tested terms) ≥ 1 − α. If any tested Δ is unresolved (λ_L ≤ 0,
+      f(λ_L) = +∞ at that Δ), the upper end is open (+inf). It bounds the HCR over the tested Δ and Δ → 0 (a
+      sup over more Δ may be higher: the tested set is a grid);
   point: the same with the estimates themselves;
   point_loo: the point without each replicate (from the U-statistics' leave-one-outs), for jackknifes of
       functions of several bounds over the same replicate sets (e.g. a ratio of two models' bounds).
@@ -174,11 +179,13 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat | StepFisher, level: float = 
     estimate_only = R < 3
     tests = int(valid.sum()) + 1
     names = [f"Δ = {', '.join(f'{v:+.4g}' for v in row)}" for row in D] + ["Δ → 0"]
-    t = np.zeros(K) if estimate_only else np.nan_to_num(t_quantile(level, lam.dof, tests), nan=np.inf)
-    term = crlb_term(sf, level, tests)
+    t, t1 = (np.zeros(K), np.zeros(K)) if estimate_only else (
+        np.nan_to_num(t_quantile(level, lam.dof, n), nan=np.inf) for n in (tests, 1))
+    term = crlb_term(sf, level, tests)  # its lower end for the lower end (Bonferroni share)
+    upper_term = crlb_term(sf, level)  # its upper end for the upper end (no Bonferroni: see the module docstring)
 
     lam_hi = np.where(valid, lam.est + t * np.nan_to_num(lam.se), -np.inf)
-    lam_lo = np.where(valid, lam.est - t * np.nan_to_num(lam.se), -np.inf)
+    lam_lo = np.where(valid, lam.est - t1 * np.nan_to_num(lam.se), -np.inf)
     lam_pt = np.where(valid, lam.est, -np.inf)
     unresolved = valid & ~(lam_lo > 0)
 
@@ -187,14 +194,14 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat | StepFisher, level: float = 
     if unresolved.any():  # f(λ_L) = +inf at an unresolved Δ: nothing bounds the sup from above
         up, up_term = math.inf, "unresolved Δ"
     else:
-        up, up_term = _pick(np.append(_log10_f(norm2, lam_lo), term.upper), names)
+        up, up_term = _pick(np.append(_log10_f(norm2, lam_lo), upper_term.upper), names)
     point_loo = np.empty(0)
     if not estimate_only and lam.loo.size and term.loo.size:
         point_loo = np.array([_pick(np.append(_log10_f(norm2, np.where(valid, lam.loo[k], -np.inf)), term.loo[k]),
                                     names)[0] for k in range(R)])
     return HCRInterval(point=point, lower=low, upper=up, point_term=point_term, lower_term=low_term,
                        upper_term=up_term, level=level, replicates=R, estimate_only=estimate_only,
-                       crlb=term.point, crlb_lower=term.lower, crlb_upper=term.upper,
+                       crlb=term.point, crlb_lower=term.lower, crlb_upper=upper_term.upper,
                        unresolved=[D[k].tolist() if P > 1 else float(D[k, 0]) for k in np.flatnonzero(unresolved)],
                        lower_note=term.lower_note if low_term == "Δ → 0" else "", step_flags=term.flags,
                        point_loo=point_loo)

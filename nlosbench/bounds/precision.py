@@ -59,7 +59,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from nlosbench.bounds.fd_step import Stage, StepFisher, crlb_term, settled_from
+from nlosbench.bounds.fd_step import Halving, Stage, StepFisher, crlb_term, one_sided_t, settled_from
 from nlosbench.bounds.hcr_interval import hcr_interval
 from nlosbench.bounds.ustat import UStat
 
@@ -128,13 +128,13 @@ class SetCost:
     fd: int
     stages: int
 
-    def look(self, new: dict[int, tuple[int, int, int]], grid_new: int) -> int:
-        """Worst-case renders of a look: new {θ index: (sets before, sets now, stages cached per set)} and
-        `grid_new` test-grid sets not rendered yet; every FD stage not cached may be needed."""
+    def look(self, new: dict[int, tuple[int, int, int, int]], grid_new: int) -> int:
+        """Worst-case renders of a look: new {θ index: (sets before, sets now, stages cached per set, stages of
+        its window)} and `grid_new` test-grid sets not rendered yet; every FD stage not cached may be needed."""
         n = self.grid * grid_new
-        for i, (before, now, cached) in new.items():
+        for i, (before, now, cached, stages) in new.items():
             n += int(self.per_theta[i]) * (now - before)
-            n += self.fd * ((now - before) * self.stages + before * (self.stages - cached))
+            n += self.fd * ((now - before) * stages + before * (stages - cached))
         return n
 
     def one(self, i: int, stages: int) -> int:
@@ -201,22 +201,45 @@ def _var(a, b, R: int):
 
 def _predict_ustat(u: UStat, ab: tuple[np.ndarray, np.ndarray], R: int) -> UStat:
     """u as it would be from R replicates: the same estimate, SE √(a/R + b/(R(R−1))) from the variance terms
-    ab = (a, b), df × (R − 1)/(R0 − 1). For F (P, P) with P > 1 (a jackknife over rounds): R0 leave-one-outs whose
-    jackknife variance, taken with R replicates, is u's scaled by the predicted variance ratio (√ of the two
-    diagonal ratios off the diagonal)."""
+    ab = (a, b), df × (R − 1)/(R0 − 1). For F (P, P) with P > 1 (a jackknife over rounds): the R0 leave-one-outs
+    rescaled so that their jackknife variance, taken with R replicates, is u's scaled by the predicted variance
+    ratio (`_rescale`; no R-row array: R reaches MAX_PREDICT)."""
     R0, (a, b) = u.replicates, ab
-    df = u.dof * (R - 1.0) / (R0 - 1.0)
     if u.est.ndim == 1 or u.est.shape == (1, 1):
         se = np.sqrt(np.maximum(_var(a, b, R), 0.0)).reshape(u.est.shape)
-        return UStat(u.est, se, np.empty((0,) + u.est.shape), R, df)
-    v0 = _var(a, b, R0)
-    ratio = np.sqrt(np.divide(_var(a, b, R), v0, out=np.ones_like(a), where=v0 > 0))
-    c2 = np.sqrt(np.outer(ratio, ratio))
-    # the R0 pilot deviations, rescaled: `crlb_term` takes the jackknife as (R − 1)/R Σ (loo − mean)² over the rows
-    # given with R = u.replicates, so R0 rows carry the variance of R (no R-row array: R reaches MAX_PREDICT)
+        return UStat(u.est, se, np.empty((0,) + u.est.shape), R, u.dof * (R - 1.0) / (R0 - 1.0))
+    return _rescale(u, _se_ratio(ab, R0, R), R)
+
+
+def _rescale(u: UStat, ratio: np.ndarray, R: int) -> UStat:
+    """u (from its R0 replicates) with its SE (and a vector θ's leave-one-outs) scaled by `ratio` (P,), the
+    predicted SE ratio of each parameter at R replicates, and df × (R − 1)/(R0 − 1). `crlb_term` takes the
+    jackknife as (R − 1)/R Σ (loo − mean)² over the rows given with R = u.replicates, so the R0 deviations are
+    scaled to carry the variance of R."""
+    R0 = u.replicates
+    df = u.dof * (R - 1.0) / (R0 - 1.0)
+    c2 = np.sqrt(np.outer(ratio, ratio)) if u.est.ndim == 2 else ratio
+    if not u.loo.size:
+        return UStat(u.est, u.se * c2, u.loo, R, df)
     dev = u.loo - u.loo.mean(axis=0)
     s = np.sqrt(c2 * c2 * (R0 - 1.0) / R0 * R / (R - 1.0))
     return UStat(u.est, u.se * c2, u.est + s * dev, R, df)
+
+
+def _se_ratio(ab: tuple[np.ndarray, np.ndarray], R0: int, R: int) -> np.ndarray:
+    """√(Var(R)/Var(R0)) per parameter under the planning model."""
+    a, b = ab
+    v0 = _var(a, b, R0)
+    return np.sqrt(np.divide(_var(a, b, R), v0, out=np.ones_like(a), where=v0 > 0))
+
+
+@dataclass(frozen=True)
+class Window:
+    """The FD stages a fresh look renders: the pilot's stages `start` … `start + halvings` (steps ξ0/2^start …),
+    halved at the look by the service's rule (`fd_step`) at most `halvings` times."""
+
+    start: int
+    halvings: int
 
 
 @dataclass(frozen=True)
@@ -235,28 +258,68 @@ class Fit:
         return cls(raw, lam, [{name: variance_terms(J, raw.w) for name, J in stage.rounds.items()}
                               for stage in raw.stages])
 
-    def bounds(self, kinds: Sequence[str], R: int, level: float) -> dict[str, tuple[float, float, float]]:
-        """{kind: (lower, point, upper)} log10 ends predicted at R replicate sets, through the interval code
-        itself (`hcr_interval`, `crlb_term`)."""
-        raw, sf = self.raw, self.raw.sf
-        first = settled_from(sf)  # stages shown biased low set no end at the look either: leave them out
-        stats = [{name: _predict_ustat(u, ab[name], R) for name, u in st.items()}
-                 for st, ab in zip(sf.stats[first:], self.stages[first:], strict=True)]
-        # steps NaN and no halvings: every stage's limits and the extrapolations as `crlb_term` takes them, no step note
-        pred = StepFisher(stats, [math.nan] * len(stats), step_tol=sf.step_tol, spp=sf.spp, level=level)
+    def windows(self) -> list[Window]:
+        """The windows a look may use: starting at any stage from the first the pilot did not show biased low
+        (`settled_from`), with at least one halving among the pilot's stages (one stage alone has no step
+        check, so its lower end would not be a confidence limit)."""
+        n, first = len(self.raw.stages), settled_from(self.raw.sf)
+        return [Window(s, h) for s in range(first, n - 1) for h in range(1, n - s)]
+
+    def step_fisher(self, R: int, level: float, window: Window) -> StepFisher:
+        """The StepFisher a look at R fresh sets is predicted to give over `window`: each stage's F with its SE
+        at R (`_predict_ustat`), each halving's paired contrasts and extrapolations with their SEs scaled like
+        the finer stage's, and the look stopping at the first halving predicted converged (the service's rule),
+        so a check that stays unresolved is predicted as such (its lower end labelled, the target unmet)."""
+        sf, R0 = self.raw.sf, self.raw.sf.final.replicates
+        stats, halvings = [], []
+        for k in range(window.start, window.start + window.halvings + 1):
+            stats.append({name: _predict_ustat(u, self.stages[k][name], R) for name, u in sf.stats[k].items()})
+            if k == window.start + window.halvings:
+                break
+            h = sf.halvings[k]  # the pilot's comparison of stages k and k + 1
+            ratio = {name: _se_ratio(ab, R0, R) for name, ab in self.stages[k + 1].items()}
+            converged, rising = True, False
+            for (name, j), (est, se, df, fa) in h.contrasts.items():
+                se_r = se * float(ratio[name][j]) if name in ratio else se
+                t = one_sided_t(level, df * (R - 1.0) / (R0 - 1.0), se_r)
+                converged &= bool(est + t * se_r <= 0) and fa > 0
+                rising |= bool(est - t * se_r > 0)
+            extra = {name: _rescale(u, ratio[name], R) for name, u in h.extrapolated.items() if name in ratio}
+            halvings.append(Halving(h.step, h.ratio, h.se * float(np.max(ratio.get("central", [1.0]))), converged,
+                                    rising, {}, extra))
+            if converged:
+                stats.append({name: _predict_ustat(u, self.stages[k + 1][name], R)
+                              for name, u in sf.stats[k + 1].items()})
+                break
+        steps = sf.steps[window.start:window.start + len(stats)]
+        return StepFisher(stats, steps, halvings, step_tol=sf.step_tol, spp=sf.spp, level=level)
+
+    def bounds(self, kinds: Sequence[str], R: int, level: float,
+               window: Window | None = None) -> dict[str, tuple[float, float, float, str]]:
+        """{kind: (lower, point, upper, lower_note)} log10 ends predicted at R fresh replicate sets through the
+        interval code itself (`hcr_interval`, `crlb_term`), the FD stages those of `window` (None: the first
+        window the pilot allows, as many halvings as it made)."""
+        raw = self.raw
+        window = window or (self.windows() or [None])[0]
+        if window is None:  # one stage (or AD): no step check to predict, every stage as it is
+            pred = StepFisher([{name: _predict_ustat(u, self.stages[k][name], R) for name, u in st.items()}
+                               for k, st in enumerate(raw.sf.stats)], raw.sf.steps, raw.sf.halvings,
+                              step_tol=raw.sf.step_tol, spp=raw.sf.spp, level=level)
+        else:
+            pred = self.step_fisher(R, level, window)
         out = {}
         if "crlb" in kinds:
             t = crlb_term(pred, level)
-            out["crlb"] = (t.lower, t.point, t.upper)
+            out["crlb"] = (t.lower, t.point, t.upper, t.lower_note or t.zero_note)
         if "hcr" in kinds and self.lam is not None:
             # a look's λ̂ ≤ 0 says nothing about λ (that Δ would never resolve): plan with the local quadratic
             # ΔᵀF̂Δ there instead (a guess for the plan only; the looks' limits do not depend on it)
             D = raw.deltas.reshape(len(raw.deltas), -1)
-            quad = np.einsum("kp,pq,kq->k", D, sf.final.est, D)
+            quad = np.einsum("kp,pq,kq->k", D, raw.sf.final.est, D)
             lam = _predict_ustat(raw.lam, self.lam, R)
             lam = UStat(np.where(raw.lam.est > 0, raw.lam.est, quad), lam.se, lam.loo, lam.replicates, lam.df)
             iv = hcr_interval(lam, raw.deltas, pred, level, raw.lower, raw.upper)
-            out["hcr"] = (iv.lower, iv.point, iv.upper)
+            out["hcr"] = (iv.lower, iv.point, iv.upper, iv.lower_note)
         return out
 
 
@@ -269,9 +332,11 @@ class _Ends:
     upper_note: str = ""
 
 
-def predicted_reached(fits: Sequence[Fit], kinds: Sequence[str], R: int, level: float) -> float:
+def predicted_reached(fits: Sequence[Fit], kinds: Sequence[str], R: int, level: float,
+                      window: Window | None = None) -> float:
     """The worst precision reached predicted at R fresh sets over the noise models' fits."""
-    return max((reached(_Ends(*e)) for f in fits for e in f.bounds(kinds, R, level).values()), default=math.inf)
+    return max((reached(_Ends(*e)) for f in fits for e in f.bounds(kinds, R, level, window).values()),
+               default=math.inf)
 
 
 def ladder(cap: int, above: int = 0) -> list[int]:
@@ -283,20 +348,41 @@ def ladder(cap: int, above: int = 0) -> list[int]:
     return out
 
 
-def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float, cap: int,
-         above: int = 0) -> tuple[int | None, float]:
-    """(the smallest ladder count in (above, cap] predicted to meet `target`, None if none is; the precision
-    predicted at that count, or at `cap` when none meets)."""
+@dataclass(frozen=True)
+class Plan:
+    """A plan for one θ*: `sets` fresh replicate sets (None: none predicted to meet the target) over the FD
+    `window` (None: the pilot's stages as they are), and the precision predicted there (at the largest count
+    considered when none meets)."""
+
+    sets: int | None
+    window: Window | None
+    predicted: float
+
+
+def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float, cap: int, above: int = 0,
+         set_cost: Callable[[int], int] | None = None) -> Plan:
+    """The cheapest (ladder count in (above, cap], FD window) predicted to meet `target`: per window the smallest
+    count that meets it, then the least renders, count × set_cost(stages in the window) (None: the count alone).
+    Coarser windows have less FD noise but may not be shown converged; the look starts where the plan says, which
+    is a function of the pilot alone (the coverage proof in the module docstring needs nothing more)."""
     fits = [Fit.of(r) for r in raws]
     steps = ladder(cap, above)
-    got = predicted_reached(fits, kinds, steps[-1], level) if steps else math.inf
-    if got > target:  # not even at the cap (the prediction falls with R): no scan
-        return None, got
-    for R in steps:
-        got = predicted_reached(fits, kinds, R, level)
-        if got <= target:
-            return R, got
-    return None, got
+    windows = fits[0].windows() or [None]
+    best, fallback = None, Plan(None, windows[-1], math.inf)
+    for win in windows:
+        top = predicted_reached(fits, kinds, steps[-1], level, win) if steps else math.inf
+        if top < fallback.predicted:
+            fallback = Plan(None, win, top)
+        if top > target:  # not even at the cap (the prediction falls with R): no scan
+            continue
+        for R in steps:
+            got = predicted_reached(fits, kinds, R, level, win)
+            if got <= target:
+                cost = R * (set_cost(win.halvings + 1 if win else len(raws[0].stages)) if set_cost else 1)
+                if best is None or cost < best[0]:
+                    best = (cost, Plan(R, win, got))
+                break
+    return best[1] if best else fallback
 
 
 # -- the looks --------------------------------------------------------------------------------------------
@@ -312,17 +398,17 @@ class _State:
 
 def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float, budget: int | None, K: int,
            alpha: float, cost: SetCost, spp: int, bank) -> list:
-    """The stopping rule of the module docstring over T θ*. look(index array, R, first, level, keep) gives the
-    BoundPoints (noise-major) of those θ* from replicate sets first … first + R − 1 at `level`, filling keep
-    {(noise, position): Raw}; `bank.renders` counts renders. Returns the BoundPoints (noise-major), each with
-    its `precision` record."""
+    """The stopping rule of the module docstring over T θ*. look(index array, R, first, level, keep, window)
+    gives the BoundPoints (noise-major) of those θ* from replicate sets first … first + R − 1 at `level`, their FD
+    stages those of `window` (None: the service's own), filling keep {(noise, position): Raw}; `bank.renders`
+    counts renders. Returns the BoundPoints (noise-major), each with its `precision` record."""
     level = 1.0 - alpha / K
     start = bank.renders
     st = _State()
 
-    def run(idx: np.ndarray, R: int, first: int, k: int) -> None:
+    def run(idx: np.ndarray, R: int, first: int, k: int, window: Window | None) -> None:
         keep: dict = {}
-        pts = look(idx, R, first, level, keep)
+        pts = look(idx, R, first, level, keep, window)
         for m, j in enumerate(noises):
             for n, i in enumerate(idx):
                 st.points[j, int(i)] = pts[m * len(idx) + n]
@@ -337,7 +423,11 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     def worst(i: int) -> float:
         return max(reached(st.points[j, i].bounds[k]) for j in noises for k in kinds(i))
 
-    run(np.arange(T), R0, 0, 0)
+    def planned(i: int, above: int = 0) -> Plan:
+        return plan([st.raws[j, i] for j in noises], kinds(i), target, level, MAX_PREDICT, above,
+                    lambda stages: cost.one(i, stages))
+
+    run(np.arange(T), R0, 0, 0, None)
     pixels = st.raws[noises[0], 0].pixels
     per_sample = spp * pixels
 
@@ -350,31 +440,30 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     # plan from the pilot alone
     r_max = MAX_SETS
     if budget is not None and active:
-        affordable = [R for R in ladder(MAX_SETS) if spent() + cost.look({i: (0, R, 0) for i in active}, R)
-                      * per_sample <= budget]
+        affordable = [R for R in ladder(MAX_SETS) if spent() + cost.look(
+            {i: (0, R, 0, cost.stages) for i in active}, R) * per_sample <= budget]
         r_max = max(affordable, default=0)
-    star: dict[int, int] = {}
+    star: dict[int, tuple[int, Window | None]] = {}
     for i in active:
-        need, got = plan([st.raws[j, i] for j in noises], kinds(i), target, level, MAX_PREDICT)
-        if need is None and r_max >= 3:  # the pilot's FD stages or λ̂ may disagree by noise alone: look anyway
-            star[i] = min(r_max, EXPLORE * R0)
-            st.notes[i] = (f"the pilot predicts no number of sets meets the target ({got:.3g} at {MAX_PREDICT} sets, "
-                           f"holding its estimates fixed): an exploratory look at {star[i]} fresh sets")
-        elif need is None:
+        pl = planned(i)
+        if pl.sets is None and r_max >= 3:  # the pilot's FD stages or λ̂ may disagree by noise alone: look anyway
+            star[i] = (min(r_max, EXPLORE * R0), pl.window)
+            st.notes[i] = (f"the pilot predicts no number of sets meets the target ({pl.predicted:.3g} at "
+                           f"{MAX_PREDICT} sets, holding its estimates fixed): an exploratory look at {star[i][0]} "
+                           "fresh sets")
+        elif pl.sets is None or r_max < 3:
             st.notes[i] = "not met: the budget allows no fresh look"
-        elif need <= r_max:
-            star[i] = need
-        elif r_max >= 3:
-            star[i] = r_max
         else:
-            st.notes[i] = "not met: the budget allows no fresh look"
+            star[i] = (min(pl.sets, r_max), pl.window)
     grid_done = 0
     for k in range(1, K):
         todo = [i for i in star if worst(i) > target]
         if not todo:
             break
-        now = {i: star[i] * 2 ** (k - 1) for i in todo}
-        new = {i: (star[i] * 2 ** (k - 2) if k > 1 else 0, now[i], st.stages[i] if k > 1 else 0) for i in todo}
+        now = {i: star[i][0] * 2 ** (k - 1) for i in todo}
+        stages = {i: star[i][1].halvings + 1 if star[i][1] else cost.stages for i in todo}
+        new = {i: (star[i][0] * 2 ** (k - 2) if k > 1 else 0, now[i], st.stages[i] if k > 1 else 0, stages[i])
+               for i in todo}
         grid_new = max(0, max(now.values()) - grid_done)
         c = cost.look(new, grid_new) * per_sample
         if budget is not None and spent() + c > budget:
@@ -382,27 +471,27 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
                 st.notes[i] = (f"not met: look {k} (worst case {c} pixel-samples) would exceed the budget "
                                f"({budget - spent()} left)")
             break
-        for R in sorted(set(now.values())):
-            run(np.array([i for i in todo if now[i] == R]), R, R0, k)
+        for R, win in sorted({(now[i], star[i][1]) for i in todo}, key=lambda g: (g[0], repr(g[1]))):
+            run(np.array([i for i in todo if (now[i], star[i][1]) == (R, win)]), R, R0, k, win)
         grid_done = max(grid_done, max(now.values()))
         for i in todo:
             st.notes[i] = (f"met at look {k}" if worst(i) <= target else f"not met after look {k}") + (
                 " (exploratory)" if "exploratory" in st.notes[i] else "")
     total = spent()
-    extra = {}
+    extra, extra_px = {}, {}
     for i in range(T):  # where unmet: predicted from the reported look's own data, fresh sets beyond those it used
-        need = R_last = 0
+        extra[i] = extra_px[i] = 0.0
         if worst(i) > target:
-            R_last = st.fresh[i]
-            need = plan([st.raws[m, i] for m in noises], kinds(i), target, level, MAX_PREDICT, R_last)[0]
-        extra[i] = math.inf if need is None else float(need - R_last)
+            pl = planned(i, st.fresh[i])
+            extra[i] = math.inf if pl.sets is None else float(pl.sets - st.fresh[i])
+            stages = pl.window.halvings + 1 if pl.window else st.stages[i]
+            extra_px[i] = extra[i] * cost.one(i, stages) * per_sample
     out = []
     for j in noises:
         for i in range(T):
             pt = st.points[j, i]
             pt.precision = Precision(
                 float(target), {k: reached(pt.bounds[k]) for k in kinds(i)}, worst(i) <= target, st.looks[i], R0,
-                st.fresh[i], level, int(total), extra[i],
-                extra[i] * cost.one(i, st.stages[i]) * per_sample if extra[i] else 0.0, st.notes[i])
+                st.fresh[i], level, int(total), extra[i], extra_px[i], st.notes[i])
             out.append(pt)
     return out

@@ -728,19 +728,22 @@ class BoundService:
                        np.array([1 + (len(axis_offsets(p, t, offsets, fd_step)) if need_alt else 0) for t in thetas]),
                        2 * p.dim if need_fi else 0, max_halvings + 1)
 
-        def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict) -> list[BoundPoint]:
+        def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict, window) -> list[BoundPoint]:
             sub = copy.copy(self)
             sub.level = level
-            return sub._at(thetas[idx], reps, first, *args, keep=keep)
+            stages = {} if window is None else {"fd_start": fd_step / 2**window.start, "halvings": window.halvings}
+            return sub._at(thetas[idx], reps, first, *args, keep=keep, **stages)
 
         return refine(look, len(thetas), list(self._select(noises)), R, precision, budget, looks, 1 - self.level,
                       cost, spp, self.bank)
 
     def _at(self, thetas: np.ndarray, R: int, first: int, spp: int, want: Sequence[str], seeds: str, test_grid: int,
             offsets: int, fd_step: float, levels: Sequence[int], noises, step_tol: float, max_halvings: int,
-            keep: dict | None = None) -> list[BoundPoint]:
+            keep: dict | None = None, fd_start: float | None = None, halvings: int | None = None) -> list[BoundPoint]:
         """`at` on the replicate sets first … first + R − 1 at the service's level; `keep`, when given, is filled
-        with {(noise index, θ index): the raw data a precision plan needs (`precision.Raw`)}."""
+        with {(noise index, θ index): the raw data a precision plan needs (`precision.Raw`)}; a precision look's
+        FD stages start at `fd_start` and halve at most `halvings` times (None: `fd_step`, `max_halvings`; the
+        axis offsets keep `fd_step` as their base)."""
         p = self.params
         grid = p.grid(test_grid)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
@@ -753,8 +756,9 @@ class BoundService:
             common = center if seeds == "common" else None
             stages = self._refine(thetas, lambda idx, xi: self._stages(  # a torch index: a numpy one is ~500× slower
                 thetas[idx], None if common is None else common[:, torch.as_tensor(idx)], spp, seeds, R, xi, first),
-                                  {j: [w for w, _ in rows] for j, rows in weights.items()}, fd_step, step_tol,
-                                  max_halvings)
+                                  {j: [w for w, _ in rows] for j, rows in weights.items()},
+                                  fd_step if fd_start is None else fd_start, step_tol,
+                                  max_halvings if halvings is None else halvings)
         rows: dict[tuple[int, int], BoundPoint] = {}
         for i, theta in enumerate(thetas):
             near = np.flatnonzero(np.abs((grid - theta) / (p.upper - p.lower)).max(axis=1) > 1e-9)
