@@ -242,3 +242,31 @@ def test_a_pilot_that_predicts_no_number_of_sets_suffices_gets_an_exploratory_lo
     assert b.precision.looks == 2 and b.precision.fresh_sets == precision.EXPLORE * 3
     assert "exploratory" in b.precision.note and f"from {precision.EXPLORE * 3} replicates" in b.bounds["hcr"].reason
     assert bank.request([0.7], 16, "bounds", True, 3 + precision.EXPLORE * 3 - 1) in bank._memo
+
+
+def test_a_look_renders_only_the_fd_steps_and_test_points_its_pilot_plan_needs():
+    """edge1d (AWGN σ = 0.05, rendering noise 0.3 at 16 spp, seed 0) at θ* = 0.507, ξ = 1 cm, two halvings allowed,
+    precision 0.1, test grid 0.1, 0.5, 0.9. The pilot shows the central F rising from ξ = 1 cm to 5 mm (the edge
+    crosses three pixels inside θ* ± 1 cm, one inside ± 5 mm: ×1.57 exactly), so the plan's FD window starts at
+    5 mm: the reported step note has no stage at 1 cm. The far test points 0.1 and 0.9 (λ in the thousands: their
+    terms ‖Δ‖²/expm1(λ) are 0) are rendered in the pilot sets but in no fresh set; θ* ± 5 mm are. The reported
+    ends are confidence limits that hold the exact bound σ²/64², the point within 10 %, and the HCR's reason counts
+    the Δ it tested (fewer than the pilot's 5: 0.5 and the offsets ±1, ±2 cm)."""
+    m = nb.scenes.get("edge1d", render_noise=0.3)
+    bank = RenderBank(m, seed=0)
+    (pt,) = BoundService(bank, [nb.noise.AWGN(0.05)]).at([[0.507]], 16, precision=0.1, test_grid=3, offsets=2,
+                                                         fd_step=0.01, max_halvings=2)
+    rec, exact = pt.precision, 0.05**2 / 64**2
+    assert rec.met and rec.looks >= 2 and rec.fresh_sets >= 3
+    rendered = lambda x, reps: any(bank.request([x], 16, "bounds", True, r) in bank._memo  # noqa: E731
+                                   for r in reps)
+    pilot, fresh = range(rec.pilot_sets), range(rec.pilot_sets, rec.pilot_sets + rec.fresh_sets)
+    assert all(rendered(x, pilot) and not rendered(x, fresh) for x in (0.1, 0.9))
+    assert rendered(0.507 + 0.005, fresh) and rendered(0.507 - 0.005, fresh)
+    assert "ξ = 0.005" in pt.bounds["crlb"].reason and "ξ = 0.01" not in pt.bounds["crlb"].reason
+    for kind in ("hcr", "crlb"):
+        b = pt.bounds[kind]
+        assert b.lower_note == "" and 10 ** b.lower <= exact <= 10 ** b.upper
+        assert abs(10 ** b.point / exact - 1) < 0.1
+    tested = int(pt.bounds["hcr"].reason.split(" tested Δ")[0].split()[-1])
+    assert 1 <= tested < 5

@@ -77,6 +77,8 @@ class HCRInterval:
         The FD step's flags.
     point_loo : ndarray of shape (R,), optional
         log10 point estimate without replicate k (empty when R < 3).
+    tested : int, optional
+        The number of tested Δ inside the limits (the lower end's Bonferroni share is over them and Δ → 0).
     """
 
     point: float
@@ -95,6 +97,7 @@ class HCRInterval:
     lower_note: str = ""
     step_flags: tuple = ()
     point_loo: np.ndarray = field(default_factory=lambda: np.empty(0), compare=False)
+    tested: int = 0
 
     @property
     def flags(self) -> tuple[str, ...]:
@@ -204,4 +207,4 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat | StepFisher, level: float = 
                        crlb=term.point, crlb_lower=term.lower, crlb_upper=upper_term.upper,
                        unresolved=[D[k].tolist() if P > 1 else float(D[k, 0]) for k in np.flatnonzero(unresolved)],
                        lower_note=term.lower_note if low_term == "Δ → 0" else "", step_flags=term.flags,
-                       point_loo=point_loo)
+                       point_loo=point_loo, tested=tests - 1)

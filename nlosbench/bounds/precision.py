@@ -14,7 +14,9 @@ The stopping rule (`refine`). Let α = 1 − level and K = `looks`. Every interv
 1 − α/K.
   look 0, the pilot: the R0 replicate sets 0 … R0 − 1. θ* that meet p stop here.
   plan: for every other θ*, from the pilot alone, R* = the smallest number of fresh sets on the ladder
-      3, 4, 6, 8, 12, 16, 24, … (at most what the budget allows) predicted to meet p (below); where none is
+      3, 4, 6, 8, 12, 16, 24, … (at most what the budget allows) predicted to meet p (below), with the FD
+      window (`Window`: which of the pilot's steps the looks render, the step check predicted too) and, where
+      only interval bounds are asked for, the tested Δ (`tested_deltas`) that make it cheapest; where none is
       (the pilot's estimates, held fixed, say more sets never suffice: FD stages or λ̂ that disagree by
       noise alone look like that at a small pilot), an exploratory R* = EXPLORE·R0 within the budget;
   looks k = 1 … K − 1: the fresh sets R0 … R0 + R*·2^(k−1) − 1 only (never the pilot's); stop at the first
@@ -24,13 +26,16 @@ The reported interval is that of the last look made.
 Proof that P(reported interval misses the true value) ≤ α whatever the stopping. Let E_k be the event that
 look k's interval misses. Look 0's interval is a fixed-R interval on the pilot sets: P(E_0) ≤ α/K.
 Conditional on the pilot (and on the Poisson weight render, which is independent of every replicate set and
-the same at every look), R* is fixed, so look k uses a fixed number R*·2^(k−1) of sets, whose seeds the bank
+the same at every look), R*, the FD window and the tested Δ are fixed, so look k is a fixed procedure on a fixed
+number R*·2^(k−1) of sets, whose seeds the bank
 derives from their replicate indices (nothing is drawn) and which are independent of the pilot: its interval
 is a fixed-R interval at level 1 − α/K on fresh data, P(E_k | pilot) ≤ α/K. Whichever look is reported, a
 miss of the reported interval implies some E_k, so P(miss) ≤ P(∪ E_k) ≤ Σ P(E_k) ≤ K·α/K = α. (Looks
 1 … K − 1 share sets — look k's are a prefix of look k+1's — which the union bound does not mind.) The
 argument is exact given that each fixed-R interval has its stated level; that is the t-approximation of
-`ustat` and `fd_step`, the same as without a target.
+`ustat` and `fd_step`, the same as without a target. (For the HCR "the true value" of a look that tests fewer Δ is
+its HCR over those Δ and Δ → 0, which its upper end bounds; its lower end is then a lower limit of that, so also of
+the HCR over every Δ, which is no smaller.)
 
 Planning model. A U-statistic over R replicates of Σ_pixels w·x_r·x_s, with per-pixel mean d and variance s²
 of x (Gaussian errors, independent pixels), has
@@ -61,7 +66,7 @@ import numpy as np
 
 from nlosbench.bounds.fd_step import Halving, Stage, StepFisher, crlb_term, one_sided_t, settled_from
 from nlosbench.bounds.hcr_interval import hcr_interval
-from nlosbench.bounds.ustat import UStat
+from nlosbench.bounds.ustat import UStat, t_quantile
 
 #: interval bound kinds a precision target applies to
 KINDS = ("hcr", "crlb")
@@ -117,29 +122,40 @@ class Raw:
     upper: np.ndarray
     pixels: int
 
+    def subset(self, mask: np.ndarray) -> Raw:
+        """The same look with only the tested Δ of `mask` (K,)."""
+        lam = self.lam
+        lam = UStat(lam.est[mask], lam.se[mask], lam.loo[:, mask] if lam.loo.size else lam.loo, lam.replicates,
+                    np.array(lam.dof[mask]))
+        return Raw(self.D[:, mask], lam, self.sf, self.stages, self.w, self.deltas[mask], self.lower, self.upper,
+                   self.pixels)
+
 
 @dataclass(frozen=True)
 class SetCost:
     """Worst-case renders per replicate set: `grid` test-grid renders (shared by every θ*), per θ* its own
-    `per_theta` (T,) (θ* and offsets), and `fd` FD renders per θ* and stage, at most `stages` stages."""
+    `per_theta` (T,) (θ* and offsets), and `fd` FD renders per θ* and stage, at most `stages` stages. A θ* whose
+    look tests only some Δ (`tested`: how many) renders θ* and those Δ instead of the grid and its offsets."""
 
     grid: int
     per_theta: np.ndarray
     fd: int
     stages: int
 
-    def look(self, new: dict[int, tuple[int, int, int, int]], grid_new: int) -> int:
+    def look(self, new: dict[int, tuple], grid_new: int) -> int:
         """Worst-case renders of a look: new {θ index: (sets before, sets now, stages cached per set, stages of
-        its window)} and `grid_new` test-grid sets not rendered yet; every FD stage not cached may be needed."""
-        n = self.grid * grid_new
-        for i, (before, now, cached, stages) in new.items():
-            n += int(self.per_theta[i]) * (now - before)
+        its window, Δ tested or None)} and `grid_new` test-grid sets not rendered yet (for the θ* testing the
+        whole grid); every FD stage not cached may be needed, and tested Δ are counted per θ* (not shared)."""
+        n = self.grid * grid_new if any(v[4] is None for v in new.values()) else 0
+        for i, (before, now, cached, stages, tested) in new.items():
+            n += (int(self.per_theta[i]) if tested is None else 1 + tested) * (now - before)
             n += self.fd * ((now - before) * stages + before * (stages - cached))
         return n
 
-    def one(self, i: int, stages: int) -> int:
-        """Renders of one more set for θ* i alone, with `stages` FD stages."""
-        return self.grid + int(self.per_theta[i]) + self.fd * stages
+    def one(self, i: int, stages: int, tested: int | None = None) -> int:
+        """Renders of one more set for θ* i alone, with `stages` FD stages and `tested` Δ (None: the grid and the
+        offsets)."""
+        return (self.grid + int(self.per_theta[i]) if tested is None else 1 + tested) + self.fd * stages
 
 
 @dataclass(frozen=True)
@@ -351,36 +367,66 @@ def ladder(cap: int, above: int = 0) -> list[int]:
 @dataclass(frozen=True)
 class Plan:
     """A plan for one θ*: `sets` fresh replicate sets (None: none predicted to meet the target) over the FD
-    `window` (None: the pilot's stages as they are), and the precision predicted there (at the largest count
-    considered when none meets)."""
+    `window` (None: the pilot's stages as they are) testing the Δ of `tested` (a mask over the pilot's tested Δ;
+    None: all), and the precision predicted there (at the largest count considered when none meets)."""
 
     sets: int | None
     window: Window | None
     predicted: float
+    tested: np.ndarray | None = None
+
+
+def tested_deltas(raws: Sequence[Raw], target: float, level: float) -> np.ndarray | None:
+    """The pilot's tested Δ a look needs (a mask; None without an HCR): those whose term f(λ_L) = ‖Δ‖²/expm1(λ_L),
+    λ_L the pilot's one-sided lower limit at `level`, reaches the pilot's HCR point / (1 + target)² (λ_L ≤ 0:
+    f = ∞, kept), for any noise model, and at least the largest. The others were shown far below the sup. A look
+    that tests fewer Δ still gives a lower end that is a lower confidence limit of the HCR (a sup over fewer Δ is no larger); its upper end
+    bounds the HCR over the Δ it tested and Δ → 0, as every upper end bounds the HCR over its tested set."""
+    keep = None
+    for raw in raws:
+        if raw.lam is None:
+            return None
+        t = np.nan_to_num(t_quantile(level, raw.lam.dof), nan=np.inf)
+        lam_l = raw.lam.est - t * np.nan_to_num(raw.lam.se)
+        D = raw.deltas.reshape(len(raw.deltas), -1)
+        norm2 = (D * D).sum(axis=1)
+        f = np.full(len(norm2), np.inf)
+        ok = lam_l > 0
+        f[ok] = norm2[ok] / np.expm1(np.minimum(lam_l[ok], 700.0))
+        iv = hcr_interval(raw.lam, raw.deltas, raw.sf, level, raw.lower, raw.upper)
+        mask = f >= 10.0 ** iv.point / (1.0 + target) ** 2
+        if len(f):
+            mask[int(np.argmax(f))] = True  # at least the largest term: a look always tests some Δ ≠ 0
+        keep = mask if keep is None else keep | mask
+    return keep
 
 
 def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float, cap: int, above: int = 0,
-         set_cost: Callable[[int], int] | None = None) -> Plan:
+         set_cost: Callable[[int, int | None], int] | None = None, subset: bool = False) -> Plan:
     """The cheapest (ladder count in (above, cap], FD window) predicted to meet `target`: per window the smallest
-    count that meets it, then the least renders, count × set_cost(stages in the window) (None: the count alone).
-    Coarser windows have less FD noise but may not be shown converged; the look starts where the plan says, which
-    is a function of the pilot alone (the coverage proof in the module docstring needs nothing more)."""
-    fits = [Fit.of(r) for r in raws]
+    count that meets it, then the least renders, count × set_cost(stages in the window, Δ tested) (None: the
+    count alone). Coarser windows have less FD noise but may not be shown converged; with `subset`, the look tests
+    only the Δ `tested_deltas` keeps. Window and Δ are functions of the pilot alone (the coverage proof in the
+    module docstring needs nothing more)."""
+    tested = tested_deltas(raws, target, level) if subset and "hcr" in kinds else None
+    fits = [Fit.of(r if tested is None else r.subset(tested)) for r in raws]
+    n_tested = None if tested is None else int(tested.sum())
     steps = ladder(cap, above)
     windows = fits[0].windows() or [None]
-    best, fallback = None, Plan(None, windows[-1], math.inf)
+    best, fallback = None, Plan(None, windows[-1], math.inf, tested)
     for win in windows:
         top = predicted_reached(fits, kinds, steps[-1], level, win) if steps else math.inf
         if top < fallback.predicted:
-            fallback = Plan(None, win, top)
+            fallback = Plan(None, win, top, tested)
         if top > target:  # not even at the cap (the prediction falls with R): no scan
             continue
         for R in steps:
             got = predicted_reached(fits, kinds, R, level, win)
             if got <= target:
-                cost = R * (set_cost(win.halvings + 1 if win else len(raws[0].stages)) if set_cost else 1)
+                stages = win.halvings + 1 if win else len(raws[0].stages)
+                cost = R * (set_cost(stages, n_tested) if set_cost else 1)
                 if best is None or cost < best[0]:
-                    best = (cost, Plan(R, win, got))
+                    best = (cost, Plan(R, win, got, tested))
                 break
     return best[1] if best else fallback
 
@@ -398,17 +444,20 @@ class _State:
 
 def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float, budget: int | None, K: int,
            alpha: float, cost: SetCost, spp: int, bank) -> list:
-    """The stopping rule of the module docstring over T θ*. look(index array, R, first, level, keep, window)
-    gives the BoundPoints (noise-major) of those θ* from replicate sets first … first + R − 1 at `level`, their FD
-    stages those of `window` (None: the service's own), filling keep {(noise, position): Raw}; `bank.renders`
-    counts renders. Returns the BoundPoints (noise-major), each with its `precision` record."""
+    """The stopping rule of the module docstring over T θ*. look(index array, R, first, level, keep, window,
+    tested) gives the BoundPoints (noise-major) of those θ* from replicate sets first … first + R − 1 at `level`,
+    their FD stages those of `window` (None: the service's own) and their tested Δ those of `tested` ({position:
+    mask over the pilot's Δ}; None: all), filling keep {(noise, position): Raw}; `bank.renders` counts renders.
+    Returns the BoundPoints (noise-major), each with its `precision` record."""
     level = 1.0 - alpha / K
     start = bank.renders
     st = _State()
 
-    def run(idx: np.ndarray, R: int, first: int, k: int, window: Window | None) -> None:
+    def run(idx: np.ndarray, R: int, first: int, k: int, window: Window | None = None,
+            tested: dict | None = None) -> None:
         keep: dict = {}
-        pts = look(idx, R, first, level, keep, window)
+        pts = look(idx, R, first, level, keep, window,
+                   None if tested is None else {n: tested[int(i)] for n, i in enumerate(idx)})
         for m, j in enumerate(noises):
             for n, i in enumerate(idx):
                 st.points[j, int(i)] = pts[m * len(idx) + n]
@@ -423,11 +472,17 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     def worst(i: int) -> float:
         return max(reached(st.points[j, i].bounds[k]) for j in noises for k in kinds(i))
 
-    def planned(i: int, above: int = 0) -> Plan:
+    def planned(i: int, above: int = 0, subset: bool = True) -> Plan:
+        # fewer tested Δ only where no Barankin or HCR-hat is asked for (they keep the whole grid); the paper's
+        # hcr_neff, which comes with "hcr", is a sup like the HCR's and lives where it does
+        subset &= set(st.points[noises[0], i].bounds) <= {*KINDS, "hcr_neff"}
         return plan([st.raws[j, i] for j in noises], kinds(i), target, level, MAX_PREDICT, above,
-                    lambda stages: cost.one(i, stages))
+                    lambda stages, tested: cost.one(i, stages, tested), subset)
 
-    run(np.arange(T), R0, 0, 0, None)
+    def n_tested(pl: Plan) -> int | None:
+        return None if pl.tested is None else int(pl.tested.sum())
+
+    run(np.arange(T), R0, 0, 0)
     pixels = st.raws[noises[0], 0].pixels
     per_sample = spp * pixels
 
@@ -437,33 +492,35 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     active = [i for i in range(T) if worst(i) > target]
     for i in range(T):
         st.notes[i] = "met at the pilot" if i not in active else ""
-    # plan from the pilot alone
+    # plan from the pilot alone; the budget caps the first look's sets (each θ* with its planned window and Δ)
+    plans = {i: planned(i) for i in active}
     r_max = MAX_SETS
     if budget is not None and active:
         affordable = [R for R in ladder(MAX_SETS) if spent() + cost.look(
-            {i: (0, R, 0, cost.stages) for i in active}, R) * per_sample <= budget]
+            {i: (0, R, 0, plans[i].window.halvings + 1 if plans[i].window else cost.stages, n_tested(plans[i]))
+             for i in active}, R) * per_sample <= budget]
         r_max = max(affordable, default=0)
-    star: dict[int, tuple[int, Window | None]] = {}
+    star: dict[int, tuple[int, Plan]] = {}
     for i in active:
-        pl = planned(i)
+        pl = plans[i]
         if pl.sets is None and r_max >= 3:  # the pilot's FD stages or λ̂ may disagree by noise alone: look anyway
-            star[i] = (min(r_max, EXPLORE * R0), pl.window)
+            star[i] = (min(r_max, EXPLORE * R0), pl)
             st.notes[i] = (f"the pilot predicts no number of sets meets the target ({pl.predicted:.3g} at "
                            f"{MAX_PREDICT} sets, holding its estimates fixed): an exploratory look at {star[i][0]} "
                            "fresh sets")
         elif pl.sets is None or r_max < 3:
             st.notes[i] = "not met: the budget allows no fresh look"
         else:
-            star[i] = (min(pl.sets, r_max), pl.window)
+            star[i] = (min(pl.sets, r_max), pl)
     grid_done = 0
     for k in range(1, K):
         todo = [i for i in star if worst(i) > target]
         if not todo:
             break
         now = {i: star[i][0] * 2 ** (k - 1) for i in todo}
-        stages = {i: star[i][1].halvings + 1 if star[i][1] else cost.stages for i in todo}
-        new = {i: (star[i][0] * 2 ** (k - 2) if k > 1 else 0, now[i], st.stages[i] if k > 1 else 0, stages[i])
-               for i in todo}
+        stages = {i: star[i][1].window.halvings + 1 if star[i][1].window else cost.stages for i in todo}
+        new = {i: (star[i][0] * 2 ** (k - 2) if k > 1 else 0, now[i], st.stages[i] if k > 1 else 0, stages[i],
+                   n_tested(star[i][1])) for i in todo}
         grid_new = max(0, max(now.values()) - grid_done)
         c = cost.look(new, grid_new) * per_sample
         if budget is not None and spent() + c > budget:
@@ -471,8 +528,9 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
                 st.notes[i] = (f"not met: look {k} (worst case {c} pixel-samples) would exceed the budget "
                                f"({budget - spent()} left)")
             break
-        for R, win in sorted({(now[i], star[i][1]) for i in todo}, key=lambda g: (g[0], repr(g[1]))):
-            run(np.array([i for i in todo if (now[i], star[i][1]) == (R, win)]), R, R0, k, win)
+        for R, win in sorted({(now[i], star[i][1].window) for i in todo}, key=lambda g: (g[0], repr(g[1]))):
+            idx = np.array([i for i in todo if (now[i], star[i][1].window) == (R, win)])
+            run(idx, R, R0, k, win, {int(i): star[int(i)][1].tested for i in idx})
         grid_done = max(grid_done, max(now.values()))
         for i in todo:
             st.notes[i] = (f"met at look {k}" if worst(i) <= target else f"not met after look {k}") + (
@@ -481,11 +539,14 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     extra, extra_px = {}, {}
     for i in range(T):  # where unmet: predicted from the reported look's own data, fresh sets beyond those it used
         extra[i] = extra_px[i] = 0.0
-        if worst(i) > target:
-            pl = planned(i, st.fresh[i])
+        if worst(i) > target:  # the reported look's Δ are already a subset where it was a fresh look
+            pl = planned(i, st.fresh[i], subset=not st.fresh[i])
             extra[i] = math.inf if pl.sets is None else float(pl.sets - st.fresh[i])
             stages = pl.window.halvings + 1 if pl.window else st.stages[i]
-            extra_px[i] = extra[i] * cost.one(i, stages) * per_sample
+            tested = n_tested(pl) if pl.tested is not None else (
+                len(st.raws[noises[0], i].deltas) if st.fresh[i] and i in star and star[i][1].tested is not None
+                else None)
+            extra_px[i] = extra[i] * cost.one(i, stages, tested) * per_sample
     out = []
     for j in noises:
         for i in range(T):

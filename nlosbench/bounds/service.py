@@ -277,8 +277,9 @@ def interval_bound(iv: HCRInterval, extra_flags: tuple = (), step: StepFisher | 
     """The `hcr` Bound from an HCRInterval: log10 = its lower end; `step` adds the FD step note."""
     terms = f"lower: {iv.lower_term}; upper: {iv.upper_term}; point: {iv.point_term}"
     reason = ("both ends are point estimates (fewer than 3 replicates)" if iv.estimate_only else
-              f"one-sided {iv.level:.0%} limits from {iv.replicates} replicates, Bonferroni over the tested Δ and "
-              "Δ → 0 (the CRLB term); the upper end bounds the HCR over the tested Δ and Δ → 0")
+              f"one-sided {iv.level:.0%} limits from {iv.replicates} replicates over {iv.tested} tested Δ and Δ → 0 "
+              "(the CRLB term), the lower end with a Bonferroni share over them; the upper end bounds the HCR over "
+              "the tested Δ and Δ → 0")
     if iv.unresolved:
         reason += f"; unresolved Δ (λ_L ≤ 0: the upper end is open): {iv.unresolved}"
     if step is not None and step.checked:
@@ -728,28 +729,41 @@ class BoundService:
                        np.array([1 + (len(axis_offsets(p, t, offsets, fd_step)) if need_alt else 0) for t in thetas]),
                        2 * p.dim if need_fi else 0, max_halvings + 1)
 
-        def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict, window) -> list[BoundPoint]:
+        def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict, window, tested) -> list[BoundPoint]:
             sub = copy.copy(self)
             sub.level = level
             stages = {} if window is None else {"fd_start": fd_step / 2**window.start, "halvings": window.halvings}
-            return sub._at(thetas[idx], reps, first, *args, keep=keep, **stages)
+            return sub._at(thetas[idx], reps, first, *args, keep=keep, tested=tested, **stages)
 
         return refine(look, len(thetas), list(self._select(noises)), R, precision, budget, looks, 1 - self.level,
                       cost, spp, self.bank)
 
     def _at(self, thetas: np.ndarray, R: int, first: int, spp: int, want: Sequence[str], seeds: str, test_grid: int,
             offsets: int, fd_step: float, levels: Sequence[int], noises, step_tol: float, max_halvings: int,
-            keep: dict | None = None, fd_start: float | None = None, halvings: int | None = None) -> list[BoundPoint]:
+            keep: dict | None = None, fd_start: float | None = None, halvings: int | None = None,
+            tested: dict | None = None) -> list[BoundPoint]:
         """`at` on the replicate sets first … first + R − 1 at the service's level; `keep`, when given, is filled
         with {(noise index, θ index): the raw data a precision plan needs (`precision.Raw`)}; a precision look's
         FD stages start at `fd_start` and halve at most `halvings` times (None: `fd_step`, `max_halvings`; the
-        axis offsets keep `fd_step` as their base)."""
+        axis offsets keep `fd_step` as their base), and where `tested` {θ index: mask or None} gives a mask over
+        θ*'s test points (the grid's other points, then the offsets) only those are rendered and tested."""
         p = self.params
         grid = p.grid(test_grid)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
         need_fi = bool({"hcr", "crlb"} & set(want))
         center = self.replicates(thetas, spp, seeds, R, "bound renders at θ*", first).double()
-        grid_X = self.replicates(grid, spp, seeds, R, "bound test renders", first).double() if need_alt else None
+        tests = []  # per θ*: (its grid points, its offsets)
+        for i, theta in enumerate(thetas):
+            near = np.flatnonzero(np.abs((grid - theta) / (p.upper - p.lower)).max(axis=1) > 1e-9)
+            offs = axis_offsets(p, theta, offsets, fd_step)
+            mask = None if tested is None else tested.get(i)
+            if mask is not None:
+                near, offs = near[mask[:len(near)]], offs[mask[len(near):]]
+            tests.append((near, offs))
+        used = np.unique(np.concatenate([n for n, _ in tests])).astype(np.int64) if tests else np.empty(0, np.int64)
+        column = {int(g): c for c, g in enumerate(used)}
+        grid_X = self.replicates(grid[used], spp, seeds, R, "bound test renders", first).double() if (
+            need_alt and used.size) else None
         weights = self._weights(thetas, spp, center.mean(dim=0), noises)
         stages = None
         if need_fi:
@@ -761,15 +775,15 @@ class BoundService:
                                   max_halvings if halvings is None else halvings)
         rows: dict[tuple[int, int], BoundPoint] = {}
         for i, theta in enumerate(thetas):
-            near = np.flatnonzero(np.abs((grid - theta) / (p.upper - p.lower)).max(axis=1) > 1e-9)
-            offs = axis_offsets(p, theta, offsets, fd_step)
+            near, offs = tests[i]
             pts = np.concatenate([grid[near], offs])
             alt = None
-            if need_alt:
-                alt = grid_X[:, torch.as_tensor(near)]  # a torch index: a numpy one is ~500× slower
+            if need_alt:  # a torch index: a numpy one is ~500× slower
+                parts = [grid_X[:, torch.as_tensor([column[int(g)] for g in near], dtype=torch.int64)]] if len(
+                    near) else []
                 if len(offs):
-                    alt = torch.cat([alt, self.replicates(offs, spp, seeds, R, "bound offset renders",
-                                                                     first).double()], dim=1)
+                    parts.append(self.replicates(offs, spp, seeds, R, "bound offset renders", first).double())
+                alt = torch.cat(parts, dim=1)
             lower, upper = p.lower - theta, p.upper - theta
             deltas = pts - theta if p.dim > 1 else (pts - theta)[:, 0]
             lv = None

@@ -210,8 +210,8 @@ def report(study_dir: Path, results: dict) -> str:
              f"whose limit is the CRLB term; λ(Δ) and the Fisher information are U-statistics over the replicates "
              f"(unbiased: rendering noise does not inflate them). The line is the lower end, a one-sided {lvl} "
              f"confidence limit (Bonferroni over the tested Δ and Δ → 0) — the bound to quote; the band reaches "
-             f"the upper end, which bounds the HCR over the tested Δ and Δ → 0 (open where any tested Δ or F is not "
-             f"resolved: ▲ on the plot, ∞ in tables).",
+             f"the upper end, a one-sided {lvl} limit on the HCR over the tested Δ and Δ → 0 (no Bonferroni share: "
+             f"one fixed term sets it; open where any tested Δ or F is not resolved: ▲ on the plot, ∞ in tables).",
              f"- **CRLB**: 1/F̂ from the unbiased Fisher information of the FD-smoothed derivative, with its {lvl} "
              f"ends over the FD steps tried. An FD step that is too wide makes F too small (an edge crossing a pixel "
              f"inside θ ± ξ), so the step is checked: where the paired upper limit of F at the finer step over F at "
