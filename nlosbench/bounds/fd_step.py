@@ -26,7 +26,7 @@ The rule (`converge`, used by the bound service):
   F(θ*) = (J⁻)², but the one-sided variant on θ*'s side measures (J⁻)² at every step, so the largest upper limit
   (lower end) and the smallest lower limit (upper end) over the variants still bracket it;
 * ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage and variant and the
-  Richardson extrapolations of the last two stages to ξ → 0 (F that still creeps up within the tolerance
+  central Richardson extrapolation of the last two stages to ξ → 0 (F that still creeps up within the tolerance
   must not leave the lower end above the limit), upper ends from the *smallest* lower limit over the stages
   from the last one shown to rise on (`settled_from`: a coarser stage is biased low, and finer ones guard
   an F that falls), the point from the finest stage's central F. For a vector θ the same with
@@ -191,13 +191,17 @@ RICHARDSON = {"central": 1.0 / 3.0, "forward": 1.0, "backward": 1.0}
 
 
 def extrapolate(coarse: Stage, fine: Stage, w) -> dict[str, UStat]:
-    """Per shared variant, the Richardson extrapolation of F to ξ → 0 from two paired stages:
-    F₀ = F(ξ/2) + k·(F(ξ/2) − F(ξ)), k = `RICHARDSON`[variant]. The two stages share each round's seeds, so the
+    """The Richardson extrapolation of F to ξ → 0 from two paired stages, F₀ = F(ξ/2) + k·(F(ξ/2) − F(ξ)),
+    k = `RICHARDSON`[variant], of the central variant (of each shared variant where there is none). A one-sided
+    extrapolation would add nothing but noise (4× the fine stage's variance and more): for a smooth L it has the
+    central one's target, F(θ*); near a kink the one-sided variant on θ*'s side is exact at every step that does
+    not reach the kink, and its stages are candidates themselves. The two stages share each round's seeds, so the
     contrast is a paired U-statistic: for a scalar θ its SE from the per-pixel terms of (1 + k)·F(ξ/2) − k·F(ξ)
     (`ustat.sum_terms`, Satterthwaite df); for a vector θ the leave-one-outs combine round by round (the
     jackknife of trace F⁻¹ uses them)."""
     out = {}
-    for name in sorted(fine.rounds.keys() & coarse.rounds.keys()):
+    shared = fine.rounds.keys() & coarse.rounds.keys()
+    for name in sorted({"central"} & shared or shared):
         k = RICHARDSON.get(name, 1.0)
         A, B = coarse.rounds[name], fine.rounds[name]
         R, P, N = A.shape
