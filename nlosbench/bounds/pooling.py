@@ -186,11 +186,6 @@ def _children(y0: int, y1: int, x0: int, x1: int) -> list[tuple[int, int, int, i
 def _partition(terms: PixelTerms, level: float, tests: int, precision: float | None) -> np.ndarray:
     """The quadtree partition (labels (H, W)) of `select_cells` at a fixed Bonferroni count `tests`."""
     H, W = terms.est.shape
-    sums = []
-    for x in (terms.est, terms.var, terms.var ** 2):  # summed-area tables: any rectangle's sum in O(1)
-        s = np.zeros((H + 1, W + 1))
-        s[1:, 1:] = x.cumsum(axis=0).cumsum(axis=1)
-        sums.append(s)
     nodes, kids, depths = [(0, H, 0, W)], [[]], [(0, 1)]  # the full quadtree, one depth [start, stop) at a time
     while depths[-1][1] > depths[-1][0]:
         start = len(nodes)
@@ -202,15 +197,21 @@ def _partition(terms: PixelTerms, level: float, tests: int, precision: float | N
         depths.append((start, len(nodes)))
     r = np.array(nodes)
 
-    def rect_sums(y0, y1, x0, x1):
-        return [s[y1, x1] - s[y0, x1] - s[y1, x0] + s[y0, x0] for s in sums]
-
     def res(est, var, var2):
         est, var, var2 = (np.asarray(a, dtype=np.float64) for a in (est, var, var2))
         lower, upper = _limits(est, np.sqrt(var), _satterthwaite(var, var2, terms.rounds), level, tests)
         return _resolved(est, lower, upper, precision)
 
-    node_sums = np.array(rect_sums(r[:, 0], r[:, 1], r[:, 2], r[:, 3]))  # (3, nodes)
+    pix = np.stack([terms.est, terms.var, terms.var ** 2])  # (3, H, W)
+    node_sums = np.empty((3, len(nodes)))
+    for lo, hi in reversed(depths[:-1]):  # each node the sum of its quadrants, a pixel its own: no cancellation
+        inner = np.array([n for n in range(lo, hi) if kids[n]], dtype=np.int64)
+        leaf = np.array([n for n in range(lo, hi) if not kids[n]], dtype=np.int64)
+        node_sums[:, leaf] = pix[:, r[leaf, 0], r[leaf, 2]]
+        if inner.size:  # their quadrants are the next depth's nodes, in order
+            first = np.array([kids[n][0] for n in inner])
+            node_sums[:, inner] = np.add.reduceat(node_sums[:, first[0]:kids[inner[-1]][-1] + 1], first - first[0],
+                                                  axis=1)
     alone = res(*node_sums)
     best: list = [None] * len(nodes)  # per node: (resolved cells, cells as lists of node indices)
     for lo, hi in reversed(depths):  # deepest first: children before parents
