@@ -1,6 +1,6 @@
 """Information bounds from renders: HCR (single offsets and grid curves), CRLB, Barankin, Ziv–Zakai,
-per-pixel Fisher information maps, HCR intervals from inexact renders, and the bound service (`service`)
-that studies ask for every bound at θ* and bound curves.
+per-pixel Fisher information maps (and pooled into resolved cells), HCR intervals from inexact renders, and
+the bound service (`service`) that studies ask for every bound at θ* and bound curves.
 
 `__all__` is the public API: the bound functions and the result types they return. Helpers the package
 uses internally (e.g. `check_levels`, `replicate_grams`, `fit_lambda`, `half_sample_lambda`,
@@ -24,6 +24,7 @@ from nlosbench.bounds.inexact import check_levels as check_levels
 from nlosbench.bounds.inexact import fit_lambda as fit_lambda
 from nlosbench.bounds.inexact import half_sample_lambda as half_sample_lambda
 from nlosbench.bounds.inexact import replicate_grams as replicate_grams
+from nlosbench.bounds.pooling import PooledFisherMap, pool_fisher_map
 from nlosbench.bounds.service import Bound, BoundPoint, BoundService, Curve, FisherPoint
 from nlosbench.bounds.unbiased_fisher import UnbiasedFisher, unbiased_fisher
 from nlosbench.bounds.ustat import UStat, pairwise_ustat, u_statistic
@@ -35,7 +36,7 @@ __all__ = [
     # curves over a parameter grid, and the Ziv–Zakai bound
     "pairwise_lambda", "hcr_curve", "HCRCurve", "ziv_zakai", "ZZBResult",
     # Fisher information per pixel
-    "fisher_maps", "save_fisher_maps",
+    "fisher_maps", "save_fisher_maps", "pool_fisher_map", "PooledFisherMap",
     # bounds from Monte Carlo renders: U-statistics, unbiased Fisher information, intervals
     "u_statistic", "pairwise_ustat", "UStat", "unbiased_fisher", "UnbiasedFisher", "hcr_interval", "HCRInterval",
     "zzb_interval", "ZZBInterval",

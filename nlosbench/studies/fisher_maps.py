@@ -1,5 +1,8 @@
 """Study `fisher-maps`: per-pixel Fisher information images (FD-FI) at chosen θ, beside the RGB image:
-where in the picture the information about each parameter lives."""
+where in the picture the information about each parameter lives. With `pool` (the default from 4 FD rounds)
+also a pooled map: pixels pooled into quadtree cells chosen on half of the rounds, each cell's information
+estimated on the other half with limits Bonferroni over the cells (`bounds.pooling`); cells not resolved on
+the selection half are masked."""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -8,7 +11,10 @@ from pathlib import Path
 import numpy as np
 
 from ..bounds import save_fisher_maps
+from ..bounds.pooling import PooledFisherMap, pixel_fisher_terms, pool_fisher_map, pooled_summary
+from ..bounds.service import poisson_weight_image
 from ..io import read_csv, write_csv, write_exr
+from ..noise import Poisson, QuadraticNoise, to_float64
 from ..schema import MAX_HALVINGS, STEP_TOL, ConfigError, Field, folder_name, point_spec
 from .context import RunContext
 from .estimate import Estimate, pixels
@@ -26,6 +32,12 @@ SCHEMA = {
     "fd_rounds": Field(int, 3, "independent FD rounds: the unbiased Fisher information is a U-statistic over them "
                                "(>= 2; >= 3 for the CRLB's interval)"),
     "reduce": Field(str, "sum", "combine channels by", choices=("sum", "mean")),
+    "pool": Field(bool, None, "also draw a pooled map: quadtree cells chosen on half of the FD rounds, estimated on "
+                              "the other half, Bonferroni over the cells; unresolved cells masked (needs fd_rounds "
+                              ">= 4; null: on from 4 rounds)", nullable=True),
+    "pool_precision": Field(float, None, "a relative precision p a pooled cell must also meet to count as resolved "
+                                         "(its limits within a factor 1 + p of its estimate; null: its lower "
+                                         "limit > 0)", nullable=True),
     "step_tol": STEP_TOL,
     "max_halvings": MAX_HALVINGS,
 }
@@ -43,6 +55,8 @@ class Plan:
     reduce: str
     step_tol: float
     max_halvings: int
+    pool: bool = False
+    pool_precision: float | None = None
 
 
 def plan(ctx: RunContext, cfg: dict) -> Plan:
@@ -63,8 +77,16 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     if cfg["fd_rounds"] < 2:
         raise ConfigError(f"{sid}.fd_rounds", f"the unbiased Fisher information needs >= 2 rounds, got "
                                               f"{cfg['fd_rounds']}")
+    pool = cfg.get("pool")
+    pool = cfg["fd_rounds"] >= 4 if pool is None else pool
+    if pool and cfg["fd_rounds"] < 4:
+        raise ConfigError(f"{sid}.pool", f"a pooled map chooses its cells on half of the FD rounds and estimates "
+                                         f"them on the other half: it needs fd_rounds >= 4, got {cfg['fd_rounds']}")
+    prec = cfg.get("pool_precision")
+    if prec is not None and not prec > 0:
+        raise ConfigError(f"{sid}.pool_precision", f"expected a precision > 0, got {prec}")
     return Plan(np.array(thetas), labels, cfg["spp"], cfg["fd_step"], cfg["fd_rounds"], cfg["reduce"],
-                cfg["step_tol"], cfg["max_halvings"])
+                cfg["step_tol"], cfg["max_halvings"], bool(pool), prec)
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
@@ -74,12 +96,48 @@ def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     return Estimate(renders, renders * p.spp * pixels(ctx.model))
 
 
+def final_rounds(ctx: RunContext, p: Plan, fp) -> tuple[np.ndarray, float]:
+    """The R FD rounds (R, P, H, W, C) float64 of a FisherPoint at the step its maps are from, and that step.
+
+    `BoundService.fisher` halves ξ coarse to fine and keeps the finest stage; every stage it rendered is in
+    the render bank, so the rounds of ξ, ξ/2, … are read back (no render) until their mean is the point's J."""
+    before = ctx.bank.renders
+    for k in range(max(p.max_halvings, 0) + 1):
+        step = p.fd_step / 2**k
+        J = np.stack([ctx.bank.jacobians_at(fp.theta[None], p.spp, step, "fisher", replicate=r,
+                                            desc="Fisher-map FD Jacobians (read back)")[0].double().numpy()
+                      for r in range(p.fd_rounds)])
+        if ctx.bank.renders != before:
+            raise RuntimeError(f"pooled map: the FD rounds at ξ = {step:.3g} were not in the render bank")
+        if np.array_equal(J.mean(axis=0), fp.J.numpy()):
+            return J, step
+    raise RuntimeError("pooled map: no FD step the service tried gives the point's Jacobian")
+
+
+def noise_weight(noise, L) -> np.ndarray:
+    """The per-pixel weight the service's maps use at the render L (H, W, C): AWGN 1/σ², Poisson scale/L
+    with exact zeros raised to the smallest positive value (`poisson_weight_image`)."""
+    if isinstance(noise, Poisson):
+        L = poisson_weight_image(L)[0]
+    if not isinstance(noise, QuadraticNoise):
+        raise TypeError(f"a pooled map needs a quadratic noise model (AWGN, Poisson), got {type(noise).__name__}")
+    return to_float64(noise.weight(to_float64(L))).expand(tuple(L.shape)).numpy()
+
+
+def pooled_rows(label: str, noise: str, name: str, m: PooledFisherMap) -> list[dict]:
+    """pooled_cells.csv rows: one per cell of a pooled map."""
+    return [{"label": label, "noise": noise, "param": name, "cell": c, "pixels": int(m.pixels[c]),
+             "fisher": float(m.est[c]), "se": float(m.se[c]), "df": float(m.df[c]), "lower": float(m.lower[c]),
+             "upper": float(m.upper[c]), "chosen": bool(m.chosen[c]), "resolved": bool(m.resolved[c]),
+             "level": m.level, "tests": m.tests} for c in range(m.cells)]
+
+
 def run(ctx: RunContext, cfg: dict) -> dict:
     p, out, m = plan(ctx, cfg), ctx.study_dir(cfg), ctx.model
     before = ctx.bank.renders
-    rows = []
+    rows, cells = [], []
     names, units = list(m.params.names), list(m.params.units)
-    where = {}
+    where, pooled = {}, []
     points = ctx.bounds.fisher(p.thetas, p.spp, p.fd_step, p.fd_rounds, p.reduce, step_tol=p.step_tol,
                                max_halvings=p.max_halvings)
     for label, fp in zip(p.labels, points, strict=True):
@@ -87,30 +145,49 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         write_exr(out / f"{label}_rgb.exr", fp.L)
         for j, name in enumerate(m.params.names):
             write_exr(out / f"{label}_dL_d{name}.exr", fp.J[j])
+        rounds, step = final_rounds(ctx, p, fp) if p.pool else (None, None)
         for k, noise in enumerate(ctx.noises):
             save_fisher_maps(fp.maps[k], names, out, prefix=f"{label}_noise{k}_fisher", units=units,
                              where=f"{label}, {where[label]}, {noise}")
+            w = noise_weight(noise, fp.L) if p.pool else None
             for j, name in enumerate(m.params.names):
                 b = fp.crlb[k][j]
                 rows.append({"label": label, "theta": fp.theta.tolist(), "noise": str(noise), "param": name,
                              "fisher_total": float(fp.maps[k][j].sum()), "log10_crlb": b.log10,
                              "crlb_lower": b.lower, "crlb_upper": b.upper, "crlb_lower_note": b.lower_note,
                              "flag": b.reason})
+                if not p.pool:
+                    continue
+                pm = pool_fisher_map(rounds[:, j], w, ctx.bounds.level, p.reduce, p.pool_precision)
+                # the same rounds and weight give the service's map: the cells pool exactly what is drawn beside
+                full = pixel_fisher_terms(rounds[:, j], w, p.reduce).est
+                if not np.allclose(full, fp.maps[k][j], rtol=1e-9, atol=1e-12 * np.abs(full).max()):
+                    raise RuntimeError("pooled map: the rounds read back do not reproduce the service's map")
+                write_exr(out / f"{label}_noise{k}_pooled_{name}.exr", pm.density("chosen"))
+                write_exr(out / f"{label}_noise{k}_cells_{name}.exr", pm.labels.astype(np.float32))
+                cells += pooled_rows(label, str(noise), name, pm)
+                pooled.append({"label": label, "noise": str(noise), "param": name, "step": step,
+                               "summary": pooled_summary(pm)})
     write_csv(out / "fisher.csv", rows)  # the figure: report() draws it from the saved EXRs
+    if p.pool:
+        write_csv(out / "pooled_cells.csv", cells)
     return {"points": p.labels, "params": names, "units": units, "where": where,
-            "noises": [str(n) for n in ctx.noises], "renders": ctx.bank.renders - before, "spp": p.spp}
+            "noises": [str(n) for n in ctx.noises], "renders": ctx.bank.renders - before, "spp": p.spp,
+            "pooled": pooled, "fd_rounds": p.fd_rounds, "level": ctx.bounds.level}
 
 
 def smoke(block: dict) -> dict:
     keep = block["at"][:2]
+    rounds = 4 if block.get("pool") else 2
     return {**block, "at": keep, "labels": block["labels"] and block["labels"][:2], "spp": min(block["spp"], 16),
-            "fd_rounds": 2}
+            "fd_rounds": rounds}
 
 
 def report(study_dir: Path, results: dict) -> str:
     rows = read_csv(study_dir / "fisher.csv")
+    pooled = results.get("pooled") or {}
     fisher_figure(study_dir, results["points"], results["params"], results.get("where"), results["noises"][0],
-                  results.get("units"))
+                  results.get("units"), pooled=bool(pooled))
     lines = [f"Per-pixel Fisher information from central FD (common random numbers) at {results['spp']} spp; "
              f"{results['renders']} renders.", "", f"![Fisher maps]({study_dir.name}/fisher_maps.png)", "",
              "| point | θ | noise | parameter | total FI | log10 CRLB [95 % ends] | how |",
@@ -123,4 +200,14 @@ def report(study_dir: Path, results: dict) -> str:
     if any(r.get("crlb_lower_note") for r in rows):
         lines += ["", "† not a confidence limit: the FD step did not converge (the note in fisher.csv says which "
                       "step or spp would settle it)."]
+    if pooled:
+        lines += ["", f"Pooled maps (right-hand panels, first noise model): pixels pooled into quadtree cells chosen "
+                      f"on half of the {results['fd_rounds']} FD rounds (a cell is split while its parts stay "
+                      f"resolved there), each cell's information estimated on the other half with one-sided limits "
+                      f"at {results['level']:.0%} jointly over all cells (Bonferroni over 2 limits per cell). Drawn: "
+                      f"the cells resolved on the selection half, valued by the estimation half (unbiased whatever "
+                      f"the cells); hatched: drawn cells whose limits on the estimation half include 0; blank: "
+                      f"masked. Per cell in pooled_cells.csv.", ""]
+        lines += [f"- {v['label']}, {v['noise']}, {v['param']} (FD step ξ = {v['step']:.3g}): {v['summary']}"
+                  for v in pooled]
     return "\n".join(lines)

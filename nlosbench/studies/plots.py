@@ -138,19 +138,23 @@ def finish(fig, ax, path: Path, dpi: int = 120) -> Path:
 
 
 def fisher_figure(out: Path, labels: list[str], names: list[str], where: dict[str, str] | None = None,
-                  noise: str = "", units: list[str] | None = None) -> Path:
+                  noise: str = "", units: list[str] | None = None, pooled: bool = False) -> Path:
     """fisher_maps.png: one row per point: the RGB render, then the unbiased per-pixel FI map of each
     parameter under `noise` (the first noise model; negative where rendering noise outweighs the signal) on a
     symmetric log scale (linear within the 90th percentile of |FI| / 100), from the saved EXRs; each panel is
     titled with the point's label, θ (`where`: label → "θ = …") and the noise model, each colour bar in
-    1/units² of its parameter."""
+    1/units² of its parameter. `pooled` adds per parameter the pooled map (`bounds.pooling`, from
+    `{label}_noise0_pooled_{name}.exr`, `..._cells_...exr` and pooled_cells.csv): each drawn cell's FI per pixel
+    on a log scale, hatched where its limits on the estimation rounds include 0, grey where masked."""
     from matplotlib.colors import SymLogNorm
     from matplotlib.ticker import FixedLocator
 
     plt = _plt()
-    cols = 1 + len(names)
+    cols = 1 + len(names) * (2 if pooled else 1)
     units = units or [f"({n} unit)" for n in names]
-    fig, axes = plt.subplots(len(labels), cols, figsize=(4.2 * cols, 3.3 * len(labels)), squeeze=False)
+    cells = read_csv(out / "pooled_cells.csv") if pooled else []
+    fig, axes = plt.subplots(len(labels), cols, figsize=(4.2 * cols, 3.3 * len(labels) + (0.5 if pooled else 0)),
+                             squeeze=False)
     for r, label in enumerate(labels):
         at = f"{label}, {(where or {}).get(label, 'θ not recorded')}"
         rgb = read_exr(out / f"{label}_rgb.exr")
@@ -166,11 +170,60 @@ def fisher_figure(out: Path, labels: list[str], names: list[str], where: dict[st
             bar.ax.yaxis.set_major_locator(FixedLocator(symlog_ticks(lin, top)))
             bar.ax.yaxis.set_minor_locator(FixedLocator([]))
             bar.set_label(f"FI per pixel [1/{units[c - 1]}²]", fontsize=8)
+            if pooled:
+                mine = [row for row in cells if row["label"] == label and row["param"] == name
+                        and row["noise"] == noise]
+                _pooled_panel(fig, axes[r, c + len(names)], out, label, name, mine, units[c - 1],
+                              f"{at}\npooled FI for {name}, {noise}")
     for a in axes.ravel():
+        a.set_xticks([])
+        a.set_yticks([])
+        for side in a.spines.values():
+            side.set_visible(False)
+    for a in axes[:, 0]:
         a.set_axis_off()
-    fig.tight_layout()
+    for a in axes[:, 1:1 + len(names)].ravel():
+        a.set_axis_off()
+    if pooled:
+        from matplotlib.patches import Patch
+
+        fig.legend(handles=[Patch(facecolor="0.82", edgecolor="0.5", label="masked: not resolved on the rounds "
+                                                                          "that chose the cells"),
+                            Patch(facecolor="white", edgecolor="k", hatch="///",
+                                  label="drawn cell whose interval on the other rounds includes 0")],
+                   loc="lower center", ncol=2, fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.06 if pooled else 0, 1, 1))
     save_figure(fig, out / "fisher_maps.png", dpi=110)
     return out / "fisher_maps.png"
+
+
+def _pooled_panel(fig, ax, out: Path, label: str, name: str, rows: list[dict], unit: str, title: str) -> None:
+    """One pooled map: drawn cells' FI per pixel (log colour scale), hatched where not resolved on the estimation
+    rounds (or not positive), grey where masked; the title says how many cells were drawn and resolved."""
+    from matplotlib.colors import LogNorm
+
+    dens = read_exr(out / f"{label}_noise0_pooled_{name}.exr")[..., 0].astype(np.float64)
+    lab = read_exr(out / f"{label}_noise0_cells_{name}.exr")[..., 0].astype(np.int64)
+    resolved = np.zeros(lab.max() + 1, dtype=bool)
+    for row in rows:
+        resolved[int(row["cell"])] = str(row["resolved"]).lower() == "true"
+    drawn = np.isfinite(dens)
+    unresolved = drawn & (~resolved[lab] | ~(dens > 0))
+    ax.set_facecolor("0.82")
+    show = np.where(drawn & (dens > 0), dens, np.nan)
+    n_drawn = len({int(v) for v in lab[drawn]})
+    n_res = len({int(v) for v in lab[drawn & ~unresolved]})
+    ax.set_title(f"{title}\n{n_drawn} of {len(rows)} cells drawn, {n_res} resolved", fontsize=8)
+    if np.isfinite(show).any():
+        lo, hi = float(np.nanmin(show)), float(np.nanmax(show))
+        im = ax.imshow(show, cmap="viridis", norm=LogNorm(lo, hi if hi > lo else lo * 10))
+        bar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
+        bar.set_label(f"cell FI per pixel (cell total ÷ its pixels) [1/{unit}²]", fontsize=7)
+    else:
+        ax.imshow(np.full(lab.shape, np.nan), cmap="viridis")
+        ax.text(0.5, 0.5, "no cell resolved", transform=ax.transAxes, ha="center", va="center", fontsize=9)
+    if unresolved.any():
+        ax.contourf(unresolved.astype(float), levels=[0.5, 1.5], colors="none", hatches=["///"])
 
 
 def plot_mse(
