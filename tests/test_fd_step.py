@@ -53,9 +53,9 @@ def test_lower_ends_cover_the_exact_edge_bound(theta):
 def test_an_unconverged_step_labels_the_delta_to_zero_lower_ends_and_prints_the_rising_ratio():
     """edge1d without rendering noise at θ = 0.507 with one halving allowed: the central F(ξ/2)/F(ξ) = 1.57 (its
     window [0.497, 0.517] covers three pixels at ξ = 1 cm, one at 5 mm; exact, with 64 px per unit: the edge
-    moves 0.192, 1 and 0.09 of pixels 31, 32, 33 over 2 cm, F ∝ 50² + 9.6² + 4.5² = 2613 → 64² = 4096). The CRLB's and the HCR's lower ends (set by
-    Δ → 0) say they are not confidence limits, with the ratio > 1 (F rose), in the CSV columns too; the
-    upper ends stay limits."""
+    moves 0.192, 1 and 0.09 of pixels 31, 32, 33 over 2 cm, F ∝ 50² + 9.6² + 4.5² = 2613 → 64² = 4096). The
+    CRLB's and the HCR's lower ends (set by Δ → 0) say they are not confidence limits, with the ratio > 1 (F
+    rose), in the CSV columns too; the upper ends stay limits."""
     m = nb.scenes.get("edge1d")
     (pt,) = BoundService(RenderBank(m), [nb.noise.AWGN(SIGMA)]).at([[0.507]], 16, max_halvings=1)
     c, h = pt.bounds["crlb"], pt.bounds["hcr"]

@@ -119,10 +119,10 @@ def test_both_ends_cover_the_exact_bound_whatever_the_stopping(case):
 
 
 def test_a_met_target_adds_no_renders_and_an_unmet_one_adds_fresh_sets():
-    """blob2d's x (rendering noise 2), seed 5: θ* = 0.35 meets precision 0.13 at the pilot (reached 0.116), θ* = 0.75
-    does not (0.145). θ* = 0.35 gets no render in any fresh set (replicate index ≥ R0) and costs exactly its pilot on top of θ* = 0.75
-    alone: 3 sets × (θ* + the offsets θ* ± ξ, which are also the first FD stencil + the stencil at ξ/2) = 15
-    renders; θ* = 0.75 is reported from fresh sets only (the reason names their count)."""
+    """blob2d's x (rendering noise 2), seed 5: θ* = 0.35 meets precision 0.13 at the pilot (reached 0.116),
+    θ* = 0.75 does not (0.145). θ* = 0.35 gets no render in any fresh set (replicate index ≥ R0) and costs exactly
+    its pilot on top of θ* = 0.75 alone: 3 sets × (θ* + the offsets θ* ± ξ, which are also the first FD stencil +
+    the stencil at ξ/2) = 15 renders; θ* = 0.75 is reported from fresh sets only (the reason names their count)."""
     m, R0 = _blob(2.0), 3
     svc = lambda bank: BoundService(bank, [nb.noise.AWGN(0.3)])  # noqa: E731
     both = RenderBank(m, seed=5)

@@ -380,8 +380,9 @@ def tested_deltas(raws: Sequence[Raw], target: float, level: float) -> np.ndarra
     """The pilot's tested Δ a look needs (a mask; None without an HCR): those whose term f(λ_L) = ‖Δ‖²/expm1(λ_L),
     λ_L the pilot's one-sided lower limit at `level`, reaches the pilot's HCR point / (1 + target)² (λ_L ≤ 0:
     f = ∞, kept), for any noise model, and at least the largest. The others were shown far below the sup. A look
-    that tests fewer Δ still gives a lower end that is a lower confidence limit of the HCR (a sup over fewer Δ is no larger); its upper end
-    bounds the HCR over the Δ it tested and Δ → 0, as every upper end bounds the HCR over its tested set."""
+    that tests fewer Δ still gives a lower end that is a lower confidence limit of the HCR (a sup over fewer Δ is
+    no larger); its upper end bounds the HCR over the Δ it tested and Δ → 0, as every upper end bounds the HCR
+    over its tested set."""
     keep = None
     for raw in raws:
         if raw.lam is None:

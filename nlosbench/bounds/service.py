@@ -251,6 +251,12 @@ class FisherPoint:
         dominates; they sum to the unbiased F_jj).
     crlb : dict of int to list of Bound
         Per noise index, the CRLB of each parameter (P Bounds with their intervals).
+    rounds : torch.Tensor of shape (R, P, H, W, C)
+        The R independent FD Jacobians (float64) at `step`, the rounds the maps are U-statistics over.
+    step : float
+        The FD step ξ of `rounds` and `J` (the finest tried), parameter units.
+    weights : dict of int to torch.Tensor of shape (H, W, C)
+        Per noise index, the per-pixel weight of the maps (AWGN 1/σ²; Poisson scale/L), float64.
     """
 
     theta: np.ndarray
@@ -258,6 +264,9 @@ class FisherPoint:
     J: torch.Tensor
     maps: dict[int, np.ndarray]
     crlb: dict[int, list[Bound]]
+    rounds: torch.Tensor
+    step: float
+    weights: dict[int, torch.Tensor]
 
 
 def hcr_bound(r: HCRResult, kind: str = "hcr_neff") -> Bound:
@@ -875,15 +884,16 @@ class BoundService:
         out = []
         for i, (t, L) in enumerate(zip(thetas, Ls, strict=True)):
             Jf = torch.from_numpy(stages[i][-1].rounds["central"]).reshape(rounds, P, *L.shape)
-            maps, bounds = {}, {}
+            maps, bounds, ws = {}, {}, {}
             for j in sel:
                 w, flags = weights[j][i]
-                m = unbiased_fisher(Jf, w.expand(L.shape)).pixel_map  # (P, H, W, C)
+                ws[j] = to_float64(w).expand(L.shape)
+                m = unbiased_fisher(Jf, ws[j]).pixel_map  # (P, H, W, C)
                 maps[j] = m.sum(axis=-1) if reduce == "sum" else m.mean(axis=-1)
                 bounds[j] = [crlb_bound(converge([Stage(s.step, {"central": s.rounds["central"][:, k:k + 1]})
                                                   for s in stages[i]], wflat[j][i], self.level, step_tol, spp),
                                         self.level, flags) for k in range(P)]
-            out.append(FisherPoint(t, L, Jf.mean(dim=0), maps, bounds))
+            out.append(FisherPoint(t, L, Jf.mean(dim=0), maps, bounds, Jf, stages[i][-1].step, ws))
         return out
 
     # -- the paper's HCR intervals from inexact renders -----------------------------------------------------

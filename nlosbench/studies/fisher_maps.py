@@ -11,10 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from ..bounds import save_fisher_maps
-from ..bounds.pooling import PooledFisherMap, pixel_fisher_terms, pool_fisher_map, pooled_summary
-from ..bounds.service import poisson_weight_image
+from ..bounds.pooling import PooledFisherMap, pool_fisher_map, pooled_summary
 from ..io import read_csv, write_csv, write_exr
-from ..noise import Poisson, QuadraticNoise, to_float64
 from ..schema import MAX_HALVINGS, STEP_TOL, ConfigError, Field, folder_name, point_spec
 from .context import RunContext
 from .estimate import Estimate, pixels
@@ -96,34 +94,6 @@ def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     return Estimate(renders, renders * p.spp * pixels(ctx.model))
 
 
-def final_rounds(ctx: RunContext, p: Plan, fp) -> tuple[np.ndarray, float]:
-    """The R FD rounds (R, P, H, W, C) float64 of a FisherPoint at the step its maps are from, and that step.
-
-    `BoundService.fisher` halves ξ coarse to fine and keeps the finest stage; every stage it rendered is in
-    the render bank, so the rounds of ξ, ξ/2, … are read back (no render) until their mean is the point's J."""
-    before = ctx.bank.renders
-    for k in range(max(p.max_halvings, 0) + 1):
-        step = p.fd_step / 2**k
-        J = np.stack([ctx.bank.jacobians_at(fp.theta[None], p.spp, step, "fisher", replicate=r,
-                                            desc="Fisher-map FD Jacobians (read back)")[0].double().numpy()
-                      for r in range(p.fd_rounds)])
-        if ctx.bank.renders != before:
-            raise RuntimeError(f"pooled map: the FD rounds at ξ = {step:.3g} were not in the render bank")
-        if np.array_equal(J.mean(axis=0), fp.J.numpy()):
-            return J, step
-    raise RuntimeError("pooled map: no FD step the service tried gives the point's Jacobian")
-
-
-def noise_weight(noise, L) -> np.ndarray:
-    """The per-pixel weight the service's maps use at the render L (H, W, C): AWGN 1/σ², Poisson scale/L
-    with exact zeros raised to the smallest positive value (`poisson_weight_image`)."""
-    if isinstance(noise, Poisson):
-        L = poisson_weight_image(L)[0]
-    if not isinstance(noise, QuadraticNoise):
-        raise TypeError(f"a pooled map needs a quadratic noise model (AWGN, Poisson), got {type(noise).__name__}")
-    return to_float64(noise.weight(to_float64(L))).expand(tuple(L.shape)).numpy()
-
-
 def pooled_rows(label: str, noise: str, name: str, m: PooledFisherMap) -> list[dict]:
     """pooled_cells.csv rows: one per cell of a pooled map."""
     return [{"label": label, "noise": noise, "param": name, "cell": c, "pixels": int(m.pixels[c]),
@@ -145,11 +115,9 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         write_exr(out / f"{label}_rgb.exr", fp.L)
         for j, name in enumerate(m.params.names):
             write_exr(out / f"{label}_dL_d{name}.exr", fp.J[j])
-        rounds, step = final_rounds(ctx, p, fp) if p.pool else (None, None)
         for k, noise in enumerate(ctx.noises):
             save_fisher_maps(fp.maps[k], names, out, prefix=f"{label}_noise{k}_fisher", units=units,
                              where=f"{label}, {where[label]}, {noise}")
-            w = noise_weight(noise, fp.L) if p.pool else None
             for j, name in enumerate(m.params.names):
                 b = fp.crlb[k][j]
                 rows.append({"label": label, "theta": fp.theta.tolist(), "noise": str(noise), "param": name,
@@ -158,15 +126,12 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                              "flag": b.reason})
                 if not p.pool:
                     continue
-                pm = pool_fisher_map(rounds[:, j], w, ctx.bounds.level, p.reduce, p.pool_precision)
-                # the same rounds and weight give the service's map: the cells pool exactly what is drawn beside
-                full = pixel_fisher_terms(rounds[:, j], w, p.reduce).est
-                if not np.allclose(full, fp.maps[k][j], rtol=1e-9, atol=1e-12 * np.abs(full).max()):
-                    raise RuntimeError("pooled map: the rounds read back do not reproduce the service's map")
+                pm = pool_fisher_map(fp.rounds[:, j].numpy(), fp.weights[k].numpy(), ctx.bounds.level, p.reduce,
+                                     p.pool_precision)
                 write_exr(out / f"{label}_noise{k}_pooled_{name}.exr", pm.density("chosen"))
                 write_exr(out / f"{label}_noise{k}_cells_{name}.exr", pm.labels.astype(np.float32))
                 cells += pooled_rows(label, str(noise), name, pm)
-                pooled.append({"label": label, "noise": str(noise), "param": name, "step": step,
+                pooled.append({"label": label, "noise": str(noise), "param": name, "step": fp.step,
                                "summary": pooled_summary(pm)})
     write_csv(out / "fisher.csv", rows)  # the figure: report() draws it from the saved EXRs
     if p.pool:
