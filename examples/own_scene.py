@@ -14,7 +14,8 @@ Steps (each is a function below; examples/README.md tells the same story in pros
   4. write an experiment config and dry-run it with `nlosbench run CONFIG --smoke` (seconds);
   5. run it: the HCR / CRLB / Ziv–Zakai curve over a uniform grid of θ (`bounds`), a per-pixel Fisher map
      (`fisher-maps`), grid-search and Gauss–Newton at two θ* against the HCR interval and CRLB (`trials`,
-     local) and grid-search over the prior against the ZZB (`trials`, bayesian);
+     local; their bounds at θ* to a precision asked for, ±25 % within a budget) and grid-search over the prior
+     against the ZZB (`trials`, bayesian);
   6. read the numbers back from the run directory and print them.
 
 Scaled down to seconds (say so when you quote the numbers): 32 × 24 px, path depth 3, 32 spp per bound
@@ -111,6 +112,8 @@ studies:
     bound_spp: 32
     hcr_grid: 21
     bounds: [hcr, crlb]
+    precision: 0.25              # the bounds at θ* to ±25 % if 2e6 pixel-samples (about 80 renders) allow it;
+    precision_budget: 2000000    # each run says what it reached and what more would cost
     start_width: 0.2             # grid-search ignores starts; gauss-newton starts at the profile minimum
     estimators:
       - name: grid-search
@@ -185,6 +188,13 @@ def report(run: Path) -> dict:
     f = rows(run / "01-fisher-maps" / "fisher.csv")[0]
     print(f"\nFisher map at crate_x = 0 (01-fisher-maps/fisher_maps.png): total information "
           f"{float(f['fisher_total']):.4g} m⁻², CRLB {exp10(f['log10_crlb'])} m²")
+    prec = rows(run / "02-trials" / "bounds.csv")
+    print("\nPrecision of the bounds at θ* (target ±25 %, within 2e6 pixel-samples; 02-trials/bounds.csv):")
+    for r in prec:
+        extra = float(r["precision_extra_pixel_samples"])
+        print(f"  θ* = {float(r['theta_crate_x']):.2f}: reached ±{100 * float(r['precision_reached']):.3g} % "
+              f"after {float(r['precision_pixel_samples']):.3g} pixel-samples"
+              + (f"; ≈ {extra:.3g} more would meet it" if extra > 0 else ""))
     local = rows(run / "02-trials" / "summary.csv")
     print("\nEstimators at fixed θ* (n trials each), MSE against the bounds at θ* [m²]:")
     print(f"  {'θ* [m]':>6}  {'estimator':<13} {'n':>2} {'MSE ± SE':>20}  {'|bias| [m]':>10}  {'HCR':>9}  "
@@ -199,6 +209,7 @@ def report(run: Path) -> dict:
         print(f"  {r['estimator']:<13} n = {r['n']}: {float(r['bayes_mse']):.3g} ± {float(r['bayes_mse_se']):.2g} "
               f"(ZZB {float(r['zzb']):.3g}, MSE / ZZB = {float(r['mse_over_zzb']):.2g}): {r['vs_zzb']}")
     return {"hcr_log10": hcr, "zzb_log10": float(z["log10_zzb"]), "fisher_total": float(f["fisher_total"]),
+            "precision_reached": [float(r["precision_reached"]) for r in prec],
             "local": [{k: r[k] for k in ("theta_crate_x", "estimator", "mse", "mse_se", "hcr", "crlb", "vs_hcr",
                                          "vs_crlb")} for r in local],
             "bayes": [{k: r[k] for k in ("estimator", "bayes_mse", "bayes_mse_se", "zzb", "vs_zzb")} for r in bayes]}
