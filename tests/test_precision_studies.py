@@ -65,6 +65,20 @@ def test_an_unmet_target_says_what_more_would_cost(tmp_path):
     assert f"{rec['extra_pixel_samples']:.3g} pixel-samples, ≈ " in report
 
 
+def test_a_bounds_target_without_precision_at_quotes_every_grid_theta(tmp_path):
+    """`precision` without `precision_at`: every grid θ (0.2, 0.5, 0.8) is quoted from the curve's sets as the pilot,
+    each with its own record; a θ met at the pilot gets no fresh set while another gets some (the allocation is per
+    θ: blob2d's x with rendering noise 2 at ±15 %)."""
+    rc, out = _run(tmp_path, [{**BOUNDS, "precision": 0.15}])
+    assert rc == 0
+    recs = json.loads((out / "results.json").read_text())["studies"]["b"]["results"]["precision"]
+    assert sorted(r["theta"]["x"] for r in recs) == pytest.approx([0.2, 0.5, 0.8])
+    assert all(r["met"] for r in recs), recs
+    fresh = [r["fresh_sets"] for r in recs]
+    assert min(fresh) == 0 < max(fresh), fresh
+    assert len(read_csv(out / "b" / "precise.csv")) == 3
+
+
 def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     rc, out = _run(tmp_path, [TRIALS, BOUNDS])
     assert rc == 0
@@ -87,7 +101,6 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     ({**BOUNDS, "precision": 0.0, "precision_at": [0.5]}, "studies[0].precision: expected a finite number > 0"),
     ({**BOUNDS, "precision_budget": 10**6, "precision": None}, "b.precision_budget: a budget needs a precision"),
     ({**BOUNDS, "precision_at": [0.5]}, "b.precision_at: quoting bounds at θ needs a `precision` target"),
-    ({**BOUNDS, "precision": 0.2}, "b.precision: the curve takes no precision target"),
     ({**BOUNDS, "precision": 0.2, "precision_at": [0.5, 0.95]}, "b.precision_at[1]: θ out of range"),
 ])
 def test_bad_precision_keys_stop_the_run_at_config_time(tmp_path, capsys, study, message):

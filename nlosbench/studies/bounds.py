@@ -4,7 +4,8 @@ the paper's HCR_Neff (and optionally Barankin) over a 1-D grid of θ, and the Zi
 Plan: the grid, spp, seeds and replicates from the block. Work: one call to the bound service's `curve`
 (R·G renders from the render bank: every grid render serves as θ* and as a test point for all others,
 the grid neighbours as FD stencils). Tables: bounds.csv (a row per noise and θ), zzb.csv (a row per noise).
-With `precision_at` (θ on or off the grid) and a `precision` target, the θ the study quotes: after the curve, one
+With a `precision` target, the θ the study quotes (`precision_at`, on or off the grid; every grid θ when it is
+empty): after the curve, one
 call to the service's `at` there (its test grid the curve's own when the grid is `params.grid(G)`), which adds
 fresh replicate sets where an interval is wider than asked (`bounds.precision`): precise.csv (a row per noise and
 quoted θ, with the precision_* columns), a report table "Precision at the quoted θ" and those points on the plot.
@@ -46,7 +47,8 @@ SCHEMA = {
     "max_halvings": Field(MAX_HALVINGS.type, MAX_HALVINGS.default, MAX_HALVINGS.help + " (at the `precision_at` θ "
                           "only: a curve does not halve its step)"),
     "precision_at": Field(list, [], "θ the study quotes (on or off the grid): after the curve, the bounds there to "
-                                    "the `precision` target (needs `precision`)", items=float),
+                                    "the `precision` target (needs `precision`); empty with a `precision`: every "
+                                    "grid θ", items=float),
     **precise.KEYS,
     "barankin": Field(bool, False, "also compute the multi-point Barankin bound at each grid point (plug-in)"),
     "zzb": Field(bool, True, "the Ziv–Zakai bound on the Bayesian MSE over a uniform prior on the grid's range "
@@ -100,9 +102,6 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.level", f"expected a confidence level in (0, 1), got {cfg['level']}")
     if cfg["precision_at"] and cfg["precision"] is None:
         raise ConfigError(f"{sid}.precision_at", "quoting bounds at θ needs a `precision` target")
-    if cfg["precision"] is not None and not cfg["precision_at"]:
-        raise ConfigError(f"{sid}.precision", "the curve takes no precision target: name the θ to quote in "
-                                              "`precision_at`")
     precise.check(cfg, sid, ("hcr", "crlb") if cfg["crlb"] else ("hcr",))
     for i, t in enumerate(cfg["precision_at"]):
         try:
@@ -113,9 +112,12 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     G = len(grid)
     test_grid = G if np.allclose(params.grid(G)[:, 0], grid, rtol=0, atol=1e-9 * (params.upper - params.lower)[0]) \
         else TEST_GRID
+    # a target without `precision_at` quotes every grid θ: the curve's sets are the pilot, fresh sets go only where
+    # an interval is wider than asked
+    quoted = cfg["precision_at"] or (grid.tolist() if cfg["precision"] is not None else [])
     return Plan(grid, cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
                 cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"],
-                np.asarray(cfg["precision_at"], dtype=np.float64), test_grid)
+                np.asarray(quoted, dtype=np.float64), test_grid)
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
