@@ -285,27 +285,49 @@ class Fit:
         """The StepFisher a look at R fresh sets is predicted to give over `window`: each stage's F with its SE
         at R (`_predict_ustat`), each halving's paired contrasts and extrapolations with their SEs scaled like
         the finer stage's, and the look stopping at the first halving predicted converged (the service's rule),
-        so a check that stays unresolved is predicted as such (its lower end labelled, the target unmet)."""
+        so a check that stays unresolved is predicted as such (its lower end labelled, the target unmet).
+        Estimates the pilot cannot tell apart are predicted equal (scalar θ): a stage or variant whose F is within
+        the pilot's t·SE of the window's first central F (the least noisy) is predicted at that F, and a halving not
+        shown to change F is predicted at ratio 1 — otherwise noise held fixed (a one-sided F 2× the central one
+        at a small pilot) would predict that no number of sets suffices. Plans only choose R and the window; the
+        looks' limits do not depend on them."""
         sf, R0 = self.raw.sf, self.raw.sf.final.replicates
+        t0 = one_sided_t(level, R0 - 1.0, 1.0)
+        ref = sf.stats[window.start].get("central")
+        scalar = ref is not None and ref.est.shape == (1, 1)
+
+        def stage(k: int) -> dict[str, UStat]:
+            out = {}
+            for name, u in sf.stats[k].items():
+                if scalar and abs(float(u.est[0, 0] - ref.est[0, 0])) <= t0 * math.hypot(float(u.se[0, 0]),
+                                                                                      float(ref.se[0, 0])):
+                    u = UStat(ref.est, u.se, u.loo, u.replicates, u.df)
+                out[name] = _predict_ustat(u, self.stages[k][name], R)
+            return out
+
         stats, halvings = [], []
         for k in range(window.start, window.start + window.halvings + 1):
-            stats.append({name: _predict_ustat(u, self.stages[k][name], R) for name, u in sf.stats[k].items()})
+            stats.append(stage(k))
             if k == window.start + window.halvings:
                 break
             h = sf.halvings[k]  # the pilot's comparison of stages k and k + 1
             ratio = {name: _se_ratio(ab, R0, R) for name, ab in self.stages[k + 1].items()}
             converged, rising = True, False
+            tol = sf.step_tol
             for (name, j), (est, se, df, fa) in h.contrasts.items():
+                if abs(est + tol * fa) <= t0 * se:  # F(ξ/2) − F(ξ) within the noise: predicted equal
+                    est = -tol * fa
                 se_r = se * float(ratio[name][j]) if name in ratio else se
                 t = one_sided_t(level, df * (R - 1.0) / (R0 - 1.0), se_r)
                 converged &= bool(est + t * se_r <= 0) and fa > 0
                 rising |= bool(est - t * se_r > 0)
             extra = {name: _rescale(u, ratio[name], R) for name, u in h.extrapolated.items() if name in ratio}
+            if scalar and not h.rising:  # the stages agree within the noise: the extrapolation adds nothing
+                extra = {name: UStat(ref.est, u.se, u.loo, u.replicates, u.df) for name, u in extra.items()}
             halvings.append(Halving(h.step, h.ratio, h.se * float(np.max(ratio.get("central", [1.0]))), converged,
                                     rising, {}, extra))
             if converged:
-                stats.append({name: _predict_ustat(u, self.stages[k + 1][name], R)
-                              for name, u in sf.stats[k + 1].items()})
+                stats.append(stage(k + 1))
                 break
         steps = sf.steps[window.start:window.start + len(stats)]
         return StepFisher(stats, steps, halvings, step_tol=sf.step_tol, spp=sf.spp, level=level)
