@@ -340,7 +340,8 @@ def _predicts(est) -> bool:
 
 def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budget: Budget) -> tuple[float, float]:
     """(renders, spp summed over them) of one fit, estimated from the estimator's options (its constructor's
-    defaults filled in): grid-search refine_evals (its grid is the bank's, counted once in `cost`); multi-start
+    defaults filled in): grid-search refine_evals (its grid is the bank's, counted once in `cost`); surrogate none (its
+    lattice is the bank's too); multi-start
     `starts` × its base estimator; otherwise iterations (capped by the budget) × (a render + the gradient's
     renders: 2 per FD parameter and round, AD_PASS_RENDERS per AD pass)."""
     try:
@@ -360,6 +361,8 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
     if name == "multi-start":
         r, n = _fit_cost(o.get("base", "mle-adam"), o.get("options") or {}, gradient, P, budget)
         return o.get("starts", 4) * r + 1, o.get("starts", 4) * n + spp
+    if name == "surrogate":  # its lattice is a grid the bank renders once (counted in `cost`); a fit renders nothing
+        return 0, 0
     if name == "grid-search":
         refine = o.get("refine_evals", 150) if o.get("refine", True) else 0
         return refine, refine * (o.get("refine_spp") or spp)
