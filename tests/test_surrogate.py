@@ -32,7 +32,7 @@ from nlosbench.montecarlo import LOG_NAME, Setting, make_trials, run_trials, sum
 THETA = np.array([0.4567])
 SIGMA = 0.05
 N = 60
-OPTIONS = {"step": 0.02, "region": [0.35, 0.57], "window": 2, "degree": 3}
+OPTIONS = {"step": 0.02, "region": [0.35, 0.57], "window": 2, "degree": 3, "sets": 2}
 XI = 0.744 * OPTIONS["step"]  # central FD step with the cubic's centre-slope variance (module docstring)
 
 
@@ -52,8 +52,9 @@ def test_exact_renders_land_on_theta():
 def test_bank_lattice_costs_no_render():
     model = blob(0.5)
     est = nb.estimators.get("surrogate", spp=8, **OPTIONS)
-    thetas, spp = est.grid_wanted(model.params)
-    grid = BankGrid(thetas, torch.stack([model.render(t, spp, 3) for t in thetas]), spp)
+    thetas, spp, sets = est.grid_wanted(model.params)
+    grid = BankGrid(np.tile(thetas, (sets, 1)), torch.stack([model.render(t, spp, k) for k in range(sets)
+                                                             for t in thetas]), spp)
     problem = Problem(model, nb.noise.AWGN(SIGMA), grids=(grid,))
     fit = est.fit(problem, model.render(THETA, 1024, 9), rng=np.random.default_rng(1))
     assert fit.renders == 0 and fit.samples == 0

@@ -1,40 +1,42 @@
 """`surrogate`: the MLE of a scalar θ on a per-pixel polynomial surrogate of L(θ) built from a lattice of renders.
 
 A lattice t_g = a + g·h (g = 0 … G − 1) over a region [a, b] of Θ (`grid_wanted`) is rendered once per run at `spp`
-with one seed shared by every point (common random numbers: a pixel whose light paths do not meet the moving
-object has the same rendering error at every t_g, which cancels in every difference between them). The trials
-study renders it in its render bank (`Problem.grids`: once per run, counted with the bank's renders, shared by
-every fit); a direct fit renders it once per process. A fit renders nothing:
+in K independent sets, each with one seed shared by every point (common random numbers: a pixel whose light paths do
+not meet the moving object has the same rendering error at every t_g, which cancels in every difference between
+them). The trials study renders the sets in its render bank (`Problem.grids`: once per run, counted with the bank's
+renders, shared by every fit); a direct fit renders them once per process. A fit renders nothing:
 
-1. the NLL of y at every lattice render; g₀ its minimum;
-2. the window of 2w + 1 lattice points centred on g₀ (shifted inside the lattice at its ends) and, per pixel ω,
-   the least-squares polynomial of degree d in u = (θ − t_{g₀}) / h through them,
-   L̃_ω(θ) = Σ_j c_{jω} u^j, c = (VᵀV)⁻¹Vᵀ L_window, V the window's Vandermonde matrix (2w + 1, d + 1);
-3. θ̂ = argmin NLL(y, L̃(θ)) over the window's span (Brent's bounded search: no render, 3600 pixels a
-   polynomial evaluation); when θ̂ lies nearer another lattice point than t_{g₀}, g₀ moves there and 2–3
-   repeat (at most `max_moves` times).
+1. the NLL of y at every lattice point's mean render M_g; g₀ its minimum;
+2. the window of 2w + 1 lattice points centred on g₀ (shifted inside the lattice at its ends) and, per set k and
+   pixel ω, the least-squares polynomial of degree d in u = (θ − t_c) / h (t_c the window's centre) through them,
+   S_kω(θ) = Σ_j c_{kjω} u^j, c_k = (VᵀV)⁻¹Vᵀ L_k,window, V the window's Vandermonde matrix (2w + 1, d + 1);
+3. θ̂ = argmin Q(θ), Q = NLL(y, M(θ)) − ½ Σ_ω w_ω s²_ω(θ) / K, M the sets' mean and s² their sample variance
+   per pixel, w the noise model's weight at M (Brent's bounded search over the window's span: no render);
+   when θ̂ lies nearer another lattice point than t_{g₀}, the window moves there and 2–3 repeat (at most
+   `max_moves` times).
 
-Error of θ̂ (scalar, AWGN for the formulas; W = the noise model's weight in general). With the lattice's
-rendering error e (per-pixel variance Σ_render(spp) at each point, one seed for all) the surrogate is
-L̃ = L + e_w(θ) + b(θ), e_w the window's polynomial fit of e and b the polynomial's own misfit of L (the
-nonlinearity of L over the window, O(h^{d+1}) per pixel). Near θ* the score equation J̃ᵀW(y − L̃(θ̂)) = 0 with
-J̃ = J + e_w' gives
+For AWGN, Q = Σ_{k≠l} (y − S_k)ᵀ(y − S_l) / (2σ² K(K − 1)): the sets' errors enter only in cross products, so
+E Q = NLL(y, L(θ)) up to the polynomial's misfit. Error of θ̂ (scalar θ, AWGN; W = the noise model's weight in
+general): with set k's error e_k (per-pixel variance Σ_render(spp), seeds common over the lattice), its window
+fit e_k(θ) and slope e_k', the polynomial's misfit b(θ) of L (O(h^{d+1}) per pixel) and r = y − L(θ*),
+linearising Q' = 0 at θ*:
 
-    θ̂ − θ* ≈ F⁻¹ Jᵀ W (ε_obs + ε_truth) − F⁻¹ JᵀW (e_w(θ*) + b(θ*)) + F⁻¹ e_w'ᵀ W ε_obs.
+    θ̂ − θ* ≈ Σ_{k≠l} (J + e_k')ᵀ W (r − e_l − b) / Σ_{k≠l} (J + e_k')ᵀ W (J + e_l'),
 
-The first term is the target (the observation at the CRLB, and the clean image's own error). The second is the
-same for every trial at θ* (one lattice per run): an offset, shown as bias, of variance F⁻¹ JᵀWΣ_render(spp)WJ
-F⁻¹ over lattice seeds, i.e. a fraction ≈ Σ_render(1)/(spp σ²) of the CRLB. The third is independent from
-trial to trial: the surrogate's slope noise against the observation's noise, covariance
-F⁻¹ [Σ_ω w_ω² Σ_obs,ω Var(e_w'(ω))] F⁻¹ = (F̃ / F − 1) · F⁻¹ for AWGN, F̃ = E[J̃ᵀWJ̃] the plug-in Fisher
-information of the surrogate's slope (`fit_cov`, with the slope's noise measured as that of a central FD
-Jacobian with common random numbers whose step ξ is the setting's: for a least-squares slope over 2w + 1
-points with independent errors Var = Σ_render / (h² Σk²), which a central FD matches at ξ = h √(Σk² / 2), e.g.
-ξ = h√5 for w = 2). So θ̂'s MSE over the trials at one θ* is CRLB · (1 + F̃/F − 1) + the target's clean-image
-part + the offset², and the lattice's cost is shared by every trial at every θ* its region holds.
+whose denominator is unbiased for K(K − 1)·F. Over the observations (one lattice for all trials at θ*):
+Var = F⁻¹ (J + ē')ᵀ W Σ_y W (J + ē') F⁻¹ ≈ CRLB + F⁻¹ [Σ_ω w_ω² Σ_y,ω Var(ē'_ω)] F⁻¹, Σ_y = Σ_obs + Σ_truth and ē'
+the mean slope error (variance Var(e')/K): the CRLB times 1 + ρ/K, ρ = Σ_ω w_ω σ² Var(e'_ω) / F the plug-in
+excess F̃/F − 1 of one set's slope (`fit_cov`; Var(e') is measured as that of a central FD Jacobian with common
+random numbers at the setting's step ξ: a least-squares slope over 2w + 1 points with independent errors has
+Var = Σ_render Σ_i p_1i² / h² (p_1 the slope row of (VᵀV)⁻¹Vᵀ), which a central FD matches at
+ξ = h / √(2 Σ_i p_1i²): ξ = 0.744 h for w = 2, d = 3). The term in e_l is the same for every trial at θ*: an
+offset, shown as bias, of variance ≈ F⁻¹ Jᵀ W Σ_render(K·spp) W J F⁻¹ over lattice seeds. With K = 1 the
+denominator is the plug-in ‖J + e'‖²_W: θ̂'s response to θ* shrinks by 1 / (1 + ρ) and its variance over the
+observations is (F + F ρ)⁻¹, below the CRLB by a bias gradient, not by efficiency (`fit_cov` gives that too).
 """
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 
 import numpy as np
@@ -44,7 +46,7 @@ import torch
 from ..params import ParamSpace
 from ..seeds import derive
 from .base import Budget, Estimator, Outcome, Problem, Tracker, finite_or_raise, nll
-from .predict import Linearisation
+from .predict import Linearisation, weight
 
 
 class Surrogate(Estimator):
@@ -58,6 +60,10 @@ class Surrogate(Estimator):
         [a, b] ⊂ Θ the lattice covers (default: Θ); its points are a + g·h, g = 0 … ⌊(b − a) / h⌋.
     spp : int, default 4096
         Samples per pixel of each lattice render.
+    sets : int, default 2
+        Independent render sets K of the lattice (each with its own common seed); with K ≥ 2 the objective is
+        unbiased for the NLL at L(θ) (module docstring), with K = 1 the slope's noise shrinks θ̂ towards the
+        surrogate's own error.
     window : int, default 2
         Half-width w of the local fit, in lattice points (2w + 1 points, ≥ degree + 1).
     degree : int, default 2
@@ -76,8 +82,8 @@ class Surrogate(Estimator):
                   "as 'stalled'.")
 
     def __init__(self, step: float | None = None, region: Sequence[float] | None = None, spp: int = 4096,
-                 window: int = 2, degree: int = 2, max_moves: int = 4, xtol: float = 1e-6):
-        for k, v in {"spp": spp, "window": window, "degree": degree, "max_moves": max_moves}.items():
+                 sets: int = 2, window: int = 2, degree: int = 2, max_moves: int = 4, xtol: float = 1e-6):
+        for k, v in {"spp": spp, "sets": sets, "window": window, "degree": degree, "max_moves": max_moves}.items():
             if isinstance(v, bool) or int(v) != v or v < 1:
                 raise ValueError(f"surrogate: {k} must be a positive integer, got {v!r}")
         if 2 * window + 1 < degree + 1:
@@ -91,7 +97,8 @@ class Surrogate(Estimator):
             raise ValueError(f"surrogate: xtol must be > 0, got {xtol!r}")
         self.step = None if step is None else float(step)
         self.region = None if region is None else [float(region[0]), float(region[1])]
-        self.spp, self.window, self.degree, self.max_moves = int(spp), int(window), int(degree), int(max_moves)
+        self.spp, self.sets, self.window, self.degree = int(spp), int(sets), int(window), int(degree)
+        self.max_moves = int(max_moves)
         self.xtol = float(xtol)
         self._grids: dict[tuple, list[torch.Tensor]] = {}
 
@@ -125,8 +132,8 @@ class Surrogate(Estimator):
                              f"{2 * self.window + 1}")
         return (lo + h * np.arange(G, dtype=np.float64)).reshape(-1, 1)
 
-    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int]:
-        """The lattice (G, 1) and its spp, rendered by the run's bank (`Problem.grids`).
+    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int, int]:
+        """The lattice (G, 1), its spp and its independent render sets, rendered by the run's bank (`Problem.grids`).
 
         Parameters
         ----------
@@ -135,15 +142,15 @@ class Surrogate(Estimator):
 
         Returns
         -------
-        tuple of (numpy.ndarray, int)
-            The lattice points (G, 1) in parameter units and `spp`.
+        tuple of (numpy.ndarray, int, int)
+            The lattice points (G, 1) in parameter units, `spp` and `sets`.
         """
-        return self.lattice(params), self.spp
+        return self.lattice(params), self.spp, self.sets
 
     def renders(self, problem: Problem) -> tuple[np.ndarray, torch.Tensor]:
-        """(lattice (G,), renders (G, N) float64): the run's when the problem carries them (`Problem.find_grid`),
-        else rendered on first use in this process with one seed derived from the problem's (common random
-        numbers) and kept.
+        """(lattice (G,), renders (K, G, N) float64): the run's when the problem carries them (`Problem.find_grid`),
+        else rendered on first use in this process, set k with one seed derived from the problem's (common random
+        numbers across the lattice), and kept.
 
         Parameters
         ----------
@@ -153,23 +160,25 @@ class Surrogate(Estimator):
         Returns
         -------
         tuple of (numpy.ndarray, torch.Tensor)
-            The lattice points (G,) and their renders flattened to (G, N) float64.
+            The lattice points (G,) and their K sets of renders flattened to (K, G, N) float64.
         """
         thetas = self.lattice(problem.params)
-        given = problem.find_grid(thetas, self.spp)
+        K, G = self.sets, len(thetas)
+        given = problem.find_grid(np.tile(thetas, (K, 1)), self.spp)
         if given is not None:
-            return thetas[:, 0], given.images.double().reshape(len(thetas), -1)
-        key = (repr(problem.model.content_key()), self.spp, problem.seed, thetas.tobytes())
+            return thetas[:, 0], given.images.double().reshape(K, G, -1)
+        key = (repr(problem.model.content_key()), self.spp, K, problem.seed, thetas.tobytes())
         if key not in self._grids:
-            seed = derive(problem.seed, "surrogate-lattice")
-            self._grids[key] = [problem.model.render(t, self.spp, seed) for t in thetas]
-        return thetas[:, 0], torch.stack(self._grids[key]).double().reshape(len(thetas), -1)
+            self._grids[key] = [problem.model.render(t, self.spp, derive(problem.seed, "surrogate-lattice", k))
+                                for k in range(K) for t in thetas]
+        return thetas[:, 0], torch.stack(self._grids[key]).double().reshape(K, G, -1)
 
     def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,
              tracker: Tracker) -> Outcome:
-        t, Ls = self.renders(problem)
-        G, w, h = len(t), self.window, t[1] - t[0]
+        t, sets = self.renders(problem)
+        K, G, w, h = self.sets, len(t), self.window, t[1] - t[0]
         shape = y.shape
+        Ls = sets.mean(dim=0)
         prof = np.array([nll(problem, y, L.reshape(shape)) for L in Ls])
         g0 = int(np.argmin(prof))
         tracker.record(0, float(prof[g0]), t[g0:g0 + 1])
@@ -178,13 +187,19 @@ class Surrogate(Estimator):
         seen, theta, loss = set(), float(t[g0]), float(prof[g0])
         for move in range(self.max_moves + 1):
             lo = min(max(g0 - w, 0), G - 2 * w - 1)
-            C = pinv @ Ls[lo:lo + 2 * w + 1]  # (d+1, N): the window's polynomial per pixel, in u about t[lo + w]
+            # (K, d+1, N): each set's polynomial per pixel over the window, in u about t[lo + w]
+            C = torch.einsum("jg,kgn->kjn", pinv, sets[:, lo:lo + 2 * w + 1])
             c0 = t[lo + w]
 
             def f(v: float, C=C, c0=c0) -> float:
                 uu = (v - c0) / h
-                L = sum(C[j] * uu**j for j in range(self.degree + 1))
-                return nll(problem, y, L.reshape(shape))
+                S = sum(C[:, j] * uu**j for j in range(self.degree + 1))  # (K, N)
+                M = S.mean(dim=0)
+                out = nll(problem, y, M.reshape(shape))
+                if K > 1:  # less ½ Σ w·Var(M): the sets' spread, so the objective is unbiased for NLL(y, L(θ))
+                    w8 = torch.as_tensor(weight(problem.noise, M.reshape(shape)))
+                    out -= 0.5 * float((w8 * S.var(dim=0)).sum()) / K
+                return out
 
             res = scipy.optimize.minimize_scalar(f, bounds=(t[lo], t[lo + 2 * w]), method="bounded",
                                                  options={"xatol": self.xtol * h})
@@ -208,10 +223,11 @@ class Surrogate(Estimator):
 
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
                 budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str]:
-        """Covariance of θ̂ − ê from the surrogate's slope noise against the observation's (and clean image's)
-        noise, F⁻¹ [Σ_ω w_ω² (Σ_obs + Σ_truth)_ω Var(e_w'(ω))] F⁻¹ (module docstring), with Var(e_w') that of
-        the setting's gradient (a central FD with its step and common random numbers) at `spp`. The lattice's own
-        value error is one offset for every trial at θ* (bias, not variance): not in this covariance.
+        """Covariance of θ̂ − ê over the observations for one lattice (module docstring): with K ≥ 2 sets
+        F⁻¹ [Σ_ω w_ω² (Σ_obs + Σ_truth)_ω Var(ē'_ω)] F⁻¹, the mean slope's noise Var(ē') = Var(e') / K measured as
+        that of the setting's gradient (a central FD with its step and common random numbers) at K·`spp`; with
+        K = 1, (F + E)⁻¹ − F⁻¹ (E the same excess), the shrinkage of a plug-in slope. The lattice's own value error
+        is one offset for every trial at θ* (bias, not variance): not in this covariance.
 
         Parameters
         ----------
@@ -231,7 +247,15 @@ class Surrogate(Estimator):
         tuple of (numpy.ndarray, str)
             The covariance (1, 1) in parameter units² and a note of what was assumed.
         """
-        Fi = np.linalg.inv(lin.F)
-        V = Fi @ lin.jacobian_excess(self.spp, problem.gradient, lin.w**2 * (lin.obs_var + lin.truth_var)) @ Fi
-        return V, (f"surrogate slope noise at {self.spp} spp as a central FD of step {problem.gradient.step} with "
-                   f"common random numbers; the lattice's value error is an offset shared by the trials (bias)")
+        F = lin.F
+        Fi = np.linalg.inv(F)
+        g = dataclasses.replace(problem.gradient, spp=None)  # the slope's noise at the lattice's spp, not the FD's own
+        total = self.sets * self.spp
+        if self.sets > 1:
+            V = Fi @ lin.jacobian_excess(total, g, lin.w**2 * (lin.obs_var + lin.truth_var)) @ Fi
+        else:
+            V = np.linalg.inv(F + lin.jacobian_excess(total, g, lin.w)) - Fi
+        rho = float(np.trace(Fi @ lin.jacobian_excess(self.spp, g, lin.w)))
+        return V, (f"surrogate slope noise of {self.sets} set(s) at {self.spp} spp as a central FD of step "
+                   f"{problem.gradient.step} with common random numbers (one set's ρ = F̃/F − 1 = {rho:.3g}); the "
+                   f"lattice's value error is an offset shared by the trials (bias)")
