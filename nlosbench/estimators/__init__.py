@@ -3,7 +3,8 @@
 
 Built in: `mle-adam` (Adam on the NLL through the renderer), `grid-search` (profile likelihood on
 cached grid renders + local refinement), `gauss-newton` (Fisher scoring with the bounds module's
-Fisher matrix) and `multi-start` (any of them from several starts). Third-party estimators register
+Fisher matrix), `multi-start` (any of them from several starts) and `surrogate` (the MLE of a scalar θ on a
+polynomial surrogate of L(θ) from a lattice of renders shared by every fit). Third-party estimators register
 through the entry-point group `nlosbench.estimators` (name → a factory, usually an Estimator
 subclass, called with the options), or at run time with `register(name, factory)`.
 """
@@ -18,10 +19,12 @@ from .gauss_newton import GaussNewton
 from .grid_search import GridSearch
 from .mle_adam import AdamMLE
 from .multi_start import MultiStart
+from .surrogate import Surrogate
 
 ENTRY_POINT_GROUP = "nlosbench.estimators"
 
-_BUILTIN: dict[str, Callable[..., Estimator]] = {c.name: c for c in (AdamMLE, GridSearch, GaussNewton, MultiStart)}
+_BUILTIN: dict[str, Callable[..., Estimator]] = {c.name: c for c in (AdamMLE, GridSearch, GaussNewton, MultiStart,
+                                                                     Surrogate)}
 _REGISTERED: dict[str, Callable[..., Estimator]] = {}
 
 
@@ -154,4 +157,5 @@ def describe() -> dict[str, str]:
 
 
 __all__ = ["BankGrid", "Budget", "Estimate", "Estimator", "Outcome", "Problem", "Tracker", "AdamMLE", "GridSearch",
-           "GaussNewton", "MultiStart", "ENTRY_POINT_GROUP", "register", "available", "factory", "get", "describe"]
+           "GaussNewton", "MultiStart", "Surrogate", "ENTRY_POINT_GROUP", "register", "available", "factory", "get",
+           "describe"]

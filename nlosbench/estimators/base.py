@@ -424,10 +424,12 @@ class Estimator(ABC):
                         grad_passes=used.grad_passes, samples=used.samples, seconds=tracker.seconds(),
                         final_loss=float(out.final_loss), init=theta0, trace=tracker.trace)
 
-    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int] | None:
-        """A θ grid (G, P) and spp this estimator renders once per process before its fits (None: none). A
-        study with a render bank renders it there and passes it as `Problem.grids`, so the grid is made once
-        per run, shared with equal render sets (e.g. a bound grid) and counted with the bank's renders.
+    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int] | tuple[np.ndarray, int, int] | None:
+        """A θ grid (G, P) and spp this estimator renders once per process before its fits (None: none), and
+        optionally a number K of independent render sets of it (default 1). A study with a render bank renders it
+        there and passes it as `Problem.grids`, so the grid is made once per run, shared with equal render sets
+        (e.g. a bound grid) and counted with the bank's renders; K sets come as one `BankGrid` whose θ are the
+        grid repeated K times (K·G, P), set k's renders at rows k·G … (k + 1)·G − 1.
 
         Parameters
         ----------
@@ -436,8 +438,9 @@ class Estimator(ABC):
 
         Returns
         -------
-        tuple of (numpy.ndarray, int) or None
-            The grid (G, P) in parameter units and the spp of its renders; None when the estimator needs none.
+        tuple of (numpy.ndarray, int) or (numpy.ndarray, int, int) or None
+            The grid (G, P) in parameter units, the spp of its renders and optionally the number of independent
+            render sets; None when the estimator needs none.
         """
         return None
 

@@ -18,13 +18,13 @@ information, and the paper's HCR_Neff / HCR-hat; in bayesian mode its curve over
 (`montecarlo.variance_verdict`). Estimators get the bound sets' grid renders as `Problem.bank` (a profile-likelihood
 start costs no render: estimator option `start: profile`); those sets never share a seed with the
 observation's mean (the bank's TRUTH set). An estimator that renders a grid before its fits (grid-search:
-`Estimator.grid_wanted`) gets it from the bank as replicate 0 of the bound service's render sets at its spp
-(`Problem.grids`): rendered once per run, counted with the bank's renders, and the bound grid's own renders
-when its θ and spp are the bound grid's. With a `precision` target (local mode) the service adds fresh replicate
-sets at the θ* whose HCR / CRLB interval is wider than asked, within `precision_budget` pixel-samples and `looks`
-looks (`bounds.precision`); bounds.csv gets its precision_* columns and the report a table of what was reached,
-spent and (where unmet) still needed. Trials resume from trials.jsonl. Outputs: summary.csv,
-bounds.csv (zzb.csv), plots/mse_vs_theta.png, plots/speed_vs_error.png.
+`Estimator.grid_wanted`) gets it from the bank as replicate 0 (or the first `sets` replicates) of the bound
+service's render sets at its spp (`Problem.grids`): rendered once per run, counted with the bank's renders,
+and the bound grid's own renders when its θ and spp are the bound grid's. With a `precision` target (local mode)
+the service adds fresh replicate sets at the θ* whose HCR / CRLB interval is wider than asked, within
+`precision_budget` pixel-samples and `looks` looks (`bounds.precision`); bounds.csv gets its precision_* columns
+and the report a table of what was reached, spent and (where unmet) still needed. Trials resume from trials.jsonl.
+Outputs: summary.csv, bounds.csv (zzb.csv), plots/mse_vs_theta.png, plots/speed_vs_error.png.
 
 An estimator's `gradient: {method: auto}` is resolved once, before any render (`diagnostics.
 resolve_gradient`: `choose_backend` from a gradients study's verdicts, `verdicts: PATH`, or the prior:
@@ -203,7 +203,7 @@ class Plan:
     replicates, bound renders (spp, replicates, seeds), the noise models, the estimator settings (gradients
     resolved), the budget per fit, what fixes the results besides the config (`fingerprint`: the resolved
     gradients; the run folder's fingerprint holds it, so a resume after the verdicts changed is refused), and
-    the grids the settings' estimators want (label → (θ grid, spp): `Estimator.grid_wanted`)."""
+    the grids the settings' estimators want (label → (θ grid, spp, sets): `Estimator.grid_wanted`)."""
 
     mode: str
     thetas: np.ndarray
@@ -272,8 +272,9 @@ def plan(ctx, cfg: dict) -> Plan:
 
 
 def wanted_grids(settings: list[Setting], params, where: str) -> dict:
-    """label → (θ grid (G, P), spp) of each setting whose estimator renders a grid before its fits
-    (`Estimator.grid_wanted`); ConfigError naming the setting for a grid it refuses (e.g. above max_grid)."""
+    """label → (θ grid (G, P), spp, independent render sets) of each setting whose estimator renders a grid before
+    its fits (`Estimator.grid_wanted`; sets 1 where it names none); ConfigError naming the setting for a grid it
+    refuses (e.g. above max_grid)."""
     out = {}
     for k, s in enumerate(settings):
         try:
@@ -281,7 +282,7 @@ def wanted_grids(settings: list[Setting], params, where: str) -> dict:
         except ValueError as e:
             raise ConfigError(f"{where}[{k}]", str(e)) from None
         if want is not None:
-            out[s.label] = want
+            out[s.label] = (*want, 1) if len(want) == 2 else tuple(want)
     return out
 
 
@@ -316,9 +317,9 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
         if cfg["precision"] is not None and cfg["precision_budget"] is not None:  # the fresh looks: at most the budget
             renders += cfg["precision_budget"] // (bspp * px)
             samples += cfg["precision_budget"] // px
-    for thetas, spp in p.grids.values():  # made once by the bank; the bound grid's renders when they are the same
-        if not (spp == bspp and len(thetas) == G):
-            renders, samples = renders + len(thetas), samples + len(thetas) * spp
+    for thetas, spp, sets in p.grids.values():  # made once by the bank; the bound grid's renders when they are the same
+        if not (spp == bspp and len(thetas) == G and sets <= R):
+            renders, samples = renders + sets * len(thetas), samples + sets * len(thetas) * spp
     for s in p.settings:
         r, spp = _fit_cost(s.name, s.options, s.gradient, P, p.budget)
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
@@ -340,7 +341,8 @@ def _predicts(est) -> bool:
 
 def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budget: Budget) -> tuple[float, float]:
     """(renders, spp summed over them) of one fit, estimated from the estimator's options (its constructor's
-    defaults filled in): grid-search refine_evals (its grid is the bank's, counted once in `cost`); multi-start
+    defaults filled in): grid-search refine_evals (its grid is the bank's, counted once in `cost`); surrogate none (its
+    lattice is the bank's too); multi-start
     `starts` × its base estimator; otherwise iterations (capped by the budget) × (a render + the gradient's
     renders: 2 per FD parameter and round, AD_PASS_RENDERS per AD pass)."""
     try:
@@ -360,6 +362,8 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
     if name == "multi-start":
         r, n = _fit_cost(o.get("base", "mle-adam"), o.get("options") or {}, gradient, P, budget)
         return o.get("starts", 4) * r + 1, o.get("starts", 4) * n + spp
+    if name == "surrogate":  # its lattice is a grid the bank renders once (counted in `cost`); a fit renders nothing
+        return 0, 0
     if name == "grid-search":
         refine = o.get("refine_evals", 150) if o.get("refine", True) else 0
         return refine, refine * (o.get("refine_spp") or spp)
@@ -415,9 +419,11 @@ def run(ctx, cfg: dict) -> dict:
     # the estimators' grid is the mean of the bound's replicate sets (R × bound_spp samples, no new render)
     reps = svc.replicates(grid, p.bound_spp, cfg["seeds"], p.replicates, "bank grid")
     bank_grid = BankGrid(grid, reps.mean(dim=0), p.replicates * p.bound_spp)
-    # the settings' own grids (grid-search): replicate 0 of the bound sets at their spp, one render per (θ, spp, seed)
-    grids = {label: BankGrid(thetas, svc.replicates(thetas, spp, cfg["seeds"], 1, f"{label} grid")[0], spp)
-             for label, (thetas, spp) in p.grids.items()}
+    # the settings' own grids (grid-search, surrogate): the first `sets` replicates of the bound sets at their spp, one
+    # render per (θ, spp, seed); several sets are passed as one grid, its θ repeated per set (`Estimator.grid_wanted`)
+    grids = {label: BankGrid(np.tile(thetas, (sets, 1)), svc.replicates(thetas, spp, cfg["seeds"], sets,
+                                                                        f"{label} grid").flatten(0, 1), spp)
+             for label, (thetas, spp, sets) in p.grids.items()}
     bound_rows, zzb, precision = [], {}, []
     tseed = ctx.seed_for(f"trials {sid}")  # the trials' noise, start and fit seeds: a stream of this study's own
     if p.mode == "bayesian":
