@@ -164,7 +164,7 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat | StepFisher, level: float = 
     >>> F = nb.bounds.UStat(np.array([[1.0]]), np.array([[0.05]]), np.empty((0, 1, 1)), 10)
     >>> iv = nb.bounds.hcr_interval(lam, np.array([0.5, 1.0]), F)
     >>> round(iv.lower, 3), iv.point, round(iv.upper, 3), iv.lower_term
-    (-0.051, 0.0, 0.058, 'Δ → 0')
+    (-0.051, 0.0, 0.042, 'Δ → 0')
     """
     d = np.asarray(deltas, dtype=np.float64)
     D = d.reshape(d.shape[0], -1)
