@@ -49,7 +49,7 @@ from ..bounds import BoundService
 from ..diagnostics import resolve_gradient
 from ..diagnostics.images import label as gradient_label
 from ..estimators import BankGrid, Budget, Estimator, Problem
-from ..estimators.predict import Linearisation, jacobian_covariance, variance, weight
+from ..estimators.predict import Linearisation, jacobian_covariance, render_covariance, variance, weight
 from ..forward.gradients import GradientSettings, jacobian
 from ..io import write_csv
 from ..montecarlo import LOG_NAME, Setting, make_bayes_trials, make_trials, run_trials, summarize, summarize_bayes
@@ -522,8 +522,9 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
     `predicted_variance` from a `Linearisation` at θ* built from the bank. J: the bound service's R independent
     central-FD rounds at the bound spp and `fd_step` (`BoundService.fd_rounds`: the renders of `at`'s first FD
     stage, so no new render when the study asked for bounds; unbiased products); Σ_render(s): the model's own
-    variance where it has one (the analytic toys), else the per-pixel variance of the bound service's R replicate
-    renders at θ* × bound_spp / s; Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from
+    variance where it has one (the analytic toys, per element), else the per-pixel channel covariance of the bound
+    service's R replicate renders at θ* × bound_spp / s (`predict.render_covariance`: a pixel's channels share its
+    light paths); Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from
     `predict_jacobians` Jacobians with the setting's own gradient at its spp; the start from the study's start
     rule."""
     model, params, R, K = ctx.model, ctx.model.params, p.replicates, cfg["predict_jacobians"]
@@ -531,8 +532,11 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
         return {(j, i, s.label): getattr(estimators.factory(s.name), "no_prediction", Estimator.no_prediction)
                 for s in p.settings for i in range(len(p.thetas)) for j in p.noises}
     reps = svc.replicates(p.thetas, p.bound_spp, cfg["seeds"], R, "bound renders at θ*").double()  # (R, T, *S)
-    Js = svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, cfg["fd_step"])  # (R, T, P, N): the bound's own
     own = getattr(model, "noise_variance", None)
+    Js = svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, cfg["fd_step"])  # (R, T, P, N): the bound's own
+    # the response J₀: the same rounds at the bound's finest step ξ / 2^max_halvings (rendered by `at` where F rose)
+    J0s = None if own is not None else svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R,
+                                                     cfg["fd_step"] / 2 ** cfg["max_halvings"])
     out: dict = {}
     for si, s in enumerate(p.settings):
         est = estimators.get(s.name, **s.options)
@@ -546,15 +550,17 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                 grads.setdefault(i, []).append(J.double().reshape(params.dim, -1).numpy())
         for i, theta in enumerate(p.thetas):
             L = sum(cleans[i, c] for c in range(p.clusters)).double() / p.clusters
+            # the model's own variance is per element; a render's error is shared by a pixel's channels (`predict`)
+            C = 1 if own is not None else int(L.shape[-1])
             if own is not None:
                 def render_var(n: int, L=L) -> np.ndarray:
                     return own(L, n).reshape(-1).numpy()
             else:
-                var = reps[:, i].var(dim=0).reshape(-1).numpy() if R > 1 else np.zeros(L.numel())
+                var = render_covariance(reps[:, i].numpy(), C) if R > 1 else np.zeros((L.numel() // C, C, C))
 
                 def render_var(n: int, var=var) -> np.ndarray:
                     return var * p.bound_spp / n
-            jcov = jacobian_covariance(np.stack(grads[i]), spp, s.gradient) if len(grads.get(i, [])) > 1 else None
+            jcov = jacobian_covariance(np.stack(grads[i]), spp, s.gradient, C) if len(grads.get(i, [])) > 1 else None
             for j, noise in p.noises.items():
                 key = (j, i, s.label)
                 if not _predicts(est):
@@ -562,7 +568,8 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                     continue
                 lin = Linearisation(theta.copy(), Js[:, i].reshape(R, params.dim, -1), weight(noise, L),
                                     variance(noise, L), render_var(p.n_eff // p.clusters), render_var, jcov,
-                                    np.zeros((params.dim, params.dim)))
+                                    np.zeros((params.dim, params.dim)), channels=C,
+                                    response=None if J0s is None else J0s[:, i].reshape(R, params.dim, -1))
                 fits = [r for r in records if r["error"] is None and r["estimator"] == s.label and r["noise"] == j
                         and r["theta_index"] == i]
                 its, sts = [r["iterations"] for r in fits], [r.get("status", "") for r in fits]
