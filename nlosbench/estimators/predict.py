@@ -246,6 +246,72 @@ def cluster_share(clusters) -> float:
     return float((n - (m**2).sum() / n) / (n - 1)) if n > 1 else float("nan")
 
 
+#: a response J₀ is used where its G = JᵀW J₀ has a jackknife SE (over the rounds) at most this fraction of G
+RESPONSE_TOL = 0.1
+
+
+def cross_products(J: np.ndarray, J0: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(G, its jackknife SE) (P, P) for G = Σ_{r≠s} J_rᵀ W J₀_s / (R(R − 1)) from R rounds of J and J₀ (R, P, N)
+    (round r of both from the same seeds, so only r ≠ s pairs), w (N,) the diagonal weight; the SE is NaN for
+    R < 3.
+
+    Parameters
+    ----------
+    J, J0 : numpy.ndarray
+        (R, P, N) rounds of the secant and of the response Jacobian.
+    w : numpy.ndarray
+        (N,) the per-pixel weight.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        G and its jackknife standard error, both (P, P).
+    """
+    R = len(J)
+    M = np.einsum("rpn,n,sqn->rspq", J, w, J0)  # every round pair's product
+
+    def g(keep):
+        pairs = [(r, s) for r in keep for s in keep if r != s]
+        return sum(M[r, s] for r, s in pairs) / len(pairs)
+
+    G = g(range(R))
+    if R < 3:
+        return G, np.full_like(G, np.nan)
+    loo = np.stack([g([r for r in range(R) if r != k]) for k in range(R)])
+    return G, np.sqrt((R - 1) / R * ((loo - loo.mean(axis=0)) ** 2).sum(axis=0))
+
+
+def choose_response(J: np.ndarray, candidates: list[tuple[float, np.ndarray]], w: np.ndarray,
+                    tol: float = RESPONSE_TOL) -> tuple[float, np.ndarray] | None:
+    """The finest-step response (step, rounds (R, P, N)) among `candidates` [(ξ, rounds), ...] whose G = JᵀW J₀
+    is resolved: every diagonal entry positive with a jackknife SE ≤ `tol` × it (`cross_products`); None when none
+    is (then J itself is the response: G = F). In NLOS at a few hundred spp the finest FD steps are noise, and
+    their G would make the prediction noise too.
+
+    Parameters
+    ----------
+    J : numpy.ndarray
+        (R, P, N) rounds of the estimator's (secant) Jacobian.
+    candidates : list of (float, numpy.ndarray)
+        (ξ, rounds (R, P, N)) of finer FD steps, same seeds per round as J.
+    w : numpy.ndarray
+        (N,) the per-pixel weight.
+    tol : float, optional
+        The largest relative SE of G's diagonal.
+
+    Returns
+    -------
+    tuple of (float, numpy.ndarray) or None
+        The chosen step and its rounds, or None.
+    """
+    for step, J0 in sorted(candidates, key=lambda c: c[0]):
+        G, se = cross_products(J, J0, w)
+        d, e = np.diag(G), np.diag(se)
+        if np.all(d > 0) and np.all(e <= tol * d):
+            return step, J0
+    return None
+
+
 def target(lin: Linearisation) -> tuple[np.ndarray, np.ndarray]:
     """(obs, truth) covariances of the fixed point ê: G⁻¹ JᵀW Σ_obs WJ G⁻ᵀ and G⁻¹ JᵀW Σ_truth WJ G⁻ᵀ
     (`Linearisation.sandwich`; G = F where the fits' Jacobian is the derivative)."""

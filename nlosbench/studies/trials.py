@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .. import estimators, io
 from ..bank import TRUTH
@@ -49,7 +50,14 @@ from ..bounds import BoundService
 from ..diagnostics import resolve_gradient
 from ..diagnostics.images import label as gradient_label
 from ..estimators import BankGrid, Budget, Estimator, Problem
-from ..estimators.predict import Linearisation, jacobian_covariance, render_covariance, variance, weight
+from ..estimators.predict import (
+    Linearisation,
+    choose_response,
+    jacobian_covariance,
+    render_covariance,
+    variance,
+    weight,
+)
 from ..forward.gradients import GradientSettings, jacobian
 from ..io import write_csv
 from ..montecarlo import LOG_NAME, Setting, make_bayes_trials, make_trials, run_trials, summarize, summarize_bayes
@@ -322,7 +330,8 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
     for s in p.settings:
         r, spp = _fit_cost(s.name, s.options, s.gradient, P, p.budget)
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
-    note = "fits estimated from each estimator's iterations × spp (an upper bound where fits stop early)"
+    note = ("fits estimated from each estimator's planned iterations × spp (its cap, an upper bound where fits stop "
+            "early; mle-adam with lr auto: what its stopping rule typically takes)")
     if cfg["precision"] is not None and cfg["precision_budget"] is None:
         note += "; precision: the fresh looks not counted (no precision_budget)"
     return Estimate(renders, samples * px, note)
@@ -342,7 +351,8 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
     """(renders, spp summed over them) of one fit, estimated from the estimator's options (its constructor's
     defaults filled in): grid-search refine_evals (its grid is the bank's, counted once in `cost`); multi-start
     `starts` × its base estimator; otherwise iterations (capped by the budget) × (a render + the gradient's
-    renders: 2 per FD parameter and round, AD_PASS_RENDERS per AD pass)."""
+    renders: 2 per FD parameter and round, AD_PASS_RENDERS per AD pass); the iterations are the estimator's
+    `expected_iterations()` where it has one (a stopping rule that ends fits well before the cap)."""
     try:
         sig = inspect.signature(estimators.factory(name))
         o = {k: v.default for k, v in sig.parameters.items() if v.default is not inspect.Parameter.empty}
@@ -365,7 +375,11 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
         return refine, refine * (o.get("refine_spp") or spp)
     n_ad = P if gradient.method == "ad" else len(gradient.ad_params) if gradient.method == "mixed" else 0
     grad = 2 * gradient.rounds * (P - n_ad) + (AD_PASS_RENDERS if n_ad else 0)
-    iterations = budget.cap(int(o.get("iterations", 100)))
+    try:  # an estimator that stops on its own rule plans fewer iterations than its cap (mle-adam's lr "auto")
+        planned = estimators.get(name, **options).expected_iterations()
+    except (AttributeError, TypeError, ValueError, KeyError, ImportError):
+        planned = int(o.get("iterations", 100))
+    iterations = budget.cap(int(planned))
     per = 1 + grad
     if budget.renders:
         iterations = min(iterations, max(1, budget.renders // per))
@@ -521,7 +535,9 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
     """(noise, θ index, label) → each local-trials row's `Prediction` (or why none): the estimator's
     `predicted_variance` from a `Linearisation` at θ* built from the bank. J: the bound service's R independent
     central-FD rounds at the bound spp and `fd_step` (`BoundService.fd_rounds`: the renders of `at`'s first FD
-    stage, so no new render when the study asked for bounds; unbiased products); Σ_render(s): the model's own
+    stage, so no new render when the study asked for bounds; unbiased products); the response J₀ (`predict.
+    Linearisation.response`): the same rounds at the finest of the bound's halved steps ξ / 2^k, k ≤ max_halvings,
+    whose G = JᵀW J₀ is resolved (`predict.choose_response`; none: J itself); Σ_render(s): the model's own
     variance where it has one (the analytic toys, per element), else the per-pixel channel covariance of the bound
     service's R replicate renders at θ* × bound_spp / s (`predict.render_covariance`: a pixel's channels share its
     light paths); Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from
@@ -534,9 +550,10 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
     reps = svc.replicates(p.thetas, p.bound_spp, cfg["seeds"], R, "bound renders at θ*").double()  # (R, T, *S)
     own = getattr(model, "noise_variance", None)
     Js = svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, cfg["fd_step"])  # (R, T, P, N): the bound's own
-    # the response J₀: the same rounds at the bound's finest step ξ / 2^max_halvings (rendered by `at` where F rose)
-    J0s = None if own is not None else svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R,
-                                                     cfg["fd_step"] / 2 ** cfg["max_halvings"])
+    # the response J₀: the same rounds at the bound's finer steps ξ / 2^k (rendered by `at` where F rose), the
+    # finest whose G = JᵀW J₀ is resolved (`predict.choose_response`)
+    steps = [cfg["fd_step"] / 2**k for k in range(1, cfg["max_halvings"] + 1)] if own is None else []
+    finer = [(h, svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, h)) for h in steps]
     out: dict = {}
     for si, s in enumerate(p.settings):
         est = estimators.get(s.name, **s.options)
@@ -566,10 +583,12 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                 if not _predicts(est):
                     out[key] = getattr(est, "no_prediction", Estimator.no_prediction)
                     continue
-                lin = Linearisation(theta.copy(), Js[:, i].reshape(R, params.dim, -1), weight(noise, L),
-                                    variance(noise, L), render_var(p.n_eff // p.clusters), render_var, jcov,
-                                    np.zeros((params.dim, params.dim)), channels=C,
-                                    response=None if J0s is None else J0s[:, i].reshape(R, params.dim, -1))
+                Ji, wi = Js[:, i].reshape(R, params.dim, -1), weight(noise, L)
+                resp = choose_response(Ji.numpy(), [(h, J0[:, i].reshape(R, params.dim, -1).numpy())
+                                                    for h, J0 in finer], wi)
+                lin = Linearisation(theta.copy(), Ji, wi, variance(noise, L), render_var(p.n_eff // p.clusters),
+                                    render_var, jcov, np.zeros((params.dim, params.dim)), channels=C,
+                                    response=None if resp is None else torch.from_numpy(resp[1]))
                 fits = [r for r in records if r["error"] is None and r["estimator"] == s.label and r["noise"] == j
                         and r["theta_index"] == i]
                 its, sts = [r["iterations"] for r in fits], [r.get("status", "") for r in fits]
@@ -582,6 +601,10 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                 except (ValueError, np.linalg.LinAlgError) as e:
                     out[key] = f"no prediction: {e}"
                     continue
+                if pred is not None and steps:
+                    pred = dataclasses.replace(pred, note=pred.note + (
+                        f"; response from FD at ξ = {resp[0]:.3g}" if resp is not None else
+                        f"; response: the ξ = {cfg['fd_step']:g} Jacobian (no finer step resolved)"))
                 out[key] = pred if pred is not None else est.no_prediction
     return out
 
@@ -718,8 +741,8 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
         lines += ["", f"### Against the bounds that apply (noise {j}; {units})", ""]
         head = ["θ*", "estimator", "n (failed)", "MSE [lower, upper limit]", "predicted MSE", "Var",
                 "predicted Var: verdict", "bias ± SE (t, p)"]
-        head += [f"{b} [{lvl} ends]" for b in bounds if b in ("hcr", "crlb")] + ["verdict", "fit status",
-                                                                                "s / trial", "renders / trial"]
+        head += [f"{b} [{lvl} ends]" for b in bounds if b in ("hcr", "crlb")] + [
+            "verdict", "fit status", "s / trial", "renders / trial", "pixel-samples / trial"]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for r in (r for r in rows if r["noise"] == j):
             b = next((b for b in results["bound_rows"]
@@ -733,7 +756,7 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
                 cells.append(f"{fmt_log10(float(b[f'log10_{k}']))} [{_end(b, k, 'lower')}, {_end(b, k, 'upper')}]"
                              if b else "–")
             cells += [_verdict(r, bounds), r.get("status", ""), fmt(r["mean_seconds"]),
-                      fmt(r["mean_renders"] + r["mean_grad_passes"])]
+                      fmt(r["mean_renders"] + r["mean_grad_passes"]), fmt(r.get("mean_samples", math.nan), 2)]
             lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     if any(b.get(f"{k}_{e}_note") for b in results["bound_rows"] for k in ("hcr", "crlb") for e in ("lower", "upper")):
         lines += ["", "† not a confidence limit (why: `<bound>_lower_note` / `_upper_note` in bounds.csv); ∞: an open "
