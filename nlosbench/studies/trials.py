@@ -60,7 +60,16 @@ from ..estimators.predict import (
 )
 from ..forward.gradients import GradientSettings, jacobian
 from ..io import write_csv
-from ..montecarlo import LOG_NAME, Setting, make_bayes_trials, make_trials, run_trials, summarize, summarize_bayes
+from ..montecarlo import (
+    LOG_NAME,
+    Setting,
+    make_bayes_trials,
+    make_trials,
+    read_log,
+    run_trials,
+    summarize,
+    summarize_bayes,
+)
 from ..schema import (
     MAX_HALVINGS,
     STEP_TOL,
@@ -698,11 +707,30 @@ def report(study_dir, results: dict) -> str:
         lines += precise.table(results["precision"], units, results.get("seconds_per_sample"))
     if results["errors"]:
         lines += ["", "Failed fits (distinct errors):", ""] + [f"- `{e}`" for e in results["errors"]]
+    lines += _stalled(study_dir / LOG_NAME)
     rel = study_dir.name
     if not bayes:
         lines += ["", f"![MSE and bounds against θ*]({rel}/plots/mse_vs_theta.png)"]
     lines += [f"![speed against error]({rel}/plots/speed_vs_error.png)", ""]
     return "\n".join(lines)
+
+
+def _stalled(log: Path, most: int = 5) -> list[str]:
+    """Report lines naming why fits ended "stalled" (each fit's own reason from trials.jsonl, up to `most` per
+    estimator with the count), so no stalled fit goes unexplained; none when no fit stalled or there is no log."""
+    if not log.exists():
+        return []
+    why: dict[str, list[str]] = {}
+    for r in read_log(log):
+        if r.get("status") == "stalled":
+            why.setdefault(r["estimator"], []).append(str(r.get("reason", "")))
+    if not why:
+        return []
+    lines = ["", "Stalled fits (each fit's reason for stopping short, `reason` in trials.jsonl):", ""]
+    for label, rs in why.items():
+        lines += [f"- **{label}** ({len(rs)} stalled): " + "; ".join(f"`{r}`" for r in rs[:most])
+                  + (f"; … {len(rs) - most} more" if len(rs) > most else "")]
+    return lines
 
 
 def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lvl: str) -> list[str]:
