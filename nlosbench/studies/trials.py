@@ -306,8 +306,9 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
     """Renders and pixel-samples: counted for the clean images and the bound renders (the bank grid, θ*, FD
     stencils at ξ and ξ/2 — further halvings, up to max_halvings, where the step has not converged, are not
     counted —, the axis offsets, the spp levels of hcr_hat, Poisson weight renders, and with a precision target
-    its `precision_budget`, the most its fresh looks may spend), estimated for the fits
-    (`_fit_cost`: each setting's iterations × spp, an upper bound for fits that stop early)."""
+    its `precision_budget`, the most its fresh looks may spend; for a predicted variance the settings' Jacobians and
+    the response's FD stages down to ξ/2^max_halvings, all counted though the bound may have made some), estimated
+    for the fits (`_fit_cost`: each setting's planned iterations × spp)."""
     P, R, bspp, px = ctx.model.params.dim, p.replicates, p.bound_spp, pixels(ctx.model)
     G, T = cfg["hcr_grid"] ** P, len(p.thetas)
     renders, samples = R * G, R * G * bspp  # the bank grid (the bayesian ZZB curve uses the same renders)
@@ -330,6 +331,10 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
                 r, spp = _fit_cost(s.name, {**s.options, "iterations": 1}, s.gradient, P, Budget())
                 k = T * cfg["predict_jacobians"]
                 renders, samples = renders + k * max(r - 1, 0), samples + k * spp
+            if any(_predicts(s.name) for s in p.settings) and getattr(ctx.model, "noise_variance", None) is None:
+                # the response's FD stages at ξ/2 … ξ/2^max_halvings (the bound's own where it made them; ξ/2 counted)
+                k = T * R * 2 * P * max(cfg["max_halvings"] - (1 if want & {"hcr", "crlb"} else 0), 0)
+                renders, samples = renders + k, samples + k * bspp
         if cfg["precision"] is not None and cfg["precision_budget"] is not None:  # the fresh looks: at most the budget
             renders += cfg["precision_budget"] // (bspp * px)
             samples += cfg["precision_budget"] // px
