@@ -377,6 +377,7 @@ def summarize(
             mean_grad_passes=float(np.mean(grads)),
             total_grad_passes=int(np.sum(grads)),
             mean_iterations=float(np.mean([r["iterations"] for r in rs])),
+            mean_samples=float(np.mean([r.get("samples", math.nan) for r in rs])),  # pixel-samples (spp × pixels)
         )
         far = []
         for b, v in (bounds or {}).get((j, i), {}).items():

@@ -96,9 +96,15 @@ def test_stopping_rule_tells_converged_from_still_moving_and_stalled():
 
 def test_the_trials_cost_estimate_reads_the_spp_that_the_estimator_resolves():
     """mle-adam's spp default follows its lr (AUTO_SPP with "auto", 512 then 1024 with a number): the trials
-    study's plan counts that, an upper bound (its iterations cap × (1 + 2P) FD renders, at the largest spp)."""
+    study's plan counts that, × (1 + 2P) FD renders per iteration at the largest spp, for the iterations it plans:
+    with lr "auto" what its stopping rule typically takes (AUTO_ITERATIONS, not the cap of 200), with a numeric lr
+    its cap (an upper bound), and never more than a budget allows."""
     from nlosbench.estimators import Budget
+    from nlosbench.estimators.mle_adam import AUTO_ITERATIONS
     from nlosbench.studies.trials import _fit_cost
 
-    assert _fit_cost("mle-adam", {}, GradientSettings(), 2, Budget()) == (1000, 1000 * AUTO_SPP)
+    k = AUTO_ITERATIONS * 5
+    assert _fit_cost("mle-adam", {}, GradientSettings(), 2, Budget()) == (k, k * AUTO_SPP)
+    assert _fit_cost("mle-adam", {"iterations": 12}, GradientSettings(), 2, Budget()) == (60, 60 * AUTO_SPP)
+    assert _fit_cost("mle-adam", {}, GradientSettings(), 2, Budget(iterations=11)) == (55, 55 * AUTO_SPP)
     assert _fit_cost("mle-adam", {"lr": 0.05}, GradientSettings(), 2, Budget()) == (1000, 1000 * 1024)

@@ -526,3 +526,23 @@ def test_grid_search_takes_its_grid_from_the_render_bank_once(tmp_path):
 
     assert study_renders(4, "shared") == (2 * 5 + 1, 0)  # bound grid (R × G) + the clean image; no fit renders
     assert study_renders(16, "own") == (2 * 5 + 1 + 5, 0)  # its own grid, once
+
+
+def test_the_report_says_why_fits_stalled(tmp_path):
+    """A fit that ends "stalled" is named with its own reason in the report's lines (up to 5 per estimator, then
+    a count); converged fits and a missing log add nothing."""
+    from nlosbench.records import RecordLog
+    from nlosbench.studies.trials import _stalled
+
+    log = RecordLog(tmp_path / "trials.jsonl")
+    with log:
+        for k in range(7):
+            log.append({"noise": 0, "theta_index": 0, "trial": k, "estimator": "adam", "status": "stalled",
+                        "reason": f"why {k}"})
+        log.append({"noise": 0, "theta_index": 0, "trial": 7, "estimator": "gn", "status": "converged",
+                    "reason": "fine"})
+    lines = _stalled(tmp_path / "trials.jsonl")
+    text = "\n".join(lines)
+    assert "**adam** (7 stalled)" in text and "`why 4`" in text and "`why 5`" not in text and "2 more" in text
+    assert "gn" not in text and "fine" not in text
+    assert _stalled(tmp_path / "none.jsonl") == []

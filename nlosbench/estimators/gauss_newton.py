@@ -19,8 +19,10 @@ carry the information. With exact Jacobians the start is gone after one step
 and θ̂ − ê = −F⁻¹ JᵀW ε_last: the last accepted step's render enters like the truth's,
 F⁻¹ JᵀW Σ_render(s) WJ F⁻¹. With noisy ones (NLOS: F̂ far above F) each step removes only F̂⁻¹F of the
 error, so (I − F̂⁻¹F)^k of the start's error survives k iterations, and the forcing adds
-F̂⁻¹ [JᵀW Σ_render WJ + Σ_ω w² (Σ_obs + Σ_truth + Σ_render) Cov δJ] F̂⁻¹ per iteration (`predict.score_noise`).
-The second moment follows V_{k+1} = B V_k Bᵀ + Q, B = I − F̂⁻¹F, from V_0 = the start's second moment about ê
+F̂⁻¹ [JᵀW Σ_render WJ + E[δJᵀ W (Σ_obs + Σ_truth + Σ_render) W δJ]] F̂⁻¹ per iteration (`predict.score_noise`;
+the Σ per pixel a block over its colour channels). Where J is a secant over ±ξ and the image moves by the
+derivative J₀ (`Linearisation.response`), F in B and in the fixed point becomes G = JᵀW J₀. The second moment
+follows V_{k+1} = B V_k Bᵀ + Q, B = I − F̂⁻¹G, from V_0 = the start's second moment about ê
 (`predict.start_moment`), averaged over the fits' iteration counts. Damping (μ → 0 after a few accepted steps),
 rejected steps and Θ's box are not modelled: a fit that stops on a rejected step near ê is not this recursion.
 """
@@ -155,7 +157,7 @@ class GaussNewton(Estimator):
         F, g = lin.F, problem.gradient
         Fh = F + lin.jacobian_excess(self.spp, g, lin.w)
         Fhi = np.linalg.inv(Fh)
-        B = np.eye(len(F)) - Fhi @ F
+        B = np.eye(len(F)) - Fhi @ lin.G  # the step's response: G = Jᵀ W J₀ (F for an exact Jacobian)
         Q = Fhi @ score_noise(lin, self.spp, g) @ Fhi.T
         if iterations is None:
             ks = [budget.cap(self.iterations)]

@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 
 from .. import estimators, io
 from ..bank import TRUTH
@@ -49,10 +50,26 @@ from ..bounds import BoundService
 from ..diagnostics import resolve_gradient
 from ..diagnostics.images import label as gradient_label
 from ..estimators import BankGrid, Budget, Estimator, Problem
-from ..estimators.predict import Linearisation, jacobian_covariance, variance, weight
+from ..estimators.predict import (
+    Linearisation,
+    choose_response,
+    jacobian_covariance,
+    render_covariance,
+    variance,
+    weight,
+)
 from ..forward.gradients import GradientSettings, jacobian
 from ..io import write_csv
-from ..montecarlo import LOG_NAME, Setting, make_bayes_trials, make_trials, run_trials, summarize, summarize_bayes
+from ..montecarlo import (
+    LOG_NAME,
+    Setting,
+    make_bayes_trials,
+    make_trials,
+    read_log,
+    run_trials,
+    summarize,
+    summarize_bayes,
+)
 from ..schema import (
     MAX_HALVINGS,
     STEP_TOL,
@@ -290,8 +307,9 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
     """Renders and pixel-samples: counted for the clean images and the bound renders (the bank grid, θ*, FD
     stencils at ξ and ξ/2 — further halvings, up to max_halvings, where the step has not converged, are not
     counted —, the axis offsets, the spp levels of hcr_hat, Poisson weight renders, and with a precision target
-    its `precision_budget`, the most its fresh looks may spend), estimated for the fits
-    (`_fit_cost`: each setting's iterations × spp, an upper bound for fits that stop early)."""
+    its `precision_budget`, the most its fresh looks may spend; for a predicted variance the settings' Jacobians and
+    the response's FD stages down to ξ/2^max_halvings, all counted though the bound may have made some), estimated
+    for the fits (`_fit_cost`: each setting's planned iterations × spp)."""
     P, R, bspp, px = ctx.model.params.dim, p.replicates, p.bound_spp, pixels(ctx.model)
     G, T = cfg["hcr_grid"] ** P, len(p.thetas)
     renders, samples = R * G, R * G * bspp  # the bank grid (the bayesian ZZB curve uses the same renders)
@@ -314,6 +332,10 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
                 r, spp = _fit_cost(s.name, {**s.options, "iterations": 1}, s.gradient, P, Budget())
                 k = T * cfg["predict_jacobians"]
                 renders, samples = renders + k * max(r - 1, 0), samples + k * spp
+            if any(_predicts(s.name) for s in p.settings) and getattr(ctx.model, "noise_variance", None) is None:
+                # the response's FD stages at ξ/2 … ξ/2^max_halvings (the bound's own where it made them; ξ/2 counted)
+                k = T * R * 2 * P * max(cfg["max_halvings"] - (1 if want & {"hcr", "crlb"} else 0), 0)
+                renders, samples = renders + k, samples + k * bspp
         if cfg["precision"] is not None and cfg["precision_budget"] is not None:  # the fresh looks: at most the budget
             renders += cfg["precision_budget"] // (bspp * px)
             samples += cfg["precision_budget"] // px
@@ -323,7 +345,8 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
     for s in p.settings:
         r, spp = _fit_cost(s.name, s.options, s.gradient, P, p.budget)
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
-    note = "fits estimated from each estimator's iterations × spp (an upper bound where fits stop early)"
+    note = ("fits estimated from each estimator's planned iterations × spp (its cap, an upper bound where fits stop "
+            "early; mle-adam with lr auto: what its stopping rule typically takes)")
     if cfg["precision"] is not None and cfg["precision_budget"] is None:
         note += "; precision: the fresh looks not counted (no precision_budget)"
     return Estimate(renders, samples * px, note)
@@ -344,7 +367,8 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
     defaults filled in): grid-search refine_evals (its grid is the bank's, counted once in `cost`); surrogate none (its
     lattice is the bank's too); multi-start
     `starts` × its base estimator; otherwise iterations (capped by the budget) × (a render + the gradient's
-    renders: 2 per FD parameter and round, AD_PASS_RENDERS per AD pass)."""
+    renders: 2 per FD parameter and round, AD_PASS_RENDERS per AD pass); the iterations are the estimator's
+    `expected_iterations()` where it has one (a stopping rule that ends fits well before the cap)."""
     try:
         sig = inspect.signature(estimators.factory(name))
         o = {k: v.default for k, v in sig.parameters.items() if v.default is not inspect.Parameter.empty}
@@ -369,7 +393,11 @@ def _fit_cost(name: str, options: dict, gradient: GradientSettings, P: int, budg
         return refine, refine * (o.get("refine_spp") or spp)
     n_ad = P if gradient.method == "ad" else len(gradient.ad_params) if gradient.method == "mixed" else 0
     grad = 2 * gradient.rounds * (P - n_ad) + (AD_PASS_RENDERS if n_ad else 0)
-    iterations = budget.cap(int(o.get("iterations", 100)))
+    try:  # an estimator that stops on its own rule plans fewer iterations than its cap (mle-adam's lr "auto")
+        planned = estimators.get(name, **options).expected_iterations()
+    except (AttributeError, TypeError, ValueError, KeyError, ImportError):
+        planned = int(o.get("iterations", 100))
+    iterations = budget.cap(int(planned))
     per = 1 + grad
     if budget.renders:
         iterations = min(iterations, max(1, budget.renders // per))
@@ -527,9 +555,12 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
     """(noise, θ index, label) → each local-trials row's `Prediction` (or why none): the estimator's
     `predicted_variance` from a `Linearisation` at θ* built from the bank. J: the bound service's R independent
     central-FD rounds at the bound spp and `fd_step` (`BoundService.fd_rounds`: the renders of `at`'s first FD
-    stage, so no new render when the study asked for bounds; unbiased products); Σ_render(s): the model's own
-    variance where it has one (the analytic toys), else the per-pixel variance of the bound service's R replicate
-    renders at θ* × bound_spp / s; Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from
+    stage, so no new render when the study asked for bounds; unbiased products); the response J₀ (`predict.
+    Linearisation.response`): the same rounds at the finest of the bound's halved steps ξ / 2^k, k ≤ max_halvings,
+    whose G = JᵀW J₀ is resolved (`predict.choose_response`; none: J itself); Σ_render(s): the model's own
+    variance where it has one (the analytic toys, per element), else the per-pixel channel covariance of the bound
+    service's R replicate renders at θ* × bound_spp / s (`predict.render_covariance`: a pixel's channels share its
+    light paths); Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from
     `predict_jacobians` Jacobians with the setting's own gradient at its spp; the start from the study's start
     rule."""
     model, params, R, K = ctx.model, ctx.model.params, p.replicates, cfg["predict_jacobians"]
@@ -537,8 +568,12 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
         return {(j, i, s.label): getattr(estimators.factory(s.name), "no_prediction", Estimator.no_prediction)
                 for s in p.settings for i in range(len(p.thetas)) for j in p.noises}
     reps = svc.replicates(p.thetas, p.bound_spp, cfg["seeds"], R, "bound renders at θ*").double()  # (R, T, *S)
-    Js = svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, cfg["fd_step"])  # (R, T, P, N): the bound's own
     own = getattr(model, "noise_variance", None)
+    Js = svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, cfg["fd_step"])  # (R, T, P, N): the bound's own
+    # the response J₀: the same rounds at the bound's finer steps ξ / 2^k (rendered by `at` where F rose), the
+    # finest whose G = JᵀW J₀ is resolved (`predict.choose_response`)
+    steps = [cfg["fd_step"] / 2**k for k in range(1, cfg["max_halvings"] + 1)] if own is None else []
+    finer = [(h, svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, h)) for h in steps]
     out: dict = {}
     for si, s in enumerate(p.settings):
         est = estimators.get(s.name, **s.options)
@@ -552,23 +587,28 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                 grads.setdefault(i, []).append(J.double().reshape(params.dim, -1).numpy())
         for i, theta in enumerate(p.thetas):
             L = sum(cleans[i, c] for c in range(p.clusters)).double() / p.clusters
+            # the model's own variance is per element; a render's error is shared by a pixel's channels (`predict`)
+            C = 1 if own is not None else int(L.shape[-1])
             if own is not None:
                 def render_var(n: int, L=L) -> np.ndarray:
                     return own(L, n).reshape(-1).numpy()
             else:
-                var = reps[:, i].var(dim=0).reshape(-1).numpy() if R > 1 else np.zeros(L.numel())
+                var = render_covariance(reps[:, i].numpy(), C) if R > 1 else np.zeros((L.numel() // C, C, C))
 
                 def render_var(n: int, var=var) -> np.ndarray:
                     return var * p.bound_spp / n
-            jcov = jacobian_covariance(np.stack(grads[i]), spp, s.gradient) if len(grads.get(i, [])) > 1 else None
+            jcov = jacobian_covariance(np.stack(grads[i]), spp, s.gradient, C) if len(grads.get(i, [])) > 1 else None
             for j, noise in p.noises.items():
                 key = (j, i, s.label)
                 if not _predicts(est):
                     out[key] = getattr(est, "no_prediction", Estimator.no_prediction)
                     continue
-                lin = Linearisation(theta.copy(), Js[:, i].reshape(R, params.dim, -1), weight(noise, L),
-                                    variance(noise, L), render_var(p.n_eff // p.clusters), render_var, jcov,
-                                    np.zeros((params.dim, params.dim)))
+                Ji, wi = Js[:, i].reshape(R, params.dim, -1), weight(noise, L)
+                resp = choose_response(Ji.numpy(), [(h, J0[:, i].reshape(R, params.dim, -1).numpy())
+                                                    for h, J0 in finer], wi)
+                lin = Linearisation(theta.copy(), Ji, wi, variance(noise, L), render_var(p.n_eff // p.clusters),
+                                    render_var, jcov, np.zeros((params.dim, params.dim)), channels=C,
+                                    response=None if resp is None else torch.from_numpy(resp[1]))
                 fits = [r for r in records if r["error"] is None and r["estimator"] == s.label and r["noise"] == j
                         and r["theta_index"] == i]
                 its, sts = [r["iterations"] for r in fits], [r.get("status", "") for r in fits]
@@ -581,6 +621,10 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                 except (ValueError, np.linalg.LinAlgError) as e:
                     out[key] = f"no prediction: {e}"
                     continue
+                if pred is not None and steps:
+                    pred = dataclasses.replace(pred, note=pred.note + (
+                        f"; response from FD at ξ = {resp[0]:.3g}" if resp is not None else
+                        f"; response: the ξ = {cfg['fd_step']:g} Jacobian (no finer step resolved)"))
                 out[key] = pred if pred is not None else est.no_prediction
     return out
 
@@ -674,11 +718,30 @@ def report(study_dir, results: dict) -> str:
         lines += precise.table(results["precision"], units, results.get("seconds_per_sample"))
     if results["errors"]:
         lines += ["", "Failed fits (distinct errors):", ""] + [f"- `{e}`" for e in results["errors"]]
+    lines += _stalled(study_dir / LOG_NAME)
     rel = study_dir.name
     if not bayes:
         lines += ["", f"![MSE and bounds against θ*]({rel}/plots/mse_vs_theta.png)"]
     lines += [f"![speed against error]({rel}/plots/speed_vs_error.png)", ""]
     return "\n".join(lines)
+
+
+def _stalled(log: Path, most: int = 5) -> list[str]:
+    """Report lines naming why fits ended "stalled" (each fit's own reason from trials.jsonl, up to `most` per
+    estimator with the count), so no stalled fit goes unexplained; none when no fit stalled or there is no log."""
+    if not log.exists():
+        return []
+    why: dict[str, list[str]] = {}
+    for r in read_log(log):
+        if r.get("status") == "stalled":
+            why.setdefault(r["estimator"], []).append(str(r.get("reason", "")))
+    if not why:
+        return []
+    lines = ["", "Stalled fits (each fit's reason for stopping short, `reason` in trials.jsonl):", ""]
+    for label, rs in why.items():
+        lines += [f"- **{label}** ({len(rs)} stalled): " + "; ".join(f"`{r}`" for r in rs[:most])
+                  + (f"; … {len(rs) - most} more" if len(rs) > most else "")]
+    return lines
 
 
 def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lvl: str) -> list[str]:
@@ -717,8 +780,8 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
         lines += ["", f"### Against the bounds that apply (noise {j}; {units})", ""]
         head = ["θ*", "estimator", "n (failed)", "MSE [lower, upper limit]", "predicted MSE", "Var",
                 "predicted Var: verdict", "bias ± SE (t, p)"]
-        head += [f"{b} [{lvl} ends]" for b in bounds if b in ("hcr", "crlb")] + ["verdict", "fit status",
-                                                                                "s / trial", "renders / trial"]
+        head += [f"{b} [{lvl} ends]" for b in bounds if b in ("hcr", "crlb")] + [
+            "verdict", "fit status", "s / trial", "renders / trial", "pixel-samples / trial"]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for r in (r for r in rows if r["noise"] == j):
             b = next((b for b in results["bound_rows"]
@@ -732,7 +795,7 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
                 cells.append(f"{fmt_log10(float(b[f'log10_{k}']))} [{_end(b, k, 'lower')}, {_end(b, k, 'upper')}]"
                              if b else "–")
             cells += [_verdict(r, bounds), r.get("status", ""), fmt(r["mean_seconds"]),
-                      fmt(r["mean_renders"] + r["mean_grad_passes"])]
+                      fmt(r["mean_renders"] + r["mean_grad_passes"]), fmt(r.get("mean_samples", math.nan), 2)]
             lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     if any(b.get(f"{k}_{e}_note") for b in results["bound_rows"] for k in ("hcr", "crlb") for e in ("lower", "upper")):
         lines += ["", "† not a confidence limit (why: `<bound>_lower_note` / `_upper_note` in bounds.csv); ∞: an open "
