@@ -65,6 +65,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from nlosbench.bounds.fd_step import Halving, Stage, StepFisher, crlb_term, one_sided_t, settled_from
+from nlosbench.bounds.hcr import LN10, log_expm1
 from nlosbench.bounds.hcr_interval import hcr_interval
 from nlosbench.bounds.ustat import UStat, t_quantile
 
@@ -412,14 +413,13 @@ def tested_deltas(raws: Sequence[Raw], target: float, level: float) -> np.ndarra
         t = np.nan_to_num(t_quantile(level, raw.lam.dof), nan=np.inf)
         lam_l = raw.lam.est - t * np.nan_to_num(raw.lam.se)
         D = raw.deltas.reshape(len(raw.deltas), -1)
-        norm2 = (D * D).sum(axis=1)
-        f = np.full(len(norm2), np.inf)
+        log_f = np.full(len(D), np.inf)  # log10 f(λ_L), in the log domain (λ_L may be in the thousands)
         ok = lam_l > 0
-        f[ok] = norm2[ok] / np.expm1(np.minimum(lam_l[ok], 700.0))
+        log_f[ok] = (np.log((D[ok] * D[ok]).sum(axis=1)) - log_expm1(lam_l[ok])) / LN10
         iv = hcr_interval(raw.lam, raw.deltas, raw.sf, level, raw.lower, raw.upper)
-        mask = f >= 10.0 ** iv.point / (1.0 + target) ** 2
-        if len(f):
-            mask[int(np.argmax(f))] = True  # at least the largest term: a look always tests some Δ ≠ 0
+        mask = log_f >= iv.point - 2.0 * math.log10(1.0 + target)
+        if len(log_f):
+            mask[int(np.argmax(log_f))] = True  # at least the largest term: a look always tests some Δ ≠ 0
         keep = mask if keep is None else keep | mask
     return keep
 
@@ -495,10 +495,10 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     def worst(i: int) -> float:
         return max(reached(st.points[j, i].bounds[k]) for j in noises for k in kinds(i))
 
-    def planned(i: int, above: int = 0, subset: bool = True) -> Plan:
+    def planned(i: int, above: int = 0) -> Plan:
         # fewer tested Δ only where no Barankin or HCR-hat is asked for (they keep the whole grid); the paper's
         # hcr_neff, which comes with "hcr", is a sup like the HCR's and lives where it does
-        subset &= set(st.points[noises[0], i].bounds) <= {*KINDS, "hcr_neff"}
+        subset = set(st.points[noises[0], i].bounds) <= {*KINDS, "hcr_neff"}
         return plan([st.raws[j, i] for j in noises], kinds(i), target, level, MAX_PREDICT, above,
                     lambda stages, tested: cost.one(i, stages, tested), subset)
 
@@ -562,14 +562,11 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     extra, extra_px = {}, {}
     for i in range(T):  # where unmet: predicted from the reported look's own data, fresh sets beyond those it used
         extra[i] = extra_px[i] = 0.0
-        if worst(i) > target:  # the reported look's Δ are already a subset where it was a fresh look
-            pl = planned(i, st.fresh[i], subset=not st.fresh[i])
+        if worst(i) > target:  # (a fresh look's tested Δ may be a subset already: the plan's mask is over them)
+            pl = planned(i, st.fresh[i])
             extra[i] = math.inf if pl.sets is None else float(pl.sets - st.fresh[i])
             stages = pl.window.halvings + 1 if pl.window else st.stages[i]
-            tested = n_tested(pl) if pl.tested is not None else (
-                len(st.raws[noises[0], i].deltas) if st.fresh[i] and i in star and star[i][1].tested is not None
-                else None)
-            extra_px[i] = extra[i] * cost.one(i, stages, tested) * per_sample
+            extra_px[i] = extra[i] * cost.one(i, stages, n_tested(pl)) * per_sample
     out = []
     for j in noises:
         for i in range(T):
