@@ -257,6 +257,9 @@ class FisherPoint:
         The FD step ξ of `rounds` and `J` (the finest tried), parameter units.
     weights : dict of int to torch.Tensor of shape (H, W, C)
         Per noise index, the per-pixel weight of the maps (AWGN 1/σ²; Poisson scale/L), float64.
+    precise : dict of int to BoundPoint, optional
+        With a precision target (`BoundService.fisher(precision=...)`): per noise index the CRLB of θ
+        (tr F̂⁻¹) with its `precision` record; empty without one.
     """
 
     theta: np.ndarray
@@ -267,6 +270,7 @@ class FisherPoint:
     rounds: torch.Tensor
     step: float
     weights: dict[int, torch.Tensor]
+    precise: dict[int, BoundPoint] = field(default_factory=dict)
 
 
 def hcr_bound(r: HCRResult, kind: str = "hcr_neff") -> Bound:
@@ -830,13 +834,20 @@ class BoundService:
 
     # -- Fisher information ------------------------------------------------------------------------------
     def fisher(self, thetas, spp: int, fd_step: float = 0.01, rounds: int = 3, reduce: str = "sum",
-               noises=None, step_tol: float = 0.1, max_halvings: int = 3) -> list[FisherPoint]:
+               noises=None, step_tol: float = 0.1, max_halvings: int = 3, precision: float | None = None,
+               budget: int | None = None, looks: int = 3) -> list[FisherPoint]:
         """Unbiased per-pixel Fisher information maps and the CRLB per parameter at each θ (T, P).
 
         Per θ: a render (purpose "fisher", the Poisson weight image) and `rounds` independent central-FD
         Jacobians (common random numbers inside each stencil; purpose "fisher-fd", replicate r) at step ξ,
         halved with the same seeds until F has stopped rising within 1 + `step_tol` (at most
         `max_halvings` times); maps and bounds from the finest step.
+        With a `precision` target p: the CRLB of θ (tr F̂⁻¹; for a scalar θ its only CRLB) to ±p by the
+        stopping rule of `bounds.precision` — the given rounds are the pilot, fresh rounds (replicates
+        `rounds`, `rounds` + 1, …) are added only at the θ whose CRLB interval is wider than asked, within
+        `budget` pixel-samples, in at most `looks` looks with ends at level 1 − (1 − level)/looks; the maps,
+        the per-parameter CRLBs and the rounds are then the reported look's (the pilot's where it met the
+        target), and `precise` carries the CRLB of θ with its `precision` record.
 
         Parameters
         ----------
@@ -847,7 +858,7 @@ class BoundService:
         fd_step : float, optional
             The first FD step ξ, parameter units.
         rounds : int, optional
-            R ≥ 2 independent FD rounds (≥ 3 for confidence limits).
+            R ≥ 2 independent FD rounds (≥ 3 for confidence limits and for a precision target).
         reduce : {"sum", "mean"}, optional
             How each map combines the channels (sum: the map sums to F_jj).
         noises : iterable of int, optional
@@ -856,6 +867,14 @@ class BoundService:
             Relative tolerance of the step check (0.1: F within 10 %).
         max_halvings : int, optional
             The most halvings of ξ, in [0, 12].
+        precision : float, optional
+            The target p > 0 on the CRLB of θ: upper/point ≤ 1 + p and point/lower ≤ 1 + p (an open end or
+            one that is not a confidence limit does not meet it). None: the `rounds` given (no fresh round).
+        budget : int, optional
+            A cap on the pixel-samples (spp × H × W × renders) this call may spend; None: unlimited (with a
+            precision target only).
+        looks : int, optional
+            K ≥ 2: the pilot and at most K − 1 looks at fresh rounds, each at level 1 − (1 − level)/K.
 
         Returns
         -------
@@ -866,7 +885,35 @@ class BoundService:
             raise ValueError(f"an unbiased Fisher information needs >= 2 independent FD rounds, got {rounds}")
         if reduce not in ("sum", "mean"):
             raise ValueError(f"reduce must be 'sum' or 'mean', got {reduce!r}")
+        _check_step(fd_step, step_tol, max_halvings)
+        check_precision(precision, budget, looks, ("crlb",), rounds)
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, self.params.dim)
+        args = (spp, reduce, noises, step_tol)
+        if precision is None:
+            return self._fisher(thetas, rounds, 0, *args, fd_step, max_halvings)[0]
+        found: dict[int, FisherPoint] = {}
+
+        def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict, window, tested) -> list[BoundPoint]:
+            sub = copy.copy(self)
+            sub.level = level
+            start, halvings = (fd_step, max_halvings) if window is None else (fd_step / 2**window.start,
+                                                                              window.halvings)
+            fps, pts = sub._fisher(thetas[idx], reps, first, *args, start, halvings, keep)
+            found.update({int(i): fp for i, fp in zip(idx, fps, strict=True)})
+            return pts
+
+        cost = SetCost(0, np.zeros(len(thetas), dtype=np.int64), 2 * self.params.dim, max_halvings + 1)
+        pts = refine(look, len(thetas), list(self._select(noises)), rounds, precision, budget, looks,
+                     1 - self.level, cost, spp, self.bank)
+        for n, pt in enumerate(pts):
+            found[n % len(thetas)].precise[pt.noise_index] = pt
+        return [found[i] for i in range(len(thetas))]
+
+    def _fisher(self, thetas: np.ndarray, rounds: int, first: int, spp: int, reduce: str, noises, step_tol: float,
+                fd_step: float, max_halvings: int, keep: dict | None = None) -> tuple[list[FisherPoint], list]:
+        """`fisher` from FD rounds first … first + rounds − 1 at the service's level: the FisherPoints and the
+        CRLB of θ (tr F̂⁻¹) as BoundPoints (noise-major); `keep`, when given, is filled with {(noise index, θ
+        index): the raw data a precision plan needs (`precision.Raw`)}."""
         P = self.params.dim
         Ls = self.bank.at(thetas, spp, "fisher", desc="Fisher-map renders")
         sel = self._select(noises)
@@ -877,15 +924,15 @@ class BoundService:
         def stage_fn(idx, xi):
             J = torch.stack([self.bank.jacobians_at(thetas[idx], spp, xi, "fisher", replicate=r,
                                                     desc=f"Fisher-map FD Jacobians (round {r})")
-                             for r in range(rounds)]).double()  # (rounds, T', P, *S)
+                             for r in range(first, first + rounds)]).double()  # (rounds, T', P, *S)
             return [Stage(xi, {"central": J[:, t].reshape(rounds, P, -1).numpy()}) for t in range(len(idx))]
 
         stages = self._refine(thetas, stage_fn, wflat, fd_step, step_tol, max_halvings)
-        out = []
+        out, rows = [], {}
         for i, (t, L) in enumerate(zip(thetas, Ls, strict=True)):
             Jf = torch.from_numpy(stages[i][-1].rounds["central"]).reshape(rounds, P, *L.shape)
             maps, bounds, ws = {}, {}, {}
-            for j in sel:
+            for j, noise in sel.items():
                 w, flags = weights[j][i]
                 ws[j] = to_float64(w).expand(L.shape)
                 m = unbiased_fisher(Jf, ws[j]).pixel_map  # (P, H, W, C)
@@ -893,8 +940,13 @@ class BoundService:
                 bounds[j] = [crlb_bound(converge([Stage(s.step, {"central": s.rounds["central"][:, k:k + 1]})
                                                   for s in stages[i]], wflat[j][i], self.level, step_tol, spp),
                                         self.level, flags) for k in range(P)]
+                sf = converge(stages[i], wflat[j][i], self.level, step_tol, spp)
+                rows[j, i] = BoundPoint(j, str(noise), t.copy(), {"crlb": crlb_bound(sf, self.level, flags)})
+                if keep is not None:
+                    keep[j, i] = Raw(None, None, sf, stages[i], wflat[j][i], np.empty((0, P)), self.params.lower - t,
+                                     self.params.upper - t, int(np.prod(L.shape[:2])))
             out.append(FisherPoint(t, L, Jf.mean(dim=0), maps, bounds, Jf, stages[i][-1].step, ws))
-        return out
+        return out, [rows[j, i] for j in sel for i in range(len(thetas))]
 
     # -- the paper's HCR intervals from inexact renders -----------------------------------------------------
     def interval(self, thetas, deltas, levels: Sequence[int], n_eff: int, replicates: int, power: float = 1.0,

@@ -2,10 +2,12 @@
 where in the picture the information about each parameter lives. With `pool` (the default from 4 FD rounds)
 also a pooled map: pixels pooled into quadtree cells chosen on half of the rounds, each cell's information
 estimated on the other half with limits Bonferroni over the cells (`bounds.pooling`); cells not resolved on
-the selection half are masked."""
+the selection half are masked. With a `precision` target the bound service adds fresh FD rounds at the θ whose
+CRLB interval is wider than asked (`BoundService.fisher`; the stopping rule of `bounds.precision`): the maps, the
+pooled cells and the CRLBs are then the reported look's, and the report says the precision each θ reached."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +16,7 @@ from ..bounds import save_fisher_maps
 from ..bounds.pooling import PooledFisherMap, pool_fisher_map, pooled_summary
 from ..io import read_csv, write_csv, write_exr
 from ..schema import MAX_HALVINGS, STEP_TOL, ConfigError, Field, folder_name, point_spec
+from . import precise
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import fisher_figure
@@ -38,6 +41,7 @@ SCHEMA = {
                                          "limit > 0)", nullable=True),
     "step_tol": STEP_TOL,
     "max_halvings": MAX_HALVINGS,
+    **precise.KEYS,
 }
 
 
@@ -55,6 +59,7 @@ class Plan:
     max_halvings: int
     pool: bool = False
     pool_precision: float | None = None
+    precision: dict = field(default_factory=dict)
 
 
 def plan(ctx: RunContext, cfg: dict) -> Plan:
@@ -83,15 +88,24 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     prec = cfg.get("pool_precision")
     if prec is not None and not prec > 0:
         raise ConfigError(f"{sid}.pool_precision", f"expected a precision > 0, got {prec}")
+    precise.check(cfg, sid, ("crlb",), sets="fd_rounds")
     return Plan(np.array(thetas), labels, cfg["spp"], cfg["fd_step"], cfg["fd_rounds"], cfg["reduce"],
-                cfg["step_tol"], cfg["max_halvings"], bool(pool), prec)
+                cfg["step_tol"], cfg["max_halvings"], bool(pool), prec, precise.at_kwargs(cfg))
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     """Per θ: a render and `fd_rounds` central-FD Jacobians (2 renders per parameter and round) at ξ and ξ/2;
-    at most `max_halvings` − 1 more halvings where the step has not converged (counted: the most it can cost)."""
+    at most `max_halvings` − 1 more halvings where the step has not converged (counted: the most it can cost);
+    with a `precision` target, at most its `precision_budget` more (none counted for the fresh looks without a
+    budget)."""
     renders = len(p.thetas) * (1 + 2 * ctx.model.params.dim * p.fd_rounds * (1 + max(p.max_halvings, 0)))
-    return Estimate(renders, renders * p.spp * pixels(ctx.model))
+    samples = renders * p.spp * pixels(ctx.model)
+    budget = p.precision.get("budget")
+    if budget is not None:
+        renders += budget // (p.spp * pixels(ctx.model))
+        samples += budget
+    unbudgeted = p.precision.get("precision") is not None and budget is None
+    return Estimate(renders, samples, "precision: the fresh looks not counted (no precision_budget)" * unbudgeted)
 
 
 def pooled_rows(label: str, noise: str, name: str, m: PooledFisherMap) -> list[dict]:
@@ -109,7 +123,10 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     names, units = list(m.params.names), list(m.params.units)
     where, pooled = {}, []
     points = ctx.bounds.fisher(p.thetas, p.spp, p.fd_step, p.fd_rounds, p.reduce, step_tol=p.step_tol,
-                               max_halvings=p.max_halvings)
+                               max_halvings=p.max_halvings, **p.precision)
+    T = len(points)
+    precision = precise.records([fp.precise[k] for k in range(len(ctx.noises)) for fp in points if fp.precise], T,
+                                names)
     for label, fp in zip(p.labels, points, strict=True):
         where[label] = theta_text(names, fp.theta, units)
         write_exr(out / f"{label}_rgb.exr", fp.L)
@@ -121,10 +138,16 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             for j, name in enumerate(m.params.names):
                 b = fp.crlb[k][j]
                 rows.append({"label": label, "theta": fp.theta.tolist(), "noise": str(noise), "param": name,
+                             "fd_rounds": int(fp.rounds.shape[0]), "fd_step": fp.step,
                              "fisher_total": float(fp.maps[k][j].sum()), "log10_crlb": b.log10,
                              "crlb_lower": b.lower, "crlb_upper": b.upper, "crlb_lower_note": b.lower_note,
                              "flag": b.reason})
                 if not p.pool:
+                    continue
+                if fp.rounds.shape[0] < 4:  # a precision look that met the target with 3 fresh rounds
+                    pooled.append({"label": label, "noise": str(noise), "param": name, "step": fp.step,
+                                   "summary": f"not drawn: the reported look has {fp.rounds.shape[0]} FD rounds (a "
+                                              "pooled map needs >= 4)"})
                     continue
                 pm = pool_fisher_map(fp.rounds[:, j].numpy(), fp.weights[k].numpy(), ctx.bounds.level, p.reduce,
                                      p.pool_precision)
@@ -138,14 +161,17 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         write_csv(out / "pooled_cells.csv", cells)
     return {"points": p.labels, "params": names, "units": units, "where": where,
             "noises": [str(n) for n in ctx.noises], "renders": ctx.bank.renders - before, "spp": p.spp,
-            "pooled": pooled, "fd_rounds": p.fd_rounds, "level": ctx.bounds.level}
+            "pooled": pooled, "fd_rounds": p.fd_rounds, "level": ctx.bounds.level,
+            **({"precision": precision, "seconds_per_sample": ctx.rate} if precision else {})}
 
 
 def smoke(block: dict) -> dict:
+    """The first two θ, ≤ 16 spp, 2 FD rounds (4 with `pool`, 3 with a `precision`, whose budget becomes 1
+    pixel-sample: `precise.smoke`, the pilot and the plan, no fresh look)."""
     keep = block["at"][:2]
-    rounds = 4 if block.get("pool") else 2
-    return {**block, "at": keep, "labels": block["labels"] and block["labels"][:2], "spp": min(block["spp"], 16),
-            "fd_rounds": rounds}
+    rounds = 4 if block.get("pool") else 3 if block.get("precision") is not None else 2
+    return precise.smoke({**block, "at": keep, "labels": block["labels"] and block["labels"][:2],
+                          "spp": min(block["spp"], 16), "fd_rounds": rounds})
 
 
 def report(study_dir: Path, results: dict) -> str:
@@ -162,6 +188,13 @@ def report(study_dir: Path, results: dict) -> str:
                 f"{fmt_end(r['crlb_upper'])}]" if "crlb_lower" in r else "")
         lines.append(f"| {r['label']} | {r['theta']} | {r['noise']} | {r['param']} | {float(r['fisher_total']):.4g} "
                      f"| {float(r['log10_crlb']):.4g}{ends} | {r['flag']} |")
+    if results.get("precision"):
+        lines += ["", "## Precision of the CRLB of θ", "",
+                  "The bound service added fresh FD rounds only at the θ whose CRLB interval was wider than asked; "
+                  "the maps, pooled cells and CRLBs above are those of the reported look (`fd_rounds` in "
+                  "fisher.csv).", ""]
+        lines += precise.table(results["precision"], f"{results['units'][0]}²" if len(results["params"]) == 1
+                               else "parameter units²", results.get("seconds_per_sample"))
     if any(r.get("crlb_lower_note") for r in rows):
         lines += ["", "† not a confidence limit: the FD step did not converge (the note in fisher.csv says which "
                       "step or spp would settle it)."]

@@ -199,10 +199,18 @@ def fisher_figure(out: Path, labels: list[str], names: list[str], where: dict[st
 
 def _pooled_panel(fig, ax, out: Path, label: str, name: str, rows: list[dict], unit: str, title: str) -> None:
     """One pooled map: drawn cells' FI per pixel (log colour scale), hatched where not resolved on the estimation
-    rounds (or not positive), grey where masked; the title says how many cells were drawn and resolved."""
+    rounds (or not positive), grey where masked; the title says how many cells were drawn and resolved. No map
+    file (the point's rounds were too few to pool): a panel that says so."""
     from matplotlib.colors import LogNorm
 
-    dens = read_exr(out / f"{label}_noise0_pooled_{name}.exr")[..., 0].astype(np.float64)
+    path = out / f"{label}_noise0_pooled_{name}.exr"
+    if not path.exists():  # a precision look with 3 fresh FD rounds: too few to split into selection and estimation
+        ax.set_axis_off()
+        ax.set_title(title, fontsize=8)
+        ax.text(0.5, 0.5, "no pooled map:\nfewer than 4 FD rounds", transform=ax.transAxes, ha="center",
+                va="center", fontsize=9)
+        return
+    dens = read_exr(path)[..., 0].astype(np.float64)
     lab = read_exr(out / f"{label}_noise0_cells_{name}.exr")[..., 0].astype(np.int64)
     resolved = np.zeros(lab.max() + 1, dtype=bool)
     for row in rows:

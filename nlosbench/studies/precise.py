@@ -1,4 +1,5 @@
-"""Precision on request for the studies that quote bounds at θ (`trials` at its θ*, `bounds` at `precision_at`):
+"""Precision on request for the studies that quote bounds at θ (`trials` at its θ*, `bounds` at `precision_at`,
+`fisher-maps` at its points):
 the shared config keys, their config-time check, the arguments they give `BoundService.at`, what a run keeps of
 each point's `Precision` record, and the report's table. The stopping rule itself is the bound service's
 (`bounds.precision`); nothing here computes a bound.
@@ -25,9 +26,10 @@ LOOKS = Field(integer_in(2, 64), 3, "with `precision`: the pilot and at most loo
 KEYS = {"precision": PRECISION, "precision_budget": PRECISION_BUDGET, "looks": LOOKS}
 
 
-def check(cfg: dict, sid: str, kinds: Sequence[str]) -> None:
+def check(cfg: dict, sid: str, kinds: Sequence[str], sets: str = "replicates") -> None:
     """ConfigError naming the key: a budget without a precision; a precision without an interval bound among
-    `kinds` (the bounds asked for) or with fewer than 3 replicates (confidence limits)."""
+    `kinds` (the bounds asked for) or with fewer than 3 replicate sets (confidence limits; `sets` names the key
+    that counts them)."""
     if cfg["precision_budget"] is not None and cfg["precision"] is None:
         raise ConfigError(f"{sid}.precision_budget", "a budget needs a precision target; set `precision` or remove "
                                                      "`precision_budget`")
@@ -36,9 +38,9 @@ def check(cfg: dict, sid: str, kinds: Sequence[str]) -> None:
     if not set(KINDS) & set(kinds):
         raise ConfigError(f"{sid}.precision", f"a precision target needs an interval bound ({', '.join(KINDS)}), "
                                               f"got {list(kinds)}")
-    if cfg["replicates"] < 3:
-        raise ConfigError(f"{sid}.replicates", f"a precision target needs >= 3 replicates (confidence limits), got "
-                                               f"{cfg['replicates']}")
+    if cfg[sets] < 3:
+        raise ConfigError(f"{sid}.{sets}", f"a precision target needs >= 3 {sets} (confidence limits), got "
+                                           f"{cfg[sets]}")
 
 
 def at_kwargs(cfg: dict) -> dict:
