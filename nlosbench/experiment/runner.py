@@ -146,10 +146,12 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
     rate = estimate.rate(ctx.model)
     ctx.rate = rate.seconds_per_sample  # what a study predicts further work's time from
     total = sum(rate.seconds(e) for e in estimates.values())
-    lines = [f"[{sid}] plan: {e.renders} renders, {e.samples:.3g} pixel-samples, ≈ {estimate.describe(rate.seconds(e))}"
-             + (f" ({e.note})" if e.note else "") for sid, e in estimates.items()]
-    lines.append(f"estimate: ≈ {estimate.describe(total)} in all at {rate.seconds_per_sample * 1e9:.3g} ns per "
-                 f"pixel-sample ({rate.source}); a resumed run skips what is done")
+    floor = sum(e.floor for e in estimates.values()) * rate.seconds_per_sample
+    lines = [f"[{sid}] plan: {_cost(e, rate)}" + (f" ({e.note})" if e.note else "") for sid, e in estimates.items()]
+    lines.append(f"estimate: ≈ {estimate.describe(total)} in all" + (
+        f" at most, {estimate.describe(floor)} if every precision pilot meets its target" if floor < total else "") +
+                 f", at {rate.seconds_per_sample * 1e9:.3g} ns per pixel-sample ({rate.source}); a resumed run skips "
+                 "what is done")
     for line in lines:
         ctx.log(line)
     if total > CONFIRM_ABOVE and not yes:
@@ -158,6 +160,16 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
                                    f"at {rate.seconds_per_sample * 1e9:.3g} ns each), above "
                                    f"{estimate.describe(CONFIRM_ABOVE)}: pass --yes to run it, or try --smoke first")
     return Run(cfg, run_dir, ctx, plans, estimates, total, fp, resume, lines, anyway)
+
+
+def _cost(e: estimate.Estimate, rate: estimate.Rate) -> str:
+    """'N renders, S pixel-samples, ≈ T', or with a data-dependent part (a precision target's fresh looks) the range
+    from what is spent in any case to the most the budget allows."""
+    if e.floor >= e.samples:
+        return f"{e.renders} renders, {e.samples:.3g} pixel-samples, ≈ {estimate.describe(rate.seconds(e))}"
+    lo = estimate.describe(e.floor * rate.seconds_per_sample)
+    return (f"at most {e.renders} renders, {e.floor:.3g} to {e.samples:.3g} pixel-samples (the pilot meeting its "
+            f"precision target, or its budget spent), ≈ {lo} to {estimate.describe(rate.seconds(e))}")
 
 
 def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | None = None,

@@ -135,7 +135,9 @@ def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
         renders += pilot + extra // (p.spp * pixels(ctx.model))
         samples += pilot * p.spp * pixels(ctx.model) + extra
     unbudgeted = len(p.precision_at) and cfg["precision_budget"] is None
-    return Estimate(renders, samples, "precision: the fresh looks not counted (no precision_budget)" * bool(unbudgeted))
+    extra = cfg["precision_budget"] if len(p.precision_at) else None
+    return Estimate(renders, samples, "precision: the fresh looks not counted (no precision_budget)" * bool(unbudgeted),
+                    samples - extra if extra else None)
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:

@@ -32,15 +32,24 @@ RATE_SAMPLES = 1 << 18
 
 @dataclass(frozen=True)
 class Estimate:
-    """Planned renders and pixel-samples of a study; `note` says what is estimated rather than counted."""
+    """Planned renders and pixel-samples of a study; `note` says what is estimated rather than counted; `least`,
+    where `samples` is a maximum that depends on the data (a precision target's fresh looks, capped by their
+    budget), the pixel-samples spent in any case (the pilot meeting the target); None: `samples`."""
 
     renders: int
     samples: int
     note: str = ""
+    least: int | None = None
+
+    @property
+    def floor(self) -> int:
+        """The pixel-samples spent in any case."""
+        return self.samples if self.least is None else self.least
 
     def __add__(self, o: Estimate) -> Estimate:
+        least = None if self.least is None and o.least is None else self.floor + o.floor
         return Estimate(self.renders + o.renders, self.samples + o.samples,
-                        "; ".join(n for n in (self.note, o.note) if n))
+                        "; ".join(n for n in (self.note, o.note) if n), least)
 
 
 @dataclass(frozen=True)

@@ -105,7 +105,8 @@ def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
         renders += budget // (p.spp * pixels(ctx.model))
         samples += budget
     unbudgeted = p.precision.get("precision") is not None and budget is None
-    return Estimate(renders, samples, "precision: the fresh looks not counted (no precision_budget)" * unbudgeted)
+    return Estimate(renders, samples, "precision: the fresh looks not counted (no precision_budget)" * unbudgeted,
+                    samples - budget if budget else None)
 
 
 def pooled_rows(label: str, noise: str, name: str, m: PooledFisherMap) -> list[dict]:

@@ -349,7 +349,8 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
             "early; mle-adam with lr auto: what its stopping rule typically takes)")
     if cfg["precision"] is not None and cfg["precision_budget"] is None:
         note += "; precision: the fresh looks not counted (no precision_budget)"
-    return Estimate(renders, samples * px, note)
+    fresh = (cfg["precision_budget"] // px) * px if cfg["precision"] is not None and cfg["precision_budget"] else 0
+    return Estimate(renders, samples * px, note, samples * px - fresh if fresh else None)
 
 
 def _predicts(est) -> bool:
