@@ -263,6 +263,11 @@ class LocalPoolExecutor(Executor):
             # shut down first: the pool's thread then drops the cancelled futures before it sees its workers
             # killed (killing first made it mark a cancelled future failed: InvalidStateError: CANCELLED there)
             self._pool.shutdown(wait=False, cancel_futures=True)
+            # … once it has: it clears `_cancel_pending_futures` after dropping them (CPython's process pool); under
+            # load a kill before that still raced it. Wait at most 2 s: a thread that never wakes is killed anyway.
+            deadline = time.monotonic() + 2.0
+            while getattr(self._pool, "_cancel_pending_futures", False) and time.monotonic() < deadline:
+                time.sleep(0.005)
             for proc in workers:
                 proc.kill()  # SIGKILL: a worker has the stop signals blocked (`_spawning`)
             self._pool = None
