@@ -225,11 +225,41 @@ class Curve:
         or the ZZB was not asked for).
     zzb_reason : str, optional
         Why there is no ZZB ("" when there is one or it was not asked for).
+    precise : list of BoundPoint, optional
+        With a precision target (`BoundService.curve(precision=...)`): a BoundPoint per (noise, quoted θ),
+        noise-major, with the interval bounds (hcr, with its hcr_neff, and crlb) brought to the target by
+        `BoundService.at` and each with its `precision` record; empty without a target.
     """
 
     points: list[BoundPoint]
     zzb: dict[int, Bound | None]
     zzb_reason: str = ""
+    precise: list[BoundPoint] = field(default_factory=list)
+
+
+#: test points over Θ of the bounds a curve quotes when its grid is not `params.grid(G)`
+QUOTE_TEST_GRID = 21
+
+
+def quote_test_grid(params, thetas) -> int:
+    """The test grid (points over Θ) of the bounds `BoundService.curve` quotes with a precision target.
+
+    Parameters
+    ----------
+    params : ParamSpace
+        The model's parameter space Θ (one parameter).
+    thetas : array_like of shape (G,)
+        The curve's increasing grid, parameter units.
+
+    Returns
+    -------
+    int
+        G when the grid is `params.grid(G)` (within 1e-9 of Θ's width: every test point is a curve render), else
+        `QUOTE_TEST_GRID`.
+    """
+    T = np.asarray(thetas, dtype=np.float64).reshape(-1)
+    on = np.allclose(params.grid(len(T))[:, 0], T, rtol=0, atol=1e-9 * float(params.upper[0] - params.lower[0]))
+    return len(T) if on else QUOTE_TEST_GRID
 
 
 @dataclass
@@ -528,8 +558,11 @@ class BoundService:
     # -- curves ------------------------------------------------------------------------------------------
     def curve(self, thetas, spp: int, seeds: str = "common", replicates: int = 3, crlb: bool = True,
               barankin: bool = False, zzb: bool = True, prior=None, noises=None, fd_step: float | None = None,
-              gradient: str = "fd", ad: dict | None = None, check_step: bool = True, step_tol: float = 0.1) -> Curve:
-        """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders.
+              gradient: str = "fd", ad: dict | None = None, check_step: bool = True, step_tol: float = 0.1,
+              precision: float | None = None, budget: int | None = None, looks: int = 3, quote=None,
+              max_halvings: int = 3) -> Curve:
+        """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders; with a precision target, the
+        interval bounds at the θ it quotes to that target.
 
         The HCR interval (test points: the other grid points inside Θ, and Δ → 0), the CRLB, the paper's
         HCR_Neff, optionally Barankin, and on a uniform grid the ZZB over the grid's range. The Δ → 0
@@ -537,9 +570,17 @@ class BoundService:
         step h checked against 2h, with the one-sided neighbour differences as variants), FD at θ ± ξ (with
         independent seeds ξ defaults to the grid's smallest spacing; 2R renders per θ, checked against ξ/2
         with 2R more unless `check_step` is off), or with gradient "ad" Mitsuba AD with integrator options
-        `ad`. A curve does not refine its step further (`at` does, for the θ a study quotes): where the
+        `ad`. A curve does not refine its step further (`at` does, and so do the bounds it quotes): where the
         check does not show F converged within 1 + `step_tol`, the Δ → 0 ends are labelled. Poisson
         weights come from one independent render per grid θ.
+
+        With a `precision` target p, after the curve: the bounds at each θ of `quote` from `at` with the same spp,
+        seeds and replicates (so its pilot reuses the curve's renders wherever its points coincide: a θ on the
+        grid, and every test point when the test grid is the curve's), the kinds hcr (with its hcr_neff) and crlb
+        (hcr only when `crlb` is off), its test grid the curve's when the grid is `params.grid(G)`
+        (`quote_test_grid`), `at`'s default axis offsets, its FD step `fd_step` or the grid's smallest spacing,
+        halved at most `max_halvings` times, and fresh replicate sets where an interval is wider than ±p
+        (`bounds.precision`), in `Curve.precise`.
 
         Parameters
         ----------
@@ -572,11 +613,25 @@ class BoundService:
             With explicit FD stencils, also render at ξ/2 to check the step.
         step_tol : float, optional
             Relative tolerance of the step check (0.1: F within 10 %).
+        precision : float, optional
+            The target p > 0 of the quoted bounds (relative half-width, linear units; as in `at`); None: no
+            quoted bounds.
+        budget : int, optional
+            A cap on the pixel-samples (spp × H × W × renders) the quoted bounds may spend beyond the curve's
+            renders; None: unlimited (with a precision target only).
+        looks : int, optional
+            K ≥ 2: the pilot and at most K − 1 looks at fresh sets, each quoted end at level 1 − (1 − level)/K.
+        quote : array_like of shape (Q,), optional
+            The θ to quote (on or off the grid, inside Θ), parameter units; None: every grid θ (with a precision
+            target only).
+        max_halvings : int, optional
+            The most halvings of the quoted bounds' FD step, in [0, 12].
 
         Returns
         -------
         Curve
-            A BoundPoint per (noise, θ), noise-major, and the ZZB per noise index.
+            A BoundPoint per (noise, θ), noise-major, the ZZB per noise index, and with a precision target the
+            quoted BoundPoints (`precise`).
         """
         if self.params.dim != 1:
             raise ValueError(f"a bound curve needs one parameter; the model has {list(self.params.names)}")
@@ -584,7 +639,15 @@ class BoundService:
         if T.size < 3 or np.any(np.diff(T) <= 0):
             raise ValueError("a bound curve needs at least 3 increasing grid points")
         R = _need_replicates(replicates)
-        _check_step(fd_step or 1.0, step_tol, 0)
+        _check_step(fd_step or 1.0, step_tol, max_halvings)
+        kinds = ("hcr", "crlb") if crlb else ("hcr",)
+        check_precision(precision, budget, looks, kinds, R)
+        if quote is not None and precision is None:
+            raise ValueError("quote needs a precision target (precision=...)")
+        quoted = T if quote is None else np.array(
+            [self.params.validate([t])[0] for t in np.asarray(quote, dtype=np.float64).reshape(-1)])
+        if quoted.size == 0:
+            raise ValueError("quote must hold at least one θ (None: every grid θ)")
         Xd = self.replicates(T, spp, seeds, R, "bound-curve renders").double()  # (R, G, *S)
         G = len(T)
         stages = self._curve_stages(T, Xd, spp, seeds, R, fd_step, gradient, ad, check_step)
@@ -617,7 +680,11 @@ class BoundService:
                     b["barankin"] = _barankin(pooled[g], pooled[others], deltas, noise, lo - t, hi - t)
                 points.append(BoundPoint(j, str(noise), np.array([t]), b))
             zzbs[j] = self._zzb(Xd, T, noise, Wflat, prior, spp) if zzb and not zzb_reason else None
-        return Curve(points, zzbs, zzb_reason)
+        precise = [] if precision is None else self.at(
+            quoted[:, None], spp, kinds, seeds, R, quote_test_grid(self.params, T),
+            fd_step=fd_step or float(np.diff(T).min()), noises=noises, step_tol=step_tol, max_halvings=max_halvings,
+            precision=precision, budget=budget, looks=looks)
+        return Curve(points, zzbs, zzb_reason, precise)
 
     def _curve_stages(self, T: np.ndarray, Xd: torch.Tensor, spp: int, seeds: str, R: int, fd_step, gradient: str,
                       ad, check_step: bool) -> list[list[Stage]]:

@@ -4,11 +4,11 @@ the paper's HCR_Neff (and optionally Barankin) over a 1-D grid of θ, and the Zi
 Plan: the grid, spp, seeds and replicates from the block. Work: one call to the bound service's `curve`
 (R·G renders from the render bank: every grid render serves as θ* and as a test point for all others,
 the grid neighbours as FD stencils). Tables: bounds.csv (a row per noise and θ), zzb.csv (a row per noise).
-With a `precision` target, the θ the study quotes (`precision_at`, on or off the grid; every grid θ when it is
-empty): after the curve, one
-call to the service's `at` there (its test grid the curve's own when the grid is `params.grid(G)`), which adds
-fresh replicate sets where an interval is wider than asked (`bounds.precision`): precise.csv (a row per noise and
-quoted θ, with the precision_* columns), a report table "Precision at the quoted θ" and those points on the plot.
+With a `precision` target, the same `curve` call also quotes the bounds at the θ the study names (`precision_at`,
+on or off the grid; every grid θ when it is empty): after the curve, the service's `at` there with the curve's sets
+as pilot (its test grid the curve's own when the grid is `params.grid(G)`), which adds fresh replicate sets where an
+interval is wider than asked (`bounds.precision`): precise.csv (a row per noise and quoted θ, with the precision_*
+columns), a report table "Precision at the quoted θ" and those points on the plot.
 Report: from those and results.json only.
 """
 from __future__ import annotations
@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ..bounds import BoundService
+from ..bounds.service import quote_test_grid
 from ..io import read_csv, write_csv, write_exr
 from ..noise import Poisson
 from ..schema import GRID, MAX_HALVINGS, STEP_TOL, ConfigError, Field, grid_values, smoke_grid
@@ -30,8 +31,6 @@ from .plotstyle import note
 from .tables import fmt_end, fmt_log10
 
 NAME = "bounds"
-#: test points over Θ of the bounds at the quoted θ when the curve's grid is not `params.grid(G)` (the service's)
-TEST_GRID = 21
 SCHEMA = {
     "grid": GRID,
     "spp": Field(int, 1024, "samples per pixel of each grid render"),
@@ -61,7 +60,7 @@ SCHEMA = {
 @dataclass(frozen=True)
 class Plan:
     """What the study computes: the θ grid (G,), spp, seeds, replicates, level and which bounds; the quoted θ
-    (precision_at, (Q,)) and the test grid of their bounds (the curve's G when the grid is `params.grid(G)`)."""
+    (precision_at, (Q,)) and the test grid the service gives their bounds (`quote_test_grid`), for the cost."""
 
     thetas: np.ndarray
     spp: int
@@ -109,15 +108,12 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         except ValueError as e:
             raise ConfigError(f"{sid}.precision_at[{i}]", str(e)) from None
     grid = np.unique(thetas)
-    G = len(grid)
-    test_grid = G if np.allclose(params.grid(G)[:, 0], grid, rtol=0, atol=1e-9 * (params.upper - params.lower)[0]) \
-        else TEST_GRID
     # a target without `precision_at` quotes every grid θ: the curve's sets are the pilot, fresh sets go only where
     # an interval is wider than asked
     quoted = cfg["precision_at"] or (grid.tolist() if cfg["precision"] is not None else [])
     return Plan(grid, cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
                 cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"],
-                np.asarray(quoted, dtype=np.float64), test_grid)
+                np.asarray(quoted, dtype=np.float64), quote_test_grid(params, grid))
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
@@ -144,18 +140,17 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     p, out = plan(ctx, cfg), ctx.study_dir(cfg)
     before = ctx.bank.renders
     svc = BoundService(ctx.bank, ctx.noises, p.level)
+    # with a target, the quoted θ (None: every grid θ) to it, the curve's sets their pilot
     curve = svc.curve(p.thetas, p.spp, p.seeds, p.replicates, crlb=p.crlb, barankin=p.barankin, zzb=p.zzb,
-                      fd_step=p.fd_step, step_tol=p.step_tol)
+                      fd_step=p.fd_step, step_tol=p.step_tol, quote=cfg["precision_at"] or None,
+                      max_halvings=cfg["max_halvings"], **precise.at_kwargs(cfg))
     names = ctx.model.params.names
     write_csv(out / "bounds.csv", [pt.row(names) for pt in curve.points])
     precision = []
-    if len(p.precision_at):  # the quoted θ, to the target: the service's `at` (its pilot reuses the curve's renders)
-        pts = svc.at(p.precision_at[:, None], p.spp, ("hcr", "crlb") if p.crlb else ("hcr",), p.seeds, p.replicates,
-                     p.test_grid, fd_step=p.fd_step or float(np.diff(p.thetas).min()), step_tol=p.step_tol,
-                     max_halvings=cfg["max_halvings"], **precise.at_kwargs(cfg))
+    if curve.precise:
         Q = len(p.precision_at)
-        write_csv(out / "precise.csv", [{"theta_index": n % Q, **pt.row(names)} for n, pt in enumerate(pts)])
-        precision = precise.records(pts, Q, names)
+        write_csv(out / "precise.csv", [{"theta_index": n % Q, **pt.row(names)} for n, pt in enumerate(curve.precise)])
+        precision = precise.records(curve.precise, Q, names)
     zrows = [{"noise_index": j, "noise": str(ctx.noises[j]), **b.columns(), **b.extra}
              for j, b in curve.zzb.items() if b is not None]
     if zrows:
