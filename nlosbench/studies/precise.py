@@ -1,6 +1,6 @@
 """Precision on request for the studies that quote bounds at θ (`trials` at its θ*, `bounds` at `precision_at`,
 `fisher-maps` at its points):
-the shared config keys, their config-time check, the arguments they give `BoundService.at`, what a run keeps of
+the shared config keys, their config-time check, the arguments they give the bound service, what a run keeps of
 each point's `Precision` record, and the report's table. The stopping rule itself is the bound service's
 (`bounds.precision`); nothing here computes a bound.
 """
@@ -44,7 +44,8 @@ def check(cfg: dict, sid: str, kinds: Sequence[str], sets: str = "replicates") -
 
 
 def at_kwargs(cfg: dict) -> dict:
-    """The keyword arguments of `BoundService.at` from a validated block (precision, budget, looks)."""
+    """The precision keyword arguments of `BoundService.at`, `curve` and `fisher` from a validated block (precision,
+    budget, looks)."""
     return {"precision": cfg["precision"], "budget": cfg["precision_budget"], "looks": cfg["looks"]}
 
 
