@@ -71,6 +71,35 @@ def test_options_are_checked():
         nb.estimators.get("surrogate").grid_wanted(nb.scenes.get("blob2d").params)
 
 
+def test_prediction_with_colour_channel_blocks_matches_the_closed_form():
+    """A render's colour channels share their noise, so on an RGB scene the clean image's rendering covariance is a
+    C × C block per pixel (`estimators.predict`). With K = 2 lattice sets, exact J (one parameter) and a slope noise
+    of per-element variance c/s, the surrogate's covariance is Σ_n w_n² (Σ_obs + Σ_truth)_n c_n / (K·spp) / F²
+    (module docstring of `estimators.surrogate`), the same whether Σ_truth is given per element (N,) or as
+    diagonal blocks (M, 3, 3); a block's off-diagonal terms do not enter (the slope noise is independent across
+    channels here)."""
+    from nlosbench.estimators.predict import Linearisation
+
+    rng = np.random.default_rng(0)
+    M, C, spp = 50, 3, 64
+    N = M * C
+    J = torch.from_numpy(rng.normal(size=(1, 1, N)))
+    w, obs, truth, c = (rng.uniform(0.5, 2.0, N) for _ in range(4))
+    jac_cov = lambda s, g: (np.eye(C)[None] * c.reshape(M, C, 1))[None, None] / s  # noqa: E731
+    est = nb.estimators.get("surrogate", spp=spp, **OPTIONS)
+    problem = Problem(blob(), nb.noise.AWGN(SIGMA), GradientSettings(method="fd", step=XI, crn=True))
+    block = np.zeros((M, C, C))
+    block[:, np.arange(C), np.arange(C)] = truth.reshape(M, C)
+    off = block.copy()
+    off[:, 0, 1] = off[:, 1, 0] = 0.3 * np.sqrt(block[:, 0, 0] * block[:, 1, 1])
+    F = float((J[0, 0].numpy() ** 2 * w).sum())
+    exact = float((w**2 * (obs + truth) * c).sum()) / (2 * spp) / F**2
+    for tv in (truth, block, off):
+        lin = Linearisation(THETA, J, w, obs, tv, lambda s: obs, jac_cov, np.zeros((1, 1)), channels=C)
+        V, _ = est.fit_cov(problem, lin, None, None)
+        assert np.isclose(V[0, 0], exact, rtol=1e-12), (V, exact)
+
+
 @pytest.mark.parametrize("spp, is_efficient", [(8, False), (10**6, True)])
 def test_trials_agree_with_prediction(tmp_path, spp, is_efficient):
     base = nb.scenes.get("blob2d", width=0.15, render_noise=2.0)
