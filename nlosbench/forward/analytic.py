@@ -61,10 +61,15 @@ class AnalyticModel(ForwardModel):
             return self._noisy(torch.as_tensor(theta, dtype=torch.float64), spp, seed).float()
 
     def jvp(self, theta, index: int, spp: int = 1, seed: int = 0, **ad) -> torch.Tensor:
-        t = torch.as_tensor(self.params.validate(theta), dtype=torch.float64)
-        v = torch.zeros_like(t)
-        v[index] = 1.0
-        _, d = torch.func.jvp(lambda x: self._noisy(x, spp, seed), (t,), (v,))
+        # reverse mode twice: g(w) = Jᵀw is linear in w, so ∂g_index/∂w is J's column `index`. The same numbers as
+        # torch's forward mode (torch.func.jvp), which runs add/sub through Python reference ops: on blob2d
+        # (24 × 24) 0.25 ms a column against 1.6 ms
+        with torch.enable_grad():
+            t = torch.as_tensor(self.params.validate(theta), dtype=torch.float64).requires_grad_(True)
+            out = self._noisy(t, spp, seed)
+            w = torch.zeros_like(out, requires_grad=True)
+            (g,) = torch.autograd.grad(out, t, w, create_graph=True)
+            (d,) = torch.autograd.grad(g[index], w)
         self.stats.grad_passes += 1
         return d.float()
 
