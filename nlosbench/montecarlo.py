@@ -253,11 +253,14 @@ def status_counts(records: Sequence[dict]) -> str:
     return ", ".join(f"{k} {v}" for k, v in sorted(counts.items()))
 
 
-def bias_test(E: np.ndarray, clusters: np.ndarray, level: float = 0.95) -> dict:
+def bias_test(E: np.ndarray, clusters: np.ndarray, level: float = 0.95, shared: np.ndarray | None = None) -> dict:
     """Is the mean error zero? E (n, P) errors θ̂ − θ*, clusters (n,) the clean-image replicate of each
     trial. With C ≥ 2 clusters the standard error comes from the C cluster means (their spread holds the
     clean image's own Monte Carlo error and the trials' noise), Student t with C − 1 degrees of freedom;
     with one cluster from the trials (the clean image's error then is not in it: `truth_in_se` False).
+    `shared` (P,): the predicted variance of an offset every trial shares (an estimator's reused renders,
+    `Estimator.shared_cov`), which no spread over trials can show: added to the SE² as a known variance, the
+    degrees of freedom then Satterthwaite's, dof·(SE_total/SE)⁴.
     Returns bias (P,), its SE (P,), the largest |t|, its two-sided p-value (Bonferroni over P; with few
     clusters a moderate t is not significant, so the report gives t and p, not only the verdict), the degrees
     of freedom and `biased` (some component beyond the two-sided `level` quantile, Bonferroni over P)."""
@@ -273,12 +276,17 @@ def bias_test(E: np.ndarray, clusters: np.ndarray, level: float = 0.95) -> dict:
         bias = E.mean(axis=0)
         se, dof, in_se = (E.std(axis=0, ddof=1) / math.sqrt(len(E)) if len(E) > 1 else np.full(P, np.nan),
                           len(E) - 1, False)
+    if shared is not None:
+        total = np.sqrt(se**2 + np.asarray(shared, dtype=np.float64))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            dof = float(np.nanmin(dof * (total / se) ** 4)) if np.all(se > 0) else math.inf
+        se = total
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.abs(bias) / se
     q = float(stats.t.ppf(1 - (1 - level) / (2 * P), dof)) if dof >= 1 else math.nan
     tmax = float(np.nanmax(t)) if np.isfinite(t).any() else math.nan
     p = min(1.0, 2 * P * float(stats.t.sf(tmax, dof))) if dof >= 1 and math.isfinite(tmax) else math.nan
-    return {"bias": bias, "se": se, "t": tmax, "p": p, "dof": int(dof),
+    return {"bias": bias, "se": se, "t": tmax, "p": p, "dof": int(min(dof, 10**9)),
             "biased": bool(math.isfinite(tmax) and tmax > q), "clusters": int(len(ids)), "truth_in_se": in_se}
 
 
@@ -297,7 +305,8 @@ def summarize(
     each fit's stopping status counted), MSE over the successful fits with its SE and one-sided limits
     (`verdicts.mse_limits`: the clean-image replicates are its clusters), variance with a bootstrap SE
     (`bootstrap` resamples of the trials), bias and the bias test (`bias_test`, its SE over clean-image
-    replicates), time and renders, and for every bound b in bounds[(noise, θ index)] = {b: {"log10", "lower",
+    replicates and, where the prediction has one, the shared offset of an estimator's reused renders: its SE in
+    `bias_se_shared`), time and renders, and for every bound b in bounds[(noise, θ index)] = {b: {"log10", "lower",
     "upper", "flags", "lower_note", "upper_note"}} (log10: the value to quote; the ends where b is an interval;
     flags and notes optional) the ratio mse_over_b and `vs_<b>` = `verdicts.verdict` (below / inside / above /
     undetermined / not tested: why), each a one-sided test at (1 − level)/m, m the (row, bound) pairs of that
@@ -346,7 +355,9 @@ def summarize(
             _, var, bias = _stats(E)
             rng = np.random.default_rng(derive(seed, "bootstrap", j, i, labels.index(label)))
             boot = [_stats(E[rng.integers(0, len(E), len(E))]) for _ in range(bootstrap)]
-            bt = bias_test(E, clusters, level)
+            pred = (predictions or {}).get((j, i, label))
+            shared = np.diag(pred.shared) if isinstance(pred, Prediction) and pred.shared is not None else None
+            bt = bias_test(E, clusters, level, shared)
             row.update(
                 var=var,
                 var_se=_se([b[1] for b in boot]),
@@ -358,6 +369,7 @@ def summarize(
                 biased=bt["biased"],
                 bias_clusters=bt["clusters"],
                 bias_se_has_truth_error=bt["truth_in_se"],
+                bias_se_shared=math.nan if shared is None else float(np.sqrt(shared.sum())),
                 **{f"bias_{n}": float(b) for n, b in zip(names, bias, strict=True)},
                 **{f"bias_se_{n}": float(b) for n, b in zip(names, bt["se"], strict=True)},
             )
@@ -365,6 +377,7 @@ def summarize(
             row.update(var=math.nan, var_se=math.nan, bias=math.nan, bias_se=math.nan,
                        bias_t_stat=math.nan,
                        bias_p=math.nan, bias_dof=0, biased=False, bias_clusters=0, bias_se_has_truth_error=False,
+                       bias_se_shared=math.nan,
                        **{f"bias_{n}": math.nan for n in names}, **{f"bias_se_{n}": math.nan for n in names})
         row.update(predicted_columns((predictions or {}).get((j, i, label), "not computed"), E, clusters, row,
                                      (1 - level) / max(predicted.get(j, 0), 1), status_counts(ok)))

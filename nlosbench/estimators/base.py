@@ -485,7 +485,26 @@ class Estimator(ABC):
         if fit is None:
             return None
         obs, truth = target(lin)
-        return Prediction(obs, truth, fit[0], fit[1])
+        return Prediction(obs, truth, fit[0], fit[1], self.shared_cov(problem, lin))
+
+    def shared_cov(self, problem: Problem, lin: Linearisation) -> np.ndarray | None:
+        """The covariance (P, P) of an error of θ̂ that every fit of a run shares, from renders the estimator makes
+        once and reuses (None: it has none, the default). It is a bias of the run, not variance: `summarize`
+        adds it to the bias test's standard error, as the clean image's Monte Carlo error is there.
+
+        Parameters
+        ----------
+        problem : Problem
+            The estimation problem.
+        lin : Linearisation
+            The linearisation at θ* (`estimators.predict`).
+
+        Returns
+        -------
+        numpy.ndarray or None
+            (P, P) in parameter units², or None.
+        """
+        return None
 
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
                 budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str] | None:

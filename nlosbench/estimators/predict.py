@@ -220,12 +220,15 @@ class Linearisation:
 class Prediction:
     """A predicted covariance (P, P) of θ̂ in parts: `obs` (the observation noise), `truth` (the clean image's
     rendering error, shared within a cluster), `fit` (what the estimator's own iterations leave: fit renders,
-    noisy Jacobians, the start); `note` says what was assumed."""
+    noisy Jacobians, the start); `note` says what was assumed; `shared` (None: none) the covariance of an error
+    every trial of a run shares (renders the estimator makes once and reuses, e.g. a surrogate's lattice): a
+    bias of the run, not in the trials' variance, which the bias test's standard error holds."""
 
     obs: np.ndarray
     truth: np.ndarray
     fit: np.ndarray
     note: str = ""
+    shared: np.ndarray | None = None
 
     def var(self, truth_share: float = 1.0) -> float:
         """Predicted expectation of the trials' sample variance (trace, units²): tr(obs + fit) + κ·tr(truth),

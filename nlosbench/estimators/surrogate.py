@@ -221,6 +221,25 @@ class Surrogate(Estimator):
         return Outcome(np.array([theta]), move + 1, "converged",
                        f"minimum of the surrogate on lattice window {lo}–{lo + 2 * w}", loss)
 
+    def shared_cov(self, problem: Problem, lin: Linearisation) -> np.ndarray:
+        """The lattice's value error at θ*, one offset for every fit of a run: with common seeds across the lattice
+        the surrogate's error there is about one render's error at θ* with the sets' K·spp samples, so the offset
+        of θ̂ is G⁻¹ JᵀW δL with covariance G⁻¹ JᵀW Σ_render(K·spp) WJ G⁻ᵀ (`Linearisation.sandwich`).
+
+        Parameters
+        ----------
+        problem : Problem
+            The estimation problem (unused).
+        lin : Linearisation
+            The linearisation at θ* (its `render_var`).
+
+        Returns
+        -------
+        numpy.ndarray
+            (1, 1) in parameter units².
+        """
+        return lin.sandwich(lin.render_var(self.sets * self.spp))
+
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
                 budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str]:
         """Covariance of θ̂ − ê over the observations for one lattice (module docstring): with K ≥ 2 sets

@@ -773,7 +773,9 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
               "test: mean error against its SE over the clean-image replicates (which holds the clean image's own "
               "Monte Carlo error), Student t with (clean-image replicates − 1) degrees of freedom, two-sided 95 %; "
               "p is its two-sided p-value (with 4 replicates a t below 3.18 is not significant at 95 %: more "
-              "`truth_replicates` make the test sharper)."]
+              "`truth_replicates` make the test sharper). An estimator that reuses its own renders in every fit (the "
+              "surrogate's lattice) shares their error as one offset of the run: its predicted variance is added to "
+              "the SE² (`bias_se_shared` in summary.csv) and the degrees of freedom become Satterthwaite's."]
     for j in sorted({r["noise"] for r in rows}):
         lines += ["", f"### The paper's format (noise {j}: {results['noise'][str(j)]}; {units})", ""]
         paper = [b for b in ("hcr_neff", "hcr_hat") if b in bounds]
