@@ -345,6 +345,7 @@ def summarize(
             "status": status_counts(rs),
         }
         E = np.array([r["theta_hat"] for r in ok], dtype=np.float64).reshape(len(ok), len(truth)) - truth
+        pred = (predictions or {}).get((j, i, label), "not computed")
         clusters = np.array([r.get("cluster", 0) for r in ok])
         alpha = (1 - level) / max(tests.get(j, 0), 1)
         lim = mse_limits(E, clusters, alpha)
@@ -355,7 +356,6 @@ def summarize(
             _, var, bias = _stats(E)
             rng = np.random.default_rng(derive(seed, "bootstrap", j, i, labels.index(label)))
             boot = [_stats(E[rng.integers(0, len(E), len(E))]) for _ in range(bootstrap)]
-            pred = (predictions or {}).get((j, i, label))
             shared = np.diag(pred.shared) if isinstance(pred, Prediction) and pred.shared is not None else None
             bt = bias_test(E, clusters, level, shared)
             row.update(
@@ -379,7 +379,7 @@ def summarize(
                        bias_p=math.nan, bias_dof=0, biased=False, bias_clusters=0, bias_se_has_truth_error=False,
                        bias_se_shared=math.nan,
                        **{f"bias_{n}": math.nan for n in names}, **{f"bias_se_{n}": math.nan for n in names})
-        row.update(predicted_columns((predictions or {}).get((j, i, label), "not computed"), E, clusters, row,
+        row.update(predicted_columns(pred, E, clusters, row,
                                      (1 - level) / max(predicted.get(j, 0), 1), status_counts(ok)))
         secs, rend, grads = ([r[k] for r in rs] for k in ("seconds", "renders", "grad_passes"))
         row.update(

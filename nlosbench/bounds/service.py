@@ -1004,11 +1004,13 @@ class BoundService:
                 ws[j] = to_float64(w).expand(L.shape)
                 m = unbiased_fisher(Jf, ws[j]).pixel_map  # (P, H, W, C)
                 maps[j] = m.sum(axis=-1) if reduce == "sum" else m.mean(axis=-1)
-                bounds[j] = [crlb_bound(converge([Stage(s.step, {"central": s.rounds["central"][:, k:k + 1]})
-                                                  for s in stages[i]], wflat[j][i], self.level, step_tol, spp),
-                                        self.level, flags) for k in range(P)]
                 sf = converge(stages[i], wflat[j][i], self.level, step_tol, spp)
-                rows[j, i] = BoundPoint(j, str(noise), t.copy(), {"crlb": crlb_bound(sf, self.level, flags)})
+                joint = crlb_bound(sf, self.level, flags)  # the CRLB of θ, tr F̂⁻¹: for a scalar θ its only one
+                bounds[j] = [joint] if P == 1 else [
+                    crlb_bound(converge([Stage(s.step, {"central": s.rounds["central"][:, k:k + 1]})
+                                         for s in stages[i]], wflat[j][i], self.level, step_tol, spp),
+                               self.level, flags) for k in range(P)]
+                rows[j, i] = BoundPoint(j, str(noise), t.copy(), {"crlb": joint})
                 if keep is not None:
                     keep[j, i] = Raw(None, None, sf, stages[i], wflat[j][i], np.empty((0, P)), self.params.lower - t,
                                      self.params.upper - t, int(np.prod(L.shape[:2])))

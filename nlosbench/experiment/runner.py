@@ -146,10 +146,10 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
     rate = estimate.rate(ctx.model)
     ctx.rate = rate.seconds_per_sample  # what a study predicts further work's time from
     total = sum(rate.seconds(e) for e in estimates.values())
-    floor = sum(e.floor for e in estimates.values()) * rate.seconds_per_sample
+    least = sum(e.floor for e in estimates.values()) * rate.seconds_per_sample  # seconds if every pilot suffices
     lines = [f"[{sid}] plan: {_cost(e, rate)}" + (f" ({e.note})" if e.note else "") for sid, e in estimates.items()]
     lines.append(f"estimate: ≈ {estimate.describe(total)} in all" + (
-        f" at most, {estimate.describe(floor)} if every precision pilot meets its target" if floor < total else "") +
+        f" at most, {estimate.describe(least)} if every precision pilot meets its target" if least < total else "") +
                  f", at {rate.seconds_per_sample * 1e9:.3g} ns per pixel-sample ({rate.source}); a resumed run skips "
                  "what is done")
     for line in lines:

@@ -118,22 +118,18 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     """R·G grid renders; with an `fd_step`, 4R·G FD stencil renders more (at ξ and at ξ/2, the step check);
-    with a Poisson noise model, G weight renders more; with `precision_at`, the pilot there and the
-    `precision_budget` (none counted for the fresh looks without a budget)."""
+    with a Poisson noise model, G weight renders more; with `precision_at`, the pilot there and at most the
+    `precision_budget` (`precise.estimate`)."""
     poisson = any(isinstance(n, Poisson) for n in ctx.noises)
     renders = p.replicates * len(p.thetas) * (1 + (4 if p.fd_step is not None else 0)) + poisson * len(p.thetas)
     samples = renders * p.spp * pixels(ctx.model)
     if len(p.precision_at):  # the pilot at the quoted θ (θ*, 4 offsets and 2 FD stages per side; a test grid that
-        # is not the curve's), then at most the budget
+        # is not the curve's)
         Q = len(p.precision_at)
         pilot = p.replicates * (Q * (1 + 8 + 4) + (0 if p.test_grid == len(p.thetas) else p.test_grid)) + poisson * Q
-        extra = cfg["precision_budget"] or 0
-        renders += pilot + extra // (p.spp * pixels(ctx.model))
-        samples += pilot * p.spp * pixels(ctx.model) + extra
-    unbudgeted = len(p.precision_at) and cfg["precision_budget"] is None
-    extra = cfg["precision_budget"] if len(p.precision_at) else None
-    return Estimate(renders, samples, "precision: the fresh looks not counted (no precision_budget)" * bool(unbudgeted),
-                    samples - extra if extra else None)
+        renders += pilot
+        samples += pilot * p.spp * pixels(ctx.model)
+    return precise.estimate(renders, samples, cfg, p.spp, pixels(ctx.model))
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:

@@ -96,17 +96,9 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     """Per θ: a render and `fd_rounds` central-FD Jacobians (2 renders per parameter and round) at ξ and ξ/2;
     at most `max_halvings` − 1 more halvings where the step has not converged (counted: the most it can cost);
-    with a `precision` target, at most its `precision_budget` more (none counted for the fresh looks without a
-    budget)."""
+    with a `precision` target, at most its `precision_budget` more (`precise.estimate`)."""
     renders = len(p.thetas) * (1 + 2 * ctx.model.params.dim * p.fd_rounds * (1 + max(p.max_halvings, 0)))
-    samples = renders * p.spp * pixels(ctx.model)
-    budget = p.precision.get("budget")
-    if budget is not None:
-        renders += budget // (p.spp * pixels(ctx.model))
-        samples += budget
-    unbudgeted = p.precision.get("precision") is not None and budget is None
-    return Estimate(renders, samples, "precision: the fresh looks not counted (no precision_budget)" * unbudgeted,
-                    samples - budget if budget else None)
+    return precise.estimate(renders, renders * p.spp * pixels(ctx.model), cfg, p.spp, pixels(ctx.model))
 
 
 def pooled_rows(label: str, noise: str, name: str, m: PooledFisherMap) -> list[dict]:

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 
 from ..bounds.precision import KINDS
 from ..schema import ConfigError, Field, integer_in, positive_integer, positive_number
-from .estimate import describe
+from .estimate import Estimate, describe
 from .tables import fmt, fmt_end
 
 PRECISION = Field(positive_number, None, "target relative half-width p of every interval bound quoted at θ (HCR, "
@@ -47,6 +47,19 @@ def at_kwargs(cfg: dict) -> dict:
     """The precision keyword arguments of `BoundService.at`, `curve` and `fisher` from a validated block (precision,
     budget, looks)."""
     return {"precision": cfg["precision"], "budget": cfg["precision_budget"], "looks": cfg["looks"]}
+
+
+def estimate(renders: int, samples: int, cfg: dict, spp: int, pixels: int, note: str = "") -> Estimate:
+    """A study's Estimate from what it counts (renders, pixel-samples) and its precision target: with a
+    `precision_budget` the fresh looks may add at most the budget (renders of `spp` × `pixels`), so `samples` is a
+    maximum and `least` what is spent without them; with a target but no budget they are not counted (the note
+    says so)."""
+    budget = cfg["precision_budget"] if cfg.get("precision") is not None else None
+    if cfg.get("precision") is not None and budget is None:
+        note = "; ".join(n for n in (note, "precision: the fresh looks not counted (no precision_budget)") if n)
+    if not budget:
+        return Estimate(renders, samples, note)
+    return Estimate(renders + budget // (spp * pixels), samples + budget, note, samples)
 
 
 def smoke(block: dict) -> dict:

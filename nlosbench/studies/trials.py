@@ -336,9 +336,6 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
                 # the response's FD stages at ξ/2 … ξ/2^max_halvings (the bound's own where it made them; ξ/2 counted)
                 k = T * R * 2 * P * max(cfg["max_halvings"] - (1 if want & {"hcr", "crlb"} else 0), 0)
                 renders, samples = renders + k, samples + k * bspp
-        if cfg["precision"] is not None and cfg["precision_budget"] is not None:  # the fresh looks: at most the budget
-            renders += cfg["precision_budget"] // (bspp * px)
-            samples += cfg["precision_budget"] // px
     for thetas, spp, sets in p.grids.values():  # made once by the bank; the bound grid's renders when they are the same
         if not (spp == bspp and len(thetas) == G and sets <= R):
             renders, samples = renders + sets * len(thetas), samples + sets * len(thetas) * spp
@@ -347,10 +344,7 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
     note = ("fits estimated from each estimator's planned iterations × spp (its cap, an upper bound where fits stop "
             "early; mle-adam with lr auto: what its stopping rule typically takes)")
-    if cfg["precision"] is not None and cfg["precision_budget"] is None:
-        note += "; precision: the fresh looks not counted (no precision_budget)"
-    fresh = (cfg["precision_budget"] // px) * px if cfg["precision"] is not None and cfg["precision_budget"] else 0
-    return Estimate(renders, samples * px, note, samples * px - fresh if fresh else None)
+    return precise.estimate(renders, samples * px, cfg, bspp, px, note)
 
 
 def _predicts(est) -> bool:
