@@ -11,15 +11,29 @@ renders, shared by every fit); a direct fit renders them once per process. A fit
    pixel ω, the least-squares polynomial of degree d in u = (θ − t_c) / h (t_c the window's centre) through them,
    S_kω(θ) = Σ_j c_{kjω} u^j, c_k = (VᵀV)⁻¹Vᵀ L_k,window, V the window's Vandermonde matrix (2w + 1, d + 1);
 3. θ̂ = argmin Q(θ), Q = NLL(y, M(θ)) − ½ Σ_ω w_ω s²_ω(θ) / K, M the sets' mean and s² their sample variance
-   per pixel, w the noise model's weight at M (Brent's bounded search over the window's span: no render);
-   when θ̂ lies nearer another lattice point than t_{g₀}, the window moves there and 2–3 repeat (at most
-   `max_moves` times).
+   per pixel, w the noise model's Fisher weight at max(M, SE), SE = s / √K the standard error of M (Brent's
+   bounded search over the window's span: no render); when θ̂ lies nearer another lattice point than t_{g₀}, the
+   window moves there and 2–3 repeat (at most `max_moves` times). The NLL and w both see their mean floored by
+   `Problem.nll`'s Poisson policy (`base.floored`: at least `POISSON_FLOOR` photons): a polynomial through one
+   bright sample in a dark pixel dips below 0 between lattice points, and a fit never fails on it, so every
+   trial's θ̂ enters the MSE. The SE bounds a pixel's correction by ½ q·SE (q the Poisson scale, photons per unit
+   radiance): the second-order correction assumes the sets' error small against M, and where it is not (M ≈ 0
+   within its SE) a mean as large as the SE is not ruled out; at the floor alone w would reach 10³·q², and one
+   pixel's spread would set θ̂ whatever y is (a bright sample 0.5 in blob2d's darkest pixel pinned θ̂ at
+   θ* − 1.9 mm for every observation: `tests/test_surrogate.py`).
 
 For AWGN, Q = Σ_{k≠l} (y − S_k)ᵀ(y − S_l) / (2σ² K(K − 1)): the sets' errors enter only in cross products, so
-E Q = NLL(y, L(θ)) up to the polynomial's misfit. Error of θ̂ (scalar θ, AWGN; W = the noise model's weight in
-general): with set k's error e_k (per-pixel variance Σ_render(spp), seeds common over the lattice), its window
-fit e_k(θ) and slope e_k', the polynomial's misfit b(θ) of L (O(h^{d+1}) per pixel) and r = y − L(θ*),
-linearising Q' = 0 at θ*:
+E Q = NLL(y, L(θ)) up to the polynomial's misfit. For Poisson at q photons per unit radiance, NLL =
+q Σ (M − y log M) has the curvature q·y/M² in M, and w = q/M is its mean over y at M = L: with v_ω = Var(M_ω)
+(the sets' error, small against L_ω), E Q = NLL(y, L(θ)) + ½ Σ_ω q v_ω (y_ω − L_ω) / L_ω² up to third-order
+terms in the sets' error. Q is unbiased for the NLL on average over observations at θ*, not for each y; the
+remainder's slope offsets θ̂ by about ½ Σ_ω q v_ω J_ω / L_ω² / F (F the Fisher information), i.e. by the lattice's
+relative variance v/L² per pixel. (The curvature itself, q·y/M², would remove the remainder but is unbounded where
+a floored M meets y > 0.)
+
+Error of θ̂ (scalar θ, AWGN; W = the noise model's weight in general): with set k's error e_k (per-pixel variance
+Σ_render(spp), seeds common over the lattice), its window fit e_k(θ) and slope e_k', the polynomial's misfit b(θ)
+of L (O(h^{d+1}) per pixel) and r = y − L(θ*), linearising Q' = 0 at θ*:
 
     θ̂ − θ* ≈ Σ_{k≠l} (J + e_k')ᵀ W (r − e_l − b) / Σ_{k≠l} (J + e_k')ᵀ W (J + e_l'),
 
@@ -45,7 +59,7 @@ import torch
 
 from ..params import ParamSpace
 from ..seeds import derive
-from .base import Budget, Estimator, Outcome, Problem, Tracker, finite_or_raise, nll
+from .base import Budget, Estimator, Outcome, Problem, Tracker, finite_or_raise, floored, nll
 from .predict import Linearisation, weight
 
 
@@ -62,8 +76,8 @@ class Surrogate(Estimator):
         Samples per pixel of each lattice render.
     sets : int, default 2
         Independent render sets K of the lattice (each with its own common seed); with K ≥ 2 the objective is
-        unbiased for the NLL at L(θ) (module docstring), with K = 1 the slope's noise shrinks θ̂ towards the
-        surrogate's own error.
+        unbiased for the NLL at L(θ) (AWGN; Poisson: on average over observations, module docstring), with K = 1
+        the slope's noise shrinks θ̂ towards the surrogate's own error.
     window : int, default 2
         Half-width w of the local fit, in lattice points (2w + 1 points, ≥ degree + 1).
     degree : int, default 2
@@ -196,9 +210,10 @@ class Surrogate(Estimator):
                 S = sum(C[:, j] * uu**j for j in range(self.degree + 1))  # (K, N)
                 M = S.mean(dim=0)
                 out = nll(problem, y, M.reshape(shape))
-                if K > 1:  # less ½ Σ w·Var(M): the sets' spread, so the objective is unbiased for NLL(y, L(θ))
-                    w8 = torch.as_tensor(weight(problem.noise, M.reshape(shape)))
-                    out -= 0.5 * float((w8 * S.var(dim=0)).sum()) / K
+                if K > 1:  # less ½ Σ w·Var(M): the sets' spread, w at max(M, its SE) floored (module docstring)
+                    v = S.var(dim=0) / K
+                    at = floored(problem, torch.maximum(M, v.sqrt()).reshape(shape))
+                    out -= 0.5 * float((torch.as_tensor(weight(problem.noise, at)) * v).sum())
                 return out
 
             res = scipy.optimize.minimize_scalar(f, bounds=(t[lo], t[lo + 2 * w]), method="bounded",
