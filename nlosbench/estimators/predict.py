@@ -181,11 +181,14 @@ class Linearisation:
         Gi = np.linalg.inv(self.G)
         return Gi @ self.quad(self.weighted(a)) @ Gi.T
 
-    def weighted(self, a: np.ndarray) -> np.ndarray:
-        """W A W for a `PixelCov` A: (N,) when A is per element and the channels are independent, else blocks."""
-        if np.ndim(a) == 1 and self.channels == 1:
-            return self.w**2 * a
-        return weighted(self.w, a, self.channels)
+    def weighted(self, *covs: np.ndarray) -> np.ndarray:
+        """W (A₁ + A₂ + …) W for `PixelCov`s A_i, each per element (N,) or in channel blocks (M, C, C),
+        C = `channels` (also C = 1: a one-channel image's blocks are (M, 1, 1)): (N,) when every A_i is per element
+        and C = 1, else blocks (M, C, C)."""
+        C = self.channels
+        if C == 1 and all(np.ndim(a) == 1 for a in covs):
+            return self.w**2 * sum(covs)
+        return weighted(self.w, sum(blocks(a, C) for a in covs), C)
 
     def jacobian_excess(self, spp: int, gradient: GradientSettings, a: np.ndarray) -> np.ndarray:
         """E[δĴᵀ A δĴ] = Σ_m Σ_cd A_m(c, d) Cov(Ĵ_i(m, c), Ĵ_j(m, d)) (P, P) of one gradient Jacobian at `spp` for a
@@ -335,9 +338,7 @@ def score_noise(lin: Linearisation, spp: int, gradient: GradientSettings) -> np.
     render's error through J, Jᵀ W Σ_render W J, plus the Jacobian's own error against the whole residual,
     E[δĴᵀ W (Σ_obs + Σ_truth + Σ_render) W δĴ] (the residual's correlation with J is neglected)."""
     r = lin.render_var(spp)
-    C = lin.channels
-    resid = blocks(lin.obs_var, C) + blocks(lin.truth_var, C) + blocks(r, C)
-    return lin.quad(lin.weighted(r)) + lin.jacobian_excess(spp, gradient, weighted(lin.w, resid, C))
+    return lin.quad(lin.weighted(r)) + lin.jacobian_excess(spp, gradient, lin.weighted(lin.obs_var, lin.truth_var, r))
 
 
 def model_linearisation(model: ForwardModel, noise: NoiseModel, theta, clean: torch.Tensor,

@@ -286,7 +286,7 @@ class Surrogate(Estimator):
         g = dataclasses.replace(problem.gradient, spp=None)  # the slope's noise at the lattice's spp, not the FD's own
         total = self.sets * self.spp
         if self.sets > 1:
-            V = Fi @ lin.jacobian_excess(total, g, lin.weighted(lin.obs_var) + lin.weighted(lin.truth_var)) @ Fi
+            V = Fi @ lin.jacobian_excess(total, g, lin.weighted(lin.obs_var, lin.truth_var)) @ Fi
         else:
             V = np.linalg.inv(F + lin.jacobian_excess(total, g, lin.w)) - Fi
         rho = float(np.trace(Fi @ lin.jacobian_excess(self.spp, g, lin.w)))
