@@ -377,6 +377,10 @@ class Estimator(ABC):
     #: "given": start at `init` (or a uniform random point); "profile": at the profile-likelihood minimum over
     #: the problem's bank grid (`profile_start`, no render). Estimators that take a start set it from options.
     start: str = "given"
+    #: the seeds a study renders this estimator's grid (`grid_wanted`) with: "common" where its maths needs one
+    #: seed across the grid in each set (common random numbers: the surrogate's lattice), whatever the study's
+    #: `seeds`; None: the study's
+    grid_seeds: ClassVar[str | None] = None
 
     def fit(self, problem: Problem, y, init=None, rng: np.random.Generator | None = None,
             budget: Budget = Budget()) -> Estimate:

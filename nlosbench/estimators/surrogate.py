@@ -89,6 +89,7 @@ class Surrogate(Estimator):
     """
 
     name = "surrogate"
+    grid_seeds = "common"  # the lattice's common random numbers, which its objective and prediction assume
     valid_when = ("One parameter, and L(θ) smooth over a few lattice steps (the polynomial's misfit of L over the "
                   "window is an offset in θ̂): its lattice, rendered once at high spp with common seeds, is shared "
                   "by every fit, so it pays where many observations are fitted in the same region of Θ (trials, "

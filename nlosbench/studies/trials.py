@@ -19,7 +19,8 @@ information, and the paper's HCR_Neff / HCR-hat; in bayesian mode its curve over
 start costs no render: estimator option `start: profile`); those sets never share a seed with the
 observation's mean (the bank's TRUTH set). An estimator that renders a grid before its fits (grid-search:
 `Estimator.grid_wanted`) gets it from the bank as replicate 0 (or the first `sets` replicates) of the bound
-service's render sets at its spp (`Problem.grids`): rendered once per run, counted with the bank's renders,
+service's render sets at its spp (`Problem.grids`; with common seeds across the grid where the estimator needs them,
+`Estimator.grid_seeds`, whatever the study's `seeds`): rendered once per run, counted with the bank's renders,
 and the bound grid's own renders when its θ and spp are the bound grid's. With a `precision` target (local mode)
 the service adds fresh replicate sets at the θ* whose HCR / CRLB interval is wider than asked, within
 `precision_budget` pixel-samples and `looks` looks (`bounds.precision`); bounds.csv gets its precision_* columns
@@ -220,7 +221,7 @@ class Plan:
     replicates, bound renders (spp, replicates, seeds), the noise models, the estimator settings (gradients
     resolved), the budget per fit, what fixes the results besides the config (`fingerprint`: the resolved
     gradients; the run folder's fingerprint holds it, so a resume after the verdicts changed is refused), and
-    the grids the settings' estimators want (label → (θ grid, spp, sets): `Estimator.grid_wanted`)."""
+    the grids the settings' estimators want (label → (θ grid, spp, sets, seeds): `Estimator.grid_wanted`)."""
 
     mode: str
     thetas: np.ndarray
@@ -285,21 +286,22 @@ def plan(ctx, cfg: dict) -> Plan:
                                         sort_keys=True, default=repr))
     return Plan(cfg["mode"], thetas, cfg["n"], cfg["n_eff"], clusters, cfg["bound_spp"] or cfg["n_eff"],
                 cfg["replicates"], noises, settings, budget, fingerprint,
-                wanted_grids(settings, params, f"{sid}.estimators"))
+                wanted_grids(settings, params, f"{sid}.estimators", cfg["seeds"]))
 
 
-def wanted_grids(settings: list[Setting], params, where: str) -> dict:
-    """label → (θ grid (G, P), spp, independent render sets) of each setting whose estimator renders a grid before
-    its fits (`Estimator.grid_wanted`; sets 1 where it names none); ConfigError naming the setting for a grid it
-    refuses (e.g. above max_grid)."""
+def wanted_grids(settings: list[Setting], params, where: str, seeds: str) -> dict:
+    """label → (θ grid (G, P), spp, independent render sets, seeds) of each setting whose estimator renders a grid
+    before its fits (`Estimator.grid_wanted`; sets 1 where it names none; seeds the estimator's `grid_seeds`, else
+    the study's `seeds`); ConfigError naming the setting for a grid it refuses (e.g. above max_grid)."""
     out = {}
     for k, s in enumerate(settings):
         try:
-            want = estimators.get(s.name, **s.options).grid_wanted(params)
+            est = estimators.get(s.name, **s.options)
+            want = est.grid_wanted(params)
         except ValueError as e:
             raise ConfigError(f"{where}[{k}]", str(e)) from None
         if want is not None:
-            out[s.label] = (*want, 1) if len(want) == 2 else tuple(want)
+            out[s.label] = (*want[:2], want[2] if len(want) > 2 else 1, est.grid_seeds or seeds)
     return out
 
 
@@ -336,8 +338,8 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
                 # the response's FD stages at ξ/2 … ξ/2^max_halvings (the bound's own where it made them; ξ/2 counted)
                 k = T * R * 2 * P * max(cfg["max_halvings"] - (1 if want & {"hcr", "crlb"} else 0), 0)
                 renders, samples = renders + k, samples + k * bspp
-    for thetas, spp, sets in p.grids.values():  # made once by the bank; the bound grid's renders when they are the same
-        if not (spp == bspp and len(thetas) == G and sets <= R):
+    for thetas, spp, sets, seeds in p.grids.values():  # made once by the bank; the bound grid's when they are the same
+        if not (spp == bspp and len(thetas) == G and sets <= R and seeds == cfg["seeds"]):
             renders, samples = renders + sets * len(thetas), samples + sets * len(thetas) * spp
     for s in p.settings:
         r, spp = _fit_cost(s.name, s.options, s.gradient, P, p.budget)
@@ -442,11 +444,12 @@ def run(ctx, cfg: dict) -> dict:
     # the estimators' grid is the mean of the bound's replicate sets (R × bound_spp samples, no new render)
     reps = svc.replicates(grid, p.bound_spp, cfg["seeds"], p.replicates, "bank grid")
     bank_grid = BankGrid(grid, reps.mean(dim=0), p.replicates * p.bound_spp)
-    # the settings' own grids (grid-search, surrogate): the first `sets` replicates of the bound sets at their spp, one
-    # render per (θ, spp, seed); several sets are passed as one grid, its θ repeated per set (`Estimator.grid_wanted`)
-    grids = {label: BankGrid(np.tile(thetas, (sets, 1)), svc.replicates(thetas, spp, cfg["seeds"], sets,
+    # the settings' own grids (grid-search, surrogate): the first `sets` replicates of the bound sets at their spp and
+    # seeds (the surrogate's lattice: common, `Estimator.grid_seeds`), one render per (θ, spp, seed); several sets
+    # are passed as one grid, its θ repeated per set (`Estimator.grid_wanted`)
+    grids = {label: BankGrid(np.tile(thetas, (sets, 1)), svc.replicates(thetas, spp, seeds, sets,
                                                                         f"{label} grid").flatten(0, 1), spp)
-             for label, (thetas, spp, sets) in p.grids.items()}
+             for label, (thetas, spp, sets, seeds) in p.grids.items()}
     bound_rows, zzb, precision = [], {}, []
     tseed = ctx.seed_for(f"trials {sid}")  # the trials' noise, start and fit seeds: a stream of this study's own
     if p.mode == "bayesian":
