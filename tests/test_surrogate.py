@@ -20,7 +20,8 @@ central-FD stand-in (ξ = 0.744 h, the cubic's centre-slope variance for indepen
   trials' own noise).
 - In a trials study the lattice is the bank's (`Problem.grids`): a fit renders nothing.
 - Poisson noise with a bright lattice sample in a dark pixel: every fit returns, and the trials' variance is the
-  CRLB's (the test's docstring).
+  CRLB's. In a trials study on a one-channel toy the prediction adds Σ_obs and Σ_truth per pixel, and the lattice
+  keeps its common seeds whatever the study's `seeds` (each test's docstring).
 """
 import json
 
