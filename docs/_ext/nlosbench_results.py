@@ -8,21 +8,25 @@ A page never types a number a run produced; it names where the number is::
 - ``SELECTOR`` (CSV): conditions on columns, comma-separated, ``column=value`` (also ``!=``, ``<``, ``<=``,
   ``>``, ``>=``; numbers compare as numbers, so ``theta=0.79`` matches 0.7899999999999999); it must pick
   exactly one row, or several when the expression takes their ``min``, ``max`` or ``mean``.
-  (JSON): a dotted path to an object, list indices as numbers: ``[studies.00-bounds]``. Left out: the
-  whole file (the top-level object).
+  (JSON): a dotted path to an object, list indices as numbers: ``[studies.00-bounds]``; in a list,
+  ``key=value`` picks the object holding that value (``[knobs.prune.points.value=light_c]``); a key may
+  hold dots (``[results.noise.AWGN(sigma=0.025)]``). Left out: the whole file.
 - ``EXPRESSION``: a column (a key), or arithmetic over the row's columns: ``1e4 * mse`` (m² → cm²),
-  ``1e4 * 10 ** crlb_lower``, ``mse / crlb``; ``min(...)``, ``max(...)``, ``mean(...)`` over the selected rows.
-  A text cell is printed as it stands.
-- ``FORMAT``: a Python format spec (default ``.3g``). Exponents print without padding (``1.1e-5``), a
-  negative with a minus sign (−), infinity as ∞.
+  ``1e4 * 10 ** crlb_lower``, ``mse / crlb``, ``abs(...)``; ``min(...)``, ``max(...)``, ``mean(...)`` over
+  the selected rows (with several arguments: over them, in one row). A text cell prints as it stands.
+- ``FORMAT``: ``.Ns``, N significant digits with trailing zeros kept (0.030, 230, 5.1e6: plain from 1e-4
+  to 1e5), or any Python format spec (``.2f``); left out, a whole number prints as it is and any other
+  with 3 significant digits. Exponents print unpadded (``1.1e-5``), a negative with a minus sign (−),
+  infinity as ∞, true/false as yes/no. ``:time`` prints seconds as a duration (40.6 s, 14 min 22 s),
+  ``:head`` a text cell up to its first colon, ``:dagger`` † where a note column is not empty.
 
 A missing file, an unknown column or key, a selector matching no row or too many, or a value that is not
 a number where arithmetic needs one is an error naming the role: the build fails (it runs with ``-W``).
 Examples::
 
     {result}`quick/00-bounds/bounds.csv[noise_index=0, theta_object_position=1.3] log10_crlb :.2f`
-    {result}`repro_pi_table/table/summary.csv[name=mle-adam, theta_object_position>=1] max(mse_over_crlb) :.2g`
-    {result}`quick/machine.json seconds_total :.1f`
+    {result}`repro_pi_table/table/summary.csv[name=mle-adam, theta_object_position>=1] max(mse_over_crlb) :.2s`
+    {result}`quick/machine.json seconds_total :time`
 
 tests/test_docs_results.py resolves every role of the pages without a build, and fails when a number a run
 printed is typed into the pages or the README instead.
@@ -94,14 +98,26 @@ def _rows(data, sel: str) -> list[dict]:
         if not rows:
             raise ResultError(f"no row where {sel}")
         return rows
-    node = data
-    for key in [k for k in (sel or "").split(".") if k]:
+    node, keys = data, [k for k in (sel or "").split(".") if k]
+    while keys:
+        key = keys.pop(0)
         if isinstance(node, list) and key.lstrip("-").isdigit() and -len(node) <= int(key) < len(node):
             node = node[int(key)]
-        elif isinstance(node, dict) and key in node:
-            node = node[key]
-        else:
+            continue
+        if isinstance(node, list) and "=" in key:  # the list's object with that value: points.value=light_c
+            col, want = key.split("=", 1)
+            while keys and not any(isinstance(d, dict) and col in d and _matches(d[col], "=", want) for d in node):
+                want += "." + keys.pop(0)  # a value with dots: value=0.5
+            found = [d for d in node if isinstance(d, dict) and col in d and _matches(d[col], "=", want)]
+            if len(found) != 1:
+                raise ResultError(f"{len(found)} objects with {col} = {want} on the path {sel!r}")
+            node = found[0]
+            continue
+        while isinstance(node, dict) and key not in node and keys:  # a key with dots: AWGN(sigma=0.025)
+            key += "." + keys.pop(0)
+        if not (isinstance(node, dict) and key in node):
             raise ResultError(f"no key {key!r} on the path {sel!r}")
+        node = node[key]
     if not isinstance(node, dict):
         raise ResultError(f"{sel!r} is not an object: select the object, name its key after it")
     return [node]
@@ -115,9 +131,13 @@ def _value(row: dict, name: str):
 
 def _eval(node, rows: list[dict]):
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id in _AGG:
-        if len(node.args) != 1 or node.keywords:
-            raise ResultError(f"{node.func.id}() takes one expression")
+        if not node.args or node.keywords:
+            raise ResultError(f"{node.func.id}() takes expressions")
+        if len(node.args) > 1:  # over its arguments, in one row: max(a, b)
+            return _AGG[node.func.id]([_arith(_eval(a, rows)) for a in node.args])
         return _AGG[node.func.id]([_arith(_eval(node.args[0], [r])) for r in rows])
+    if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "abs" and not node.keywords:
+        return abs(_arith(_eval(node.args[0], rows)))
     if len(rows) != 1:
         raise ResultError(f"{len(rows)} rows match: narrow the selector, or take min(), max() or mean()")
     if isinstance(node, ast.Name):
@@ -129,7 +149,7 @@ def _eval(node, rows: list[dict]):
         return -v if isinstance(node.op, ast.USub) else v
     if isinstance(node, ast.BinOp) and type(node.op) in _BIN:
         return _BIN[type(node.op)](_arith(_eval(node.left, rows)), _arith(_eval(node.right, rows)))
-    raise ResultError(f"{ast.unparse(node)!r}: only columns, numbers, + − × / ** and min/max/mean")
+    raise ResultError(f"{ast.unparse(node)!r}: only columns, numbers, + − × / ** and abs/min/max/mean")
 
 
 def _arith(v) -> float:
@@ -139,16 +159,35 @@ def _arith(v) -> float:
     return float(x)
 
 
-def format_number(x, fmt: str = ".3g") -> str:
-    """`x` with `fmt` in the documentation's notation: 1.1e-5 (no exponent padding), − for minus, ∞."""
+def format_number(x, fmt: str | None = None) -> str:
+    """`x` with `fmt` in the documentation's notation: 1.1e-5 (no exponent padding), − for minus, ∞. Without a
+    format: a whole number as it is (31), any other with 3 significant digits."""
+    if fmt == "dagger":  # a note column: † where the note is there (an end that is not a confidence limit)
+        return "†" if str(x).strip() else ""
+    if isinstance(x, bool) or str(x) in ("True", "False"):
+        return "yes" if str(x) == "True" else "no"
     if isinstance(x, str) and _number(x) is None:
-        return x
+        return x.split(":")[0] if fmt == "head" else x
     x = _arith(x)
+    if fmt is None:
+        fmt = "d" if x.is_integer() and abs(x) < 1e6 else ".3s"
     if math.isinf(x):
         return "∞" if x > 0 else "−∞"
     if math.isnan(x):
         raise ResultError("the value is NaN")
-    text = format(x, fmt)
+    if fmt == "time":  # seconds as a duration: 40.6 s, 14 min 22 s, 2 h 5 min
+        m, sec = divmod(round(x), 60)
+        return f"{x:.3g} s" if x < 100 else f"{m} min {sec} s" if m < 60 else f"{m // 60} h {m % 60} min"
+    sig = re.fullmatch(r"\.(\d+)s", fmt)
+    if sig:  # n significant digits, trailing zeros kept; plain from 1e-4 to 1e5, else an exponent
+        n = max(int(sig[1]), 1)
+        x = float(f"{x:.{n - 1}e}")
+        e = math.floor(math.log10(abs(x))) if x else 0
+        text = "0" if x == 0 else f"{x:.{max(n - 1 - e, 0)}f}" if -4 <= e < 5 else f"{x:.{n - 1}e}"
+    elif fmt == "d":
+        text = str(round(x))
+    else:
+        text = format(x, fmt)
     text = re.sub(r"e([+-])0*(\d)", lambda m: "e" + ("-" if m[1] == "-" else "") + m[2], text)
     return "−" + text[1:] if text.startswith("-") else text
 
@@ -171,7 +210,7 @@ def resolve(spec: str, root: Path = RESULTS) -> str:
     try:
         rows = _rows(_load(path, (path.stat().st_mtime_ns, path.stat().st_size)), m["sel"])
         value = _eval(tree, rows)
-        return format_number(value, m["fmt"] or ".3g")
+        return format_number(value, m["fmt"] or None)
     except ResultError as e:
         raise ResultError(f"{m['file']}: {e}") from None
     except (ValueError, ZeroDivisionError, OverflowError) as e:
