@@ -46,9 +46,8 @@ lint: setup
 bench: setup
 	$(PY) -m nlosbench.cli bench
 
-# the forward and estimator benchmarks on cuda_ad_rgb. No set-up step: the GPU machine is offline, so
-# this runs with whatever Python has nlosbench's requirements (`.device/prelude.sh`, see
-# ../shared/device/README.md, or `make setup` first on a networked GPU machine)
+# the forward and estimator benchmarks on cuda_ad_rgb. No set-up step, so that it runs on an offline GPU
+# machine with whatever Python has nlosbench's requirements (`make setup` first on a networked one)
 GPU_PY ?= $(if $(wildcard $(PY)),$(PY),python3)
 bench-gpu:
 	NLOSBENCH_VARIANT=cuda_ad_rgb $(GPU_PY) -m nlosbench.cli bench forward estimators

@@ -21,6 +21,7 @@ extensions = [
     "sphinx_gallery.gen_gallery",
     "sphinxarg.ext",
     "nlosbench_docs",  # docs/_ext: the config-key reference and the API pages, generated from the code
+    "nlosbench_results",  # docs/_ext: {result}`FILE[SELECTOR] EXPRESSION :FORMAT`, a number read from results/
 ]
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
@@ -28,6 +29,8 @@ exclude_patterns = ["_build", "pypi.md", "tutorials/README.rst", "tutorials/*.py
 templates_path = ["_templates"]
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
+# quotes and ellipses only: no dashes, so `--set` and `--out` stay two hyphens in option text and code
+smartquotes_action = "qe"
 suppress_warnings = ["myst.header"]  # pages moved from the README start at level 2 under their own title
 
 html_theme = "furo"

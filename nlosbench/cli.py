@@ -180,16 +180,29 @@ def _items(what: str) -> list[str]:
     elif what == "noise":
         from . import noise
 
-        items = noise.available()
+        def models(cls):  # the registered classes: `register` sets each one's `name`
+            for sub in cls.__subclasses__():
+                yield sub
+                yield from models(sub)
+
+        docs = {m.__dict__["name"]: m.__doc__ for m in models(noise.NoiseModel) if "name" in m.__dict__}
+        items = [f"{name}: {_first_line(docs.get(name))}" for name in noise.available()]
     elif what == "studies":
         from . import studies
 
-        items = studies.available()
+        items = [f"{name}: {_first_line(studies.get(name).__doc__).removeprefix(f'Study `{name}`: ')}"
+                 for name in studies.available()]
     else:
         from . import estimators
 
         items = [f"{name}: {text}" for name, text in estimators.describe().items()]
     return items
+
+
+def _first_line(doc: str | None) -> str:
+    """A docstring's first sentence, on one line (what `list` prints beside a name)."""
+    text = " ".join((doc or "").strip().split("\n\n")[0].split())
+    return text.split(". ")[0].rstrip(".") if text else "(no description)"
 
 
 def _keys(study: str | None) -> str:

@@ -94,7 +94,7 @@ def publish(run_dir: Path, name: str, config: str | None, dest_root: Path = ROOT
             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, tmp / rel)
     info = machine(run) | {"render": render_identity(run_dir),
-                           "command": f"nlosbench run {config} --out {run_dir}" if config else None}
+                           "command": f"nlosbench run {config} --out runs/{Path(config).stem}" if config else None}
     (tmp / "machine.json").write_text(json.dumps(info, indent=2) + "\n")
     dest = dest_root / name
     if dest.exists():

@@ -69,3 +69,13 @@ def test_the_guides_python_tour_runs_and_finds_the_ball():
     assert fit.status in STATUSES and fit.renders > 0
     # one observation: the fit lands within 5 standard deviations the CRLB allows (seeded, so deterministic)
     assert abs(float(fit.theta[0]) - 0.1) < 5 * math.sqrt(10 ** crlb.upper)
+
+
+def test_the_layout_page_names_every_module_of_the_package():
+    """docs/developers/layout.md lists the package's modules; a module added without a line there fails."""
+    page = (ROOT / "docs" / "developers" / "layout.md").read_text()
+    package = ROOT / "nlosbench"
+    modules = {p.stem for p in package.rglob("*.py") if not p.stem.startswith("__")}
+    modules |= {p.name for p in package.iterdir() if p.is_dir() and (p / "__init__.py").is_file()}
+    missing = sorted(m for m in modules if not re.search(rf"(?<![\w-]){re.escape(m)}(?![\w-])", page))
+    assert not missing, missing

@@ -10,7 +10,18 @@ import numpy as np
 
 from ..io import read_csv, read_exr, save_figure
 from ..tradeoff import pareto_front
-from .plotstyle import NOT_LIMIT, OPEN, legend_below, note, off_scale, rms_axis, symlog_ticks, theta_text, view
+from .plotstyle import (
+    NOT_LIMIT,
+    OPEN,
+    legend_below,
+    noise_text,
+    note,
+    off_scale,
+    rms_axis,
+    symlog_ticks,
+    theta_text,
+    view,
+)
 from .tables import BOUND_TITLES, cell, mse_units
 
 
@@ -165,7 +176,7 @@ def fisher_figure(out: Path, labels: list[str], names: list[str], where: dict[st
             top = float(np.abs(fi).max()) or 1.0
             lin = max(float(np.percentile(np.abs(fi), 90)) / 100, top * 1e-8)
             im = axes[r, c].imshow(fi, cmap="RdBu_r", norm=SymLogNorm(lin, vmin=-top, vmax=top, base=10))
-            axes[r, c].set_title(f"{at}\nunbiased FI per pixel for {name}, {noise}", fontsize=8)
+            axes[r, c].set_title(f"{at}\nunbiased FI per pixel for {name}, {noise_text(noise)}", fontsize=8)
             bar = fig.colorbar(im, ax=axes[r, c], fraction=0.046, pad=0.04)
             bar.ax.yaxis.set_major_locator(FixedLocator(symlog_ticks(lin, top)))
             bar.ax.yaxis.set_minor_locator(FixedLocator([]))
@@ -284,7 +295,7 @@ def mse_figure(rows: list[dict], bound_rows: list[dict], bounds, names: list[str
         ax.set_xticks(thetas)
         ax.set_xlabel(f"θ* ({xname}{', ' + units[0] if len(names) == 1 else ''})")
         ax.set_ylabel(f"MSE, bound [{mse_units(units)}]")
-        ax.set_title(f"noise {j}: {noise_names[j]}", fontsize=9)
+        ax.set_title(noise_text(noise_names[j]), fontsize=9)
         if len(set(units)) == 1:
             rms_axis(ax, units[0], log10_axis=False, of="(MSE, bound)")
         ax.grid(alpha=0.3)
@@ -412,7 +423,7 @@ def inexact_plots(study_dir: Path, results: dict) -> list[Path]:
             ax.plot(x[un], gh[un], "x", color="C1", ms=8, label="HCR-hat unresolved (some λ̂ ≤ 0)")
         ax.set_xlabel(f"θ* = {par}")
         ax.set_ylabel(f"log10 bound [{results['units']}²]")
-        ax.set_title(f"HCR interval from inexact renders, {noise}", fontsize=9)
+        ax.set_title(f"HCR interval from inexact renders, {noise_text(noise)}", fontsize=9)
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
         fig.tight_layout()
@@ -620,7 +631,7 @@ def heat_maps(rows: list[dict], out: Path, summary: dict) -> list[Path]:
                     grid[int(r["i"]), int(r["j"])] = math.log10(v)
             im = axes[0, p].imshow(grid.T, origin="lower", extent=ext, cmap="viridis", interpolation="nearest")
             at = f", {theta_text(names, summary['theta'], summary['units'])}" if "theta" in summary else ""
-            axes[0, p].set_title(f"FI for {name}{at}, {noise}", fontsize=9)
+            axes[0, p].set_title(f"FI for {name}{at}, {noise_text(noise)}", fontsize=9)
             axes[0, p].set_xlabel(f"camera offset along {_vec_label(summary['axes'][0])} [cm]")
             axes[0, p].set_ylabel(f"camera offset along {_vec_label(summary['axes'][1])} [cm]")
             fig.colorbar(

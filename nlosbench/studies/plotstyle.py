@@ -4,6 +4,7 @@ the data marked at the frame's edge instead of stretching the axis, and the lege
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -100,6 +101,22 @@ def legend_below(ax, ncol: int = 2) -> None:
     """The legend under the axes (off the data), when anything is labelled."""
     if ax.get_legend_handles_labels()[0]:
         ax.legend(fontsize=7, ncol=ncol, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
+
+
+def noise_text(noise: str) -> str:
+    """A noise model for a title, in words: "AWGN(sigma=0.025)" → "AWGN, σ = 0.025"."""
+    m = re.fullmatch(r"(\w+)\((.*)\)", noise)
+    if not m:
+        return noise
+    args = [a.split("=", 1) for a in m[2].split(",") if "=" in a]
+
+    def value(v: str) -> str:
+        try:
+            return f"{float(v):g}"
+        except ValueError:
+            return v.strip()
+
+    return ", ".join([m[1], *(f"{ {'sigma': 'σ'}.get(k.strip(), k.strip())} = {value(v)}" for k, v in args)])
 
 
 def theta_text(names: Sequence[str], values: Sequence[float], units: Sequence[str]) -> str:
