@@ -170,12 +170,12 @@ POWER_RATIO, POWER_TARGET = 0.4, 0.8
 
 
 @functools.lru_cache(maxsize=4096)
-def power(n: int, clusters: int, between: float, alpha: float, ratio: float = POWER_RATIO, runs: int = 4000) -> float:
+def power(n: int, clusters: int, between: float, alpha: float, ratio: float = POWER_RATIO, runs: int = 2000) -> float:
     """How often the test says "below" (`limits_batch`'s upper limit under the bound, and tested: `max_share`)
     when the MSE is `ratio` × the bound: n trials over `clusters` clean images (trial k in image k mod C; C = n:
     independent), whose shared error holds `between` of the MSE, Gaussian errors of one parameter (the heaviest
     Gaussian tails: several parameters give more power), one-sided level alpha. Simulated with `runs` draws from a
-    fixed seed (SE ≤ 0.5/√runs, 0.008 at 4000)."""
+    fixed seed (SE ≤ 0.5/√runs, 0.011 at 2000)."""
     rng = np.random.default_rng(20_240_611)
     C = min(max(int(clusters), 1), n)
     e = rng.standard_normal((runs, n, 1)) * math.sqrt(ratio * (1 - between))
@@ -190,9 +190,9 @@ def power_plan(n: int, clusters: int, between: float, alpha: float, ratio: float
                target: float = POWER_TARGET, most: int = 4096) -> tuple[float, int, int]:
     """(power of this design, clean images and trials that reach `target`): `power` at (n, clusters), then with
     the clean images and trials doubled together (the same trials per clean image) until the power reaches
-    `target`; (power, 0, 0) where no design of at most `most` trials does. `between` is rounded to 0.05 (the
+    `target`; (power, 0, 0) where no design of at most `most` trials does. `between` is rounded to 0.1 (the
     estimate from C clean images is far coarser)."""
-    between = round(min(max(float(between), 0.0), 1.0) * 20) / 20
+    between = round(min(max(float(between), 0.0), 1.0) * 10) / 10
     now = power(n, clusters, between, alpha, ratio)
     k, p = 0, now
     while p < target:
