@@ -157,8 +157,8 @@ def mse_limits(E: np.ndarray, clusters: Sequence[int] | None = None, alpha: floa
     if n < MIN_FITS:
         reason = f"{n} successful fit{'s' if n > 1 else ''} (a test needs >= {MIN_FITS})"
     elif r["share"] > max_share(n):
-        reason = (f"heavy tails: one fit holds {r['share']:.0%} of the summed squared errors, more than errors with "
-                  f"tails up to Laplace's or t5's give at n = {n} (no limit on a mean is valid there)")
+        reason = (f"heavy tails: one fit holds {r['share']:.0%} of the summed squared errors, a share that errors "
+                  f"with tails up to Laplace's or t5's seldom reach at n = {n} (no limit on a mean is valid there)")
     lo, up = (math.nan, math.nan) if reason else (r["lower"], r["upper"])
     C = n if clusters is None else len(np.unique(clusters))
     return MSELimits(r["mse"], r["se"], lo, up, r["dof"], C, r["kappa"], n, alpha, reason, r["kurtosis"],
