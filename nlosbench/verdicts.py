@@ -172,12 +172,12 @@ POWER_RATIO, POWER_TARGET = 0.4, 0.8
 @functools.lru_cache(maxsize=4096)
 def power(n: int, clusters: int, between: float, alpha: float, ratio: float = POWER_RATIO, runs: int = 2000) -> float:
     """How often the test says "below" (`limits_batch`'s upper limit under the bound, and tested: `max_share`)
-    when the MSE is `ratio` × the bound: n trials over `clusters` clean images (trial k in image k mod C; C = n:
-    independent), whose shared error holds `between` of the MSE, Gaussian errors of one parameter (the heaviest
-    Gaussian tails: several parameters give more power), one-sided level alpha. Simulated with `runs` draws from a
-    fixed seed (SE ≤ 0.5/√runs, 0.011 at 2000)."""
+    when the MSE is `ratio` × the bound: n trials over `clusters` clean images (trial k in image k mod C; C = n,
+    or one image as in `mse_limits`: independent), whose shared error holds `between` of the MSE, Gaussian
+    errors of one parameter (the heaviest Gaussian tails: several parameters give more power), one-sided level
+    alpha. Simulated with `runs` draws from a fixed seed (SE ≤ 0.5/√runs, 0.011 at 2000)."""
     rng = np.random.default_rng(20_240_611)
-    C = min(max(int(clusters), 1), n)
+    C = n if clusters <= 1 else min(int(clusters), n)
     e = rng.standard_normal((runs, n, 1)) * math.sqrt(ratio * (1 - between))
     ids = np.arange(n) % C if C < n else None
     if ids is not None:
