@@ -193,6 +193,7 @@ def power_plan(n: int, clusters: int, between: float, alpha: float, ratio: float
     `target`; (power, 0, 0) where no design of at most `most` trials does. `between` is rounded to 0.1 (the
     estimate from C clean images is far coarser)."""
     between = round(min(max(float(between), 0.0), 1.0) * 10) / 10
+    clusters = n if clusters <= 1 else min(int(clusters), n)  # one clean image: independent trials (`power`)
     now = power(n, clusters, between, alpha, ratio)
     k, p = 0, now
     while p < target:
