@@ -826,13 +826,13 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
 
 
 def _power_cell(r: dict, key: str) -> str:
-    """The power of a row's verdicts (`montecarlo.power_columns`): "44 % (80 %: 16 clean images, 48 trials)"."""
+    """The power of a row's verdicts (`montecarlo.power_columns`): "9 % (80 %: 16 clean images, 48 trials)"."""
     p = r.get(f"{key}_power", math.nan)
     if not isinstance(p, (int, float)) or math.isnan(p):
         return "–"
     images, trials = int(r.get(f"{key}_power_clean_images", 0)), int(r.get(f"{key}_power_trials", 0))
-    plan = "reached" if trials == r["n"] - r["n_failed"] else (
-        f"{images} clean images, {trials} trials" if trials else "not within 4096 trials")
+    plan = "reached" if trials == r["n"] - r["n_failed"] else "not within 4096 trials" if not trials else (
+        f"{trials} independent trials" if images == trials else f"{images} clean images, {trials} trials")
     return f"{p:.0%} (80 %: {plan})"
 
 
