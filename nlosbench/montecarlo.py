@@ -36,7 +36,7 @@ from .noise import NoiseModel
 from .params import ParamSpace
 from .records import RecordLog
 from .seeds import derive
-from .verdicts import MSELimits, mse_limits, verdict
+from .verdicts import MIN_FITS, MSELimits, mse_limits, power_plan, verdict
 
 LOG_NAME = "trials.jsonl"
 
@@ -244,6 +244,43 @@ def _ratio(mse: float, bound_log10: float) -> float:
     return 10.0**r if r < 300 else math.inf
 
 
+def ratio_upper(E: np.ndarray, clusters: np.ndarray | None, bound: dict) -> float:
+    """The one-sided upper confidence limit of MSE / B, B the bound's true value, joint over both uncertainties,
+    at the bound's one-sided `level` (None: NaN): the MOVER limit on the log ratio (Zou and Donner's method of
+    variance estimates recovered, the delta method with each part's own one-sided limit in place of a symmetric
+    z·SE, so the MSE's right skew and the bound's asymmetric ends carry through),
+
+        log r̂ + √( log(U_MSE / MSE̅)² + log(B̂ / B_lower)² ),   r̂ = MSE̅ / B̂,
+
+    U_MSE = `verdicts.mse_limits`' upper limit of errors E (n, P) with clean-image clusters (n,) at α = 1 − level,
+    B̂ = the bound's point estimate ("point", else "log10"), B_lower its lower end ("lower", log10; a confidence
+    limit at `level`). NaN where the bound has no such end (no lower end, its `lower_note` set, no level) or the
+    MSE is not testable; +inf where U_MSE is. Unitless."""
+    level, point, low = bound.get("level"), bound.get("point", bound["log10"]), bound.get("lower")
+    if level is None or low is None or bound.get("lower_note") or not (math.isfinite(point) and math.isfinite(low)):
+        return math.nan
+    lim = mse_limits(E, clusters, 1 - float(level))
+    if lim.reason or not lim.mse > 0:
+        return math.nan
+    if not math.isfinite(lim.upper):
+        return math.inf
+    ln10 = math.log(10)
+    half = math.hypot(math.log(lim.upper / lim.mse), (point - low) * ln10)
+    return math.exp(min(math.log(lim.mse) - point * ln10 + half, 700.0))
+
+
+def power_columns(lim: MSELimits) -> dict:
+    """A row's power columns (`verdicts.power_plan`: Gaussian errors of one parameter, the row's n, clean-image
+    clusters, their estimated share of the MSE and its verdicts' level): `mse_power`, how often its test calls an
+    MSE at `verdicts.POWER_RATIO` (0.4) × the bound's lower end "below"; `mse_power_clean_images` and
+    `mse_power_trials`, the design with the same trials per clean image that reaches `verdicts.POWER_TARGET`
+    (80 %; 0: none of ≤ 4096 trials). NaN / 0 without MIN_FITS fits."""
+    if lim.n < MIN_FITS:
+        return {"mse_power": math.nan, "mse_power_clean_images": 0, "mse_power_trials": 0}
+    p, c, n = power_plan(lim.n, lim.clusters, lim.between, lim.alpha)
+    return {"mse_power": p, "mse_power_clean_images": c, "mse_power_trials": n}
+
+
 def status_counts(records: Sequence[dict]) -> str:
     """How the fits stopped, e.g. "converged 4, stalled 2" (records without a status: from `converged`)."""
     counts: dict[str, int] = {}
@@ -303,12 +340,16 @@ def summarize(
 ) -> list[dict]:
     """One row per (noise, θ*, estimator label): counts (failed shown and excluded from the statistics;
     each fit's stopping status counted), MSE over the successful fits with its SE and one-sided limits
-    (`verdicts.mse_limits`: the clean-image replicates are its clusters), variance with a bootstrap SE
+    (`verdicts.mse_limits`: the clean-image replicates are its clusters) and the power of its verdicts
+    (`power_columns`), variance with a bootstrap SE
     (`bootstrap` resamples of the trials), bias and the bias test (`bias_test`, its SE over clean-image
     replicates and, where the prediction has one, the shared offset of an estimator's reused renders: its SE in
     `bias_se_shared`), time and renders, and for every bound b in bounds[(noise, θ index)] = {b: {"log10", "lower",
     "upper", "flags", "lower_note", "upper_note"}} (log10: the value to quote; the ends where b is an interval;
-    flags and notes optional) the ratio mse_over_b and `vs_<b>` = `verdicts.verdict` (below / inside / above /
+    flags and notes optional; "point" and "level" where b has a point estimate and ends at a one-sided level) the
+    ratio mse_over_b, its joint one-sided upper limit `mse_over_<b>_upper` (`ratio_upper`: over b's true value, with
+    both the MSE's and b's uncertainty; NaN without b's lower confidence limit), and `vs_<b>` = `verdicts.verdict`
+    (below / inside / above /
     undetermined / not tested: why), each a one-sided test at (1 − level)/m, m the (row, bound) pairs of that
     noise model's table that can be tested (`_testable`; Bonferroni), failed fits named after it. `far_above`
     lists the bounds with MSE / bound > far_above. Variance is never flagged against a bound (that needs the
@@ -351,7 +392,7 @@ def summarize(
         lim = mse_limits(E, clusters, alpha)
         row.update(mse=lim.mse, mse_se=lim.se, mse_lower=lim.lower, mse_upper=lim.upper, mse_dof=lim.dof,
                    mse_clusters=lim.clusters, mse_untested=lim.reason, verdict_level=1 - alpha,
-                   verdict_tests=tests.get(j, 0))
+                   verdict_tests=tests.get(j, 0), **power_columns(lim))
         if len(ok):
             _, var, bias = _stats(E)
             rng = np.random.default_rng(derive(seed, "bootstrap", j, i, labels.index(label)))
@@ -380,7 +421,7 @@ def summarize(
                        bias_se_shared=math.nan,
                        **{f"bias_{n}": math.nan for n in names}, **{f"bias_se_{n}": math.nan for n in names})
         row.update(predicted_columns(pred, E, clusters, row,
-                                     (1 - level) / max(predicted.get(j, 0), 1), status_counts(ok)))
+                                     (1 - level) / max(predicted.get(j, 0), 1), ok))
         secs, rend, grads = ([r[k] for r in rs] for k in ("seconds", "renders", "grad_passes"))
         row.update(
             mean_seconds=float(np.mean(secs)),
@@ -396,6 +437,7 @@ def summarize(
         for b, v in (bounds or {}).get((j, i), {}).items():
             row[b] = _exp10(v["log10"])
             row[f"mse_over_{b}"] = ratio = _ratio(row["mse"], v["log10"])
+            row[f"mse_over_{b}_upper"] = ratio_upper(E, clusters, v)
             row[f"vs_{b}"] = _verdict(lim, v, row["n_failed"], row["n"])
             if ratio > far_above:
                 far.append(b)
@@ -424,13 +466,16 @@ def helmert(n: int) -> np.ndarray:
     return H
 
 
-def variance_verdict(E: np.ndarray, clusters: np.ndarray, var_pred: float, alpha: float, statuses: str) -> str:
+def variance_verdict(E: np.ndarray, clusters: np.ndarray, var_pred: float, alpha: float, statuses: str,
+                     rejected: int = 0) -> str:
     """The measured variance of errors E (n, P) against a predicted one, by `verdicts`' one-sided tests at alpha
     each (the MSE limits of the centred errors, whose mean square is the sample variance): "as predicted",
-    "above prediction" (optimisation error or a local minimum; the fits' statuses named), "below prediction",
-    or "not tested: why". Independent trials (one clean image, or one each): the Helmert contrasts of E, n − 1
-    independent errors, so the limits are exact for Gaussian errors; C clusters of several trials: the centred
-    errors scaled by √(n / (n − 1)) (their between-cluster part then counts C degrees of freedom, not C − 1)."""
+    "above prediction" (optimisation error or a local minimum; the fits' statuses named), "below prediction"
+    (with the count of the `rejected` fits that stopped on a rejected step, and where they are most of the fits
+    why the prediction does not apply to them), or "not tested: why". Independent trials (one clean image, or one
+    each): the Helmert contrasts of E, n − 1 independent errors, so the limits are exact for Gaussian errors; C
+    clusters of several trials: the centred errors scaled by √(n / (n − 1)) (their between-cluster part then
+    counts C degrees of freedom, not C − 1)."""
     n = len(E)
     if n < 2 or not (var_pred > 0 and math.isfinite(var_pred)):
         return "not tested: " + ("fewer than 2 fits" if n < 2 else f"predicted variance {var_pred:g}")
@@ -441,12 +486,19 @@ def variance_verdict(E: np.ndarray, clusters: np.ndarray, var_pred: float, alpha
         lim = mse_limits((E - E.mean(axis=0)) * math.sqrt(n / (n - 1)), clusters, alpha)
     lg = math.log10(var_pred)
     v = verdict(lim, lg, lg)
-    return {"inside": "as predicted", "below": "below prediction",
+    below = "below prediction"
+    if rejected:
+        below += f" ({rejected} of {n} fits stopped on a rejected step" + (
+            ": the prediction is the linearised recursion of fits that apply every step and does not model a fit "
+            "that stops on a rejected step, so it does not apply to most of these fits)" if 2 * rejected > n else ")")
+    return {"inside": "as predicted", "below": below,
             "above": f"above prediction (optimisation error or a local minimum; fits: {statuses})"}.get(v, v)
 
 
-def predicted_columns(pred, E: np.ndarray, clusters: np.ndarray, row: dict, alpha: float, statuses: str) -> dict:
-    """The prediction's columns of a summary row (see `summarize`); `pred` a Prediction or why there is none."""
+def predicted_columns(pred, E: np.ndarray, clusters: np.ndarray, row: dict, alpha: float,
+                      fits: Sequence[dict]) -> dict:
+    """The prediction's columns of a summary row (see `summarize`); `pred` a Prediction or why there is none;
+    `fits` the successful fits' records (their statuses)."""
     if not isinstance(pred, Prediction) or not len(E):
         return {"var_predicted": math.nan, "mse_predicted": math.nan, "var_over_predicted": math.nan,
                 "vs_predicted": "", "predicted_note": pred if isinstance(pred, str) else "no successful fit"}
@@ -454,7 +506,9 @@ def predicted_columns(pred, E: np.ndarray, clusters: np.ndarray, row: dict, alph
     parts = pred.parts()
     return {"var_predicted": vp, "mse_predicted": vp + row["bias"] ** 2, "var_over_predicted": row["var"] / vp,
             "var_predicted_obs": parts["obs"], "var_predicted_truth": parts["truth"], "var_predicted_fit": parts["fit"],
-            "vs_predicted": variance_verdict(E, clusters, vp, alpha, statuses), "predicted_note": pred.note}
+            "vs_predicted": variance_verdict(E, clusters, vp, alpha, status_counts(fits),
+                                             sum(r.get("status") == "step-rejected" for r in fits)),
+            "predicted_note": pred.note}
 
 
 def summarize_bayes(records: Sequence[dict], zzb: dict | None = None,
@@ -474,18 +528,21 @@ def summarize_bayes(records: Sequence[dict], zzb: dict | None = None,
     rows = []
     for (j, label), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], labels.index(kv[0][1]))):
         ok = [r for r in rs if r["error"] is None]
-        E = np.array([np.array(r["theta_hat"]) - np.array(r["theta_true"]) for r in ok], dtype=np.float64)
-        lim = mse_limits(E.reshape(len(ok), len(rs[0]["theta_true"])), None, alpha)
+        E = np.array([np.array(r["theta_hat"]) - np.array(r["theta_true"]) for r in ok],
+                     dtype=np.float64).reshape(len(ok), len(rs[0]["theta_true"]))
+        lim = mse_limits(E, None, alpha)
         row = {"noise": j, "estimator": label, "name": rs[0]["name"], "n": len(rs), "n_failed": len(rs) - len(ok),
                "n_nonconverged": sum(1 for r in ok if not r["converged"]), "status": status_counts(rs),
                "bayes_mse": lim.mse, "bayes_mse_se": lim.se, "bayes_mse_lower": lim.lower,
                "bayes_mse_upper": lim.upper, "bayes_mse_untested": lim.reason, "verdict_level": 1 - alpha,
+               **{f"bayes_{k}": v for k, v in power_columns(lim).items()},
                "mean_seconds": float(np.mean([r["seconds"] for r in rs])),
                "mean_renders": float(np.mean([r["renders"] + r["grad_passes"] for r in rs]))}
         z = (zzb or {}).get(j)
         if z is not None:
             row.update(zzb=_exp10(z["log10"]), zzb_upper=_exp10(z.get("upper", z["log10"])),
-                       mse_over_zzb=_ratio(lim.mse, z["log10"]), vs_zzb=_verdict(lim, z, row["n_failed"], row["n"]))
+                       mse_over_zzb=_ratio(lim.mse, z["log10"]), mse_over_zzb_upper=ratio_upper(E, None, z),
+                       vs_zzb=_verdict(lim, z, row["n_failed"], row["n"]))
         rows.append(row)
     return rows
 

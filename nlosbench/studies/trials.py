@@ -407,16 +407,18 @@ ESTIMATE_NOTE = "a point estimate: fewer than 3 replicate sets"
 
 def bound_entry(row: dict, kind: str) -> dict:
     """One bound's cells of a CSV row (`Bound.columns`) as `montecarlo.summarize` takes them: {log10, lower,
-    upper, flags (a tuple), lower_note, upper_note} (ends and notes where present). A bound without ends
+    upper, point, level, flags (a tuple), lower_note, upper_note} (ends, point, level and notes where present;
+    point and level make the joint limit of MSE / bound, `montecarlo.ratio_upper`). A bound without ends
     (hcr_neff, hcr_hat, barankin: plug-in point estimates) gets `POINT_NOTE` on both ends, one flagged
     `estimate-only` (its ends are its point estimate) `ESTIMATE_NOTE`: no verdict is a test against them."""
-    ends = {e: float(row[f"{kind}_{e}"]) for e in ("lower", "upper") if row.get(f"{kind}_{e}") not in (None, "")}
+    ends, point = ({e: float(row[f"{kind}_{e}"]) for e in keys if row.get(f"{kind}_{e}") not in (None, "")}
+                   for keys in (("lower", "upper"), ("point", "level")))
     notes = {e: str(row[f"{kind}_{e}"]) for e in ("lower_note", "upper_note") if row.get(f"{kind}_{e}")}
     flags = tuple(f for f in str(row.get(f"{kind}_flags") or "").split(",") if f)
     if not ends or "estimate-only" in flags:
         note = ESTIMATE_NOTE if ends else POINT_NOTE
         notes = {"lower_note": note, "upper_note": note}
-    return {"log10": float(row[f"log10_{kind}"]), **ends, "flags": flags, **notes}
+    return {"log10": float(row[f"log10_{kind}"]), **ends, **point, "flags": flags, **notes}
 
 
 def bounds_map(rows: list[dict], want) -> dict:
@@ -752,19 +754,29 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
               f"each at {each:.2%}): **below** = the MSE's upper limit under the bound's lower end; **above** = "
               "its lower limit over the upper end (a better estimator may exist; never against an open end); "
               "**inside** = neither; **undetermined** = the bound's ends are crossed; **not tested** = no valid "
-              "test (fewer than 3 successful fits, one fit holding more of the squared errors than Gaussian errors "
-              "give, or a deciding end that is not a confidence limit), with the reason. The MSE's limits treat it "
-              "as right-skewed (a scaled χ² split over the clean-image renders: trials that share one are a "
-              "cluster; Graybill–Wang upper limit, Satterthwaite lower limit), so an efficient estimator is called "
-              "below its bound at most at the stated level. An unbiased estimator can still be below by chance at "
-              f"that rate; below at {lvl} means bias (the measured bias is given) or a bug. Var is shown without "
+              "test (fewer than 3 successful fits, one fit holding a share of the squared errors that errors with "
+              "t5's tails seldom give, or a deciding end that is not a confidence limit), with the reason. The MSE's "
+              "limits treat it as right-skewed (a scaled χ² split over the clean-image renders: trials that share one "
+              "are a cluster; degrees of freedom shrunk by the squared errors' kurtosis, never below a Gaussian "
+              "error's; Satterthwaite lower limit; upper limit the larger of Graybill–Wang's and the score limit), so "
+              "an efficient estimator with tails up to Laplace's or t5's is called below its bound at most at about "
+              "the stated level (measured ≤ 6.8 % at 5 %); rare gross errors that the trials happen not to contain "
+              "no test can see (`nlosbench.verdicts`). An unbiased estimator can still be below by chance at "
+              f"that rate; below at {lvl} means bias (the measured bias is given) or a bug. **MSE / b** is over b's "
+              "quoted value, with [≤ its joint one-sided upper limit] over b's true value at b's level (the MSE's and "
+              "the bound's uncertainty together: MOVER on the log ratio, `mse_over_<b>_upper` in summary.csv). "
+              "**Power**: how often a verdict's test calls an MSE at 0.4× the bound's lower end below it (Gaussian "
+              "errors; the row's trials, clean images and their share of the MSE), and the clean images (same trials "
+              "per image) that would make it 80 %. Var is shown without "
               "a verdict against a bound (that would need the bias gradient); it is tested against the **predicted** "
               "variance of its estimator's linearised update at θ* (`Estimator.predicted_variance`: the "
               "observation's noise and the clean image's rendering noise through F⁻¹JᵀW, plus what the fit's own "
               "renders, noisy Jacobians and unfinished contraction from the start leave; none for grid-search and "
               "multi-start, with the reason), by the same one-sided tests on the centred errors (Bonferroni over the "
               "rows with a prediction): **as predicted**, **above prediction** (optimisation error or a local minimum: "
-              "the fit statuses are named), **below prediction** (the model of the fit overstates its noise). "
+              "the fit statuses are named), **below prediction** (the model of the fit overstates its noise; fits "
+              "that stopped on a rejected step are counted, and where they are most of the fits the prediction, a "
+              "recursion of fits that apply every step, does not apply to them). "
               "Predicted MSE = predicted Var + the measured bias² (the bias is not predicted; shown for comparison "
               "only). The bias "
               "test: mean error against its SE over the clean-image replicates (which holds the clean image's own "
@@ -780,8 +792,8 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
         lines += ["", f"### Against the bounds that apply (noise {j}; {units})", ""]
         head = ["θ*", "estimator", "n (failed)", "MSE [lower, upper limit]", "predicted MSE", "Var",
                 "predicted Var: verdict", "bias ± SE (t, p)"]
-        head += [f"{b} [{lvl} ends]" for b in bounds if b in ("hcr", "crlb")] + [
-            "verdict", "fit status", "s / trial", "renders / trial", "pixel-samples / trial"]
+        head += [c for b in bounds if b in ("hcr", "crlb") for c in (f"{b} [{lvl} ends]", f"MSE / {b} [≤ upper]")]
+        head += ["verdict", "power at 0.4×", "fit status", "s / trial", "renders / trial", "pixel-samples / trial"]
         lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for r in (r for r in rows if r["noise"] == j):
             b = next((b for b in results["bound_rows"]
@@ -794,7 +806,9 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
             for k in (k for k in bounds if k in ("hcr", "crlb")):
                 cells.append(f"{fmt_log10(float(b[f'log10_{k}']))} [{_end(b, k, 'lower')}, {_end(b, k, 'upper')}]"
                              if b else "–")
-            cells += [_verdict(r, bounds), r.get("status", ""), fmt(r["mean_seconds"]),
+                cells.append(f"{fmt(r.get(f'mse_over_{k}', math.nan))} "
+                             f"[≤ {fmt(r.get(f'mse_over_{k}_upper', math.nan))}]")
+            cells += [_verdict(r, bounds), _power_cell(r, "mse"), r.get("status", ""), fmt(r["mean_seconds"]),
                       fmt(r["mean_renders"] + r["mean_grad_passes"]), fmt(r.get("mean_samples", math.nan), 2)]
             lines.append("| " + " | ".join(str(c) for c in cells) + " |")
     if any(b.get(f"{k}_{e}_note") for b in results["bound_rows"] for k in ("hcr", "crlb") for e in ("lower", "upper")):
@@ -812,6 +826,17 @@ def _local_section(rows: list[dict], results: dict, bounds: list, units: str, lv
         lines += [f"**Far above** (MSE > {results['far_above']:g} × the quoted bound): " + "; ".join(
             f"{r['estimator']} at θ* #{r['theta_index']} ({r['far_above']})" for r in rows if r["far_above"])]
     return lines
+
+
+def _power_cell(r: dict, key: str) -> str:
+    """The power of a row's verdicts (`montecarlo.power_columns`): "9 % (80 %: 16 clean images, 48 trials)"."""
+    p = r.get(f"{key}_power", math.nan)
+    if not isinstance(p, (int, float)) or math.isnan(p):
+        return "–"
+    images, trials = int(r.get(f"{key}_power_clean_images", 0)), int(r.get(f"{key}_power_trials", 0))
+    plan = "reached" if trials == r["n"] - r["n_failed"] else "not within 4096 trials" if not trials else (
+        f"{trials} independent trials" if images == trials else f"{images} clean images, {trials} trials")
+    return f"{p:.0%} (80 %: {plan})"
 
 
 def _predicted_cell(r: dict) -> str:
@@ -854,16 +879,18 @@ def _bayes_section(rows: list[dict], results: dict, units: str) -> list[str]:
              "a lower sum over a uniform grid; its lower end is a one-sided confidence limit from the replicate "
              "render sets). The Bayesian MSE over the successful fits (n stated, failures counted) with its "
              f"one-sided limits (independent trials: a scaled χ²); the verdicts are one-sided tests at {lvl} for the "
-             f"table (Bonferroni: each at {each:.2%}), the same vocabulary as the local table. **below** at {lvl}: "
+             f"table (Bonferroni: each at {each:.2%}), the same vocabulary and power column as the local table. "
+             f"**below** at {lvl}: "
              "a bug, or a ZZB grid too coarse (see its flags); any estimator is below by chance at most at that "
              "rate.", "",
              "| noise | estimator | n (failed) | Bayesian MSE [lower, upper limit] | ZZB lower end [upper end] | "
-             "verdict | fit status | s / trial | renders / trial |", "|---|---|---|---|---|---|---|---|---|"]
+             "verdict | power at 0.4× | fit status | s / trial | renders / trial |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         z = results["zzb"].get(str(r["noise"]))
         zz = "–" if z is None else f"{fmt_log10(z['log10'])} [{fmt_end(z['upper'])}]" + \
             (f" ({', '.join(z['flags'])})" if z["flags"] else "")
         lines.append(f"| {r['noise']} | {r['estimator']} | {r['n']} ({r['n_failed']}) | "
-                     f"{_mse_cell(r, 'bayes_mse')} | {zz} | {r.get('vs_zzb', '–')} | "
+                     f"{_mse_cell(r, 'bayes_mse')} | {zz} | {r.get('vs_zzb', '–')} | {_power_cell(r, 'bayes_mse')} | "
                      f"{r.get('status', '')} | {fmt(r['mean_seconds'])} | {fmt(r['mean_renders'])} |")
     return lines
