@@ -28,8 +28,8 @@ def _blob(render_noise: float = 3.0):
 def test_without_a_target_one_fixed_set_is_rendered_and_no_record_is_kept():
     """No target: the renders of one fixed set of replicates, counted from the plan — edge1d with common seeds,
     3 sets × (θ* + 7 grid + 4 offsets + 2 stencils × 2 steps) = 48; blob2d (x, y) with independent seeds and
-    two noise models, 88 — no precision record or column, and the same numbers from a second bank of the
-    same seed (bit for bit on the CPU)."""
+    two noise models, 91 (each FD round also renders θ* under its stencils' seed, once for both steps) — no
+    precision record or column, and the same numbers from a second bank of the same seed (bit for bit on the CPU)."""
     def edge():
         bank = RenderBank(nb.scenes.get("edge1d", render_noise=0.3), seed=5)
         (pt,) = BoundService(bank, [nb.noise.AWGN(0.05)]).at([[0.507]], 16, ("hcr", "crlb"), "common", test_grid=7,
@@ -43,7 +43,7 @@ def test_without_a_target_one_fixed_set_is_rendered_and_no_record_is_kept():
     bank = RenderBank(nb.scenes.get("blob2d", render_noise=0.3), seed=5)
     pts = BoundService(bank, [nb.noise.AWGN(0.3), nb.noise.Poisson(50.0)]).at(
         [[0.45, 0.5]], 16, ("hcr", "crlb", "hcr_neff"), "independent", test_grid=4, offsets=1)
-    assert bank.renders == 88 and all(p.precision is None for p in pts)
+    assert bank.renders == 91 and all(p.precision is None for p in pts)
 
 
 @pytest.mark.parametrize("bad, match", [
@@ -179,16 +179,19 @@ def test_the_budget_is_never_exceeded_and_a_smaller_one_plans_fewer_sets():
 
 
 def test_independent_seeds_use_fresh_fd_rounds_at_every_look():
-    """blob2d's x with independent seeds, CRLB only, precision 0.05, seed 0: the FD Jacobians made are exactly those
-    of the pilot's rounds 0 … R0 − 1 and of the reported look's fresh rounds R0 … R0 + R − 1 (two steps each)."""
+    """blob2d's x with independent seeds, CRLB only, precision 0.05, seed 0: the FD stencils rendered are exactly
+    those of the pilot's rounds 0 … R0 − 1 and of the reported look's fresh rounds R0 … R0 + R − 1, each round's θ*
+    and its stencils at two steps under one seed (5 renders a round), and no other FD render."""
     bank = RenderBank(_blob(2.0), seed=0)
     (pt,) = BoundService(bank, [nb.noise.AWGN(0.3)]).at([[0.45]], 16, ("crlb",), "independent", precision=0.05,
                                                         **BLOB)
     rec = pt.precision
     assert rec.met and rec.looks >= 2 and rec.fresh_sets >= 3
-    seeds = [k.seed for k in bank._memo if isinstance(k, JacobianRequest)]
-    want = {bank.seed("bounds-fd", 16, [0.45], r) for r in range(rec.pilot_sets + rec.fresh_sets)}
-    assert set(seeds) == want and len(seeds) == 2 * len(want)
+    want = {bank.seed("bounds-stencil", 16, [0.45], r) for r in range(rec.pilot_sets + rec.fresh_sets)}
+    stencil = [k for k in bank._memo if not np.allclose(k.theta, 0.45)]
+    assert not any(isinstance(k, JacobianRequest) for k in bank._memo)
+    assert {k.seed for k in stencil} == want and len(stencil) == 4 * len(want)
+    assert sum(k.seed in want for k in bank._memo) == 5 * len(want)
 
 
 def _rounds(m, theta: float, seed: int, R: int, delta: float, common: bool, xi: float = 0.01) -> np.ndarray:

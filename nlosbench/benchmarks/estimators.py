@@ -55,7 +55,13 @@ class Reloading(ForwardModel):
 
     def __init__(self, spec: dict):
         self.spec = spec
-        super().__init__(spec["name"], build(spec).params)
+        model = build(spec)
+        super().__init__(spec["name"], model.params)
+        self._channels = model.channels
+
+    @property
+    def channels(self) -> int:
+        return self._channels
 
     def _render(self, theta, spp, seed):
         return build(self.spec).render(theta, spp, seed)

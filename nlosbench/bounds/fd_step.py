@@ -56,10 +56,12 @@ VARIANTS = ("central", "forward", "backward")
 @dataclass
 class Stage:
     """FD rounds at one step ξ (parameter units): variant → Jacobian rounds (R, P, N) float64, pixels
-    flattened (N = H·W·C)."""
+    flattened (N = H·W·C); group: the values per pixel that share path samples (C, `ForwardModel.channels`),
+    which every standard error sums before it treats pixels as independent (`ustat`)."""
 
     step: float
     rounds: dict[str, np.ndarray]
+    group: int = 1
 
 
 @dataclass
@@ -139,16 +141,17 @@ class StepFisher:
 
 def stage_stats(stage: Stage, w: np.ndarray | float) -> dict[str, UStat]:
     """UStat of F (P, P) per variant of a stage, for the per-pixel weight w (N,) or a scalar."""
-    return {name: fisher_stat(J, w) for name, J in stage.rounds.items()}
+    return {name: fisher_stat(J, w, stage.group) for name, J in stage.rounds.items()}
 
 
-def fisher_stat(J: np.ndarray, w) -> UStat:
+def fisher_stat(J: np.ndarray, w, group: int = 1) -> UStat:
     """The unbiased F (P, P) from R rounds J (R, P, N) and a weight w (N,) or scalar: scalar θ the per-pixel
-    U-statistic (SE from independent pixels, Satterthwaite df); vector θ the Gram U-statistic over rounds
-    (SE from the rounds' jackknife, R − 1 df)."""
+    U-statistic (SE from independent pixels, each pixel's `group` channels summed first, Satterthwaite df);
+    vector θ the Gram U-statistic over rounds (SE from the rounds' jackknife, R − 1 df: whole rounds are
+    independent, whatever the channels share)."""
     R, P, N = J.shape
     if P == 1:
-        u = pixel_ustat(J.reshape(R, 1, N), w)
+        u = pixel_ustat(J.reshape(R, 1, N), w, group)
         return UStat(u.est.reshape(1, 1), u.se.reshape(1, 1), u.loo.reshape(-1, 1, 1), R, u.df.reshape(1, 1))
     wide = np.broadcast_to(np.asarray(w, dtype=np.float64), (N,)).copy()
     fi = unbiased_fisher(torch.from_numpy(J), torch.from_numpy(wide))
@@ -170,7 +173,7 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
             pa, la = pixel_terms(A[:, j][:, None], _row(w, N))
             pb, lb = pixel_terms(B[:, j][:, None], _row(w, N))
             fa, fb = float(pa.sum()), float(pb.sum())
-            est, _, se, df = sum_terms(pb - c * pa, lb - c * la, R)
+            est, _, se, df = sum_terms(pb - c * pa, lb - c * la, R, fine.group)
             contrasts[name, j] = (float(est[0]), float(se[0]), float(df[0]), fa)
             t = one_sided_t(level, df[0], se[0])
             up, down = est[0] + t * se[0], est[0] - t * se[0]
@@ -178,7 +181,7 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
             rising |= bool(down > 0)
             ratio = fb / fa if fa > 0 and fb > 0 else math.nan
             _, _, rse, _ = sum_terms(pb - (ratio if math.isfinite(ratio) else 1.0) * pa,
-                                     lb - (ratio if math.isfinite(ratio) else 1.0) * la, R)
+                                     lb - (ratio if math.isfinite(ratio) else 1.0) * la, R, fine.group)
             key = up / fa if fa > 0 else math.inf
             if worst is None or key > worst[0]:
                 worst = (key, ratio, float(rse[0] / fa) if fa > 0 else math.nan)
@@ -208,10 +211,10 @@ def extrapolate(coarse: Stage, fine: Stage, w) -> dict[str, UStat]:
         if P == 1:
             pa, la = pixel_terms(A, _row(w, N))
             pb, lb = pixel_terms(B, _row(w, N))
-            est, loo, se, df = sum_terms((1 + k) * pb - k * pa, (1 + k) * lb - k * la, R)
+            est, loo, se, df = sum_terms((1 + k) * pb - k * pa, (1 + k) * lb - k * la, R, fine.group)
             out[name] = UStat(est.reshape(1, 1), se.reshape(1, 1), loo.reshape(-1, 1, 1), R, df.reshape(1, 1))
         else:
-            fa, fb = fisher_stat(A, w), fisher_stat(B, w)
+            fa, fb = fisher_stat(A, w, coarse.group), fisher_stat(B, w, fine.group)
             loo = (1 + k) * fb.loo - k * fa.loo if fb.loo.size and fa.loo.size else fb.loo
             se = (np.sqrt((R - 1) / R * ((loo - loo.mean(axis=0)) ** 2).sum(axis=0)) if loo.size
                   else fb.se * (1 + k))

@@ -67,7 +67,7 @@ import numpy as np
 from nlosbench.bounds.fd_step import Halving, Stage, StepFisher, crlb_term, one_sided_t, settled_from
 from nlosbench.bounds.hcr import LN10, log_expm1
 from nlosbench.bounds.hcr_interval import hcr_interval
-from nlosbench.bounds.ustat import UStat, t_quantile
+from nlosbench.bounds.ustat import UStat, check_group, t_quantile
 
 #: interval bound kinds a precision target applies to
 KINDS = ("hcr", "crlb")
@@ -111,7 +111,8 @@ def reached(b) -> float:
 class Raw:
     """What a plan needs from one look at one θ* for one noise model: λ's replicate differences D (R, K, N)
     and U-statistic (None without "hcr"), the StepFisher and the FD stages (rounds (R, P, N)), the weight w
-    (N,), the tested Δ (K,) or (K, P) and their limits (Θ − θ*), and H·W pixels."""
+    (N,), the tested Δ (K,) or (K, P) and their limits (Θ − θ*), H·W pixels, and the values per pixel that share
+    path samples (`group`, the model's channels)."""
 
     D: np.ndarray | None
     lam: UStat | None
@@ -122,6 +123,7 @@ class Raw:
     lower: np.ndarray
     upper: np.ndarray
     pixels: int
+    group: int = 1
 
     def subset(self, mask: np.ndarray) -> Raw:
         """The same look with only the tested Δ of `mask` (K,)."""
@@ -129,7 +131,7 @@ class Raw:
         lam = UStat(lam.est[mask], lam.se[mask], lam.loo[:, mask] if lam.loo.size else lam.loo, lam.replicates,
                     np.array(lam.dof[mask]))
         return Raw(self.D[:, mask], lam, self.sf, self.stages, self.w, self.deltas[mask], self.lower, self.upper,
-                   self.pixels)
+                   self.pixels, self.group)
 
 
 @dataclass(frozen=True)
@@ -197,19 +199,39 @@ class Precision:
 
 
 # -- the planning model ---------------------------------------------------------------------------------
-def variance_terms(X: np.ndarray, w) -> tuple[np.ndarray, np.ndarray]:
-    """(a (K,), b (K,)) of the U-statistics of Σ_pixels w·x_r·x_s over R replicates X (R, K, N) (w scalar or
-    (N,)): Var ≈ a/R + b/(R(R − 1)), a = 4 Σ w² d² s², b = 2 Σ w² s⁴. Per pixel, from the mean x̄ and sample
-    variance ŝ² over replicates, unbiased for Gaussian errors (x̄ and ŝ² independent, E ŝ⁴ = s⁴ (R + 1)/(R − 1)):
-    s⁴ ≈ ŝ⁴ (R − 1)/(R + 1) and d² s² ≈ x̄² ŝ² − s⁴/R, summed over pixels and the sum clipped at 0. (Clipping
-    d² per pixel instead would add ≈ s⁴/R from every signal-free pixel; the plug-in ŝ⁴ is 2× s⁴ at R = 3:
-    measured on blob2d, both doubled the predicted SE where b dominates.)"""
+def variance_terms(X: np.ndarray, w, group: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """(a (K,), b (K,)) of the U-statistics of Σ_values w·x_r·x_s over R replicates X (R, K, N) (w scalar or
+    (N,)), the N values in groups of `group` consecutive ones that share path samples (a pixel's channels, N = M·C):
+    Var ≈ a/R + b/(R(R − 1)) with, per group m of mean d and error covariance S (C, C) over replicates,
+
+        a = 4 Σ_m (w∘d)ᵀ S (w∘d),    b = 2 Σ_m Σ_cc' w_c w_c' S_cc'²
+
+    (Gaussian errors; C = 1: a = 4 Σ w² d² s², b = 2 Σ w² s⁴). From the mean x̄ and the sample covariance Ŝ over
+    replicates (ν = R − 1 degrees of freedom, Wishart moments, x̄ and Ŝ independent): S_cc'² ≈
+    ν(ν Ŝ_cc'² − Ŝ_cc Ŝ_c'c')/((ν + 2)(ν − 1)) (for c = c': ŝ⁴ (R − 1)/(R + 1)), and d_c d_c' S_cc' ≈
+    x̄_c x̄_c' Ŝ_cc' − S_cc'²/R, summed over groups and a's sum clipped at 0. (Clipping per group instead would
+    add ≈ s⁴/R from every signal-free pixel; the plug-in ŝ⁴ is 2× s⁴ at R = 3: measured on blob2d, both doubled
+    the predicted SE where b dominates.) R = 2: the diagonal formula, no cross terms."""
     X = np.asarray(X, dtype=np.float64)
-    R = X.shape[0]
-    m, s2 = X.mean(axis=0), X.var(axis=0, ddof=1)
-    s4 = s2 * s2 * (R - 1.0) / (R + 1.0)
-    w2 = np.asarray(w, dtype=np.float64) ** 2
-    return np.clip(4.0 * (w2 * (m * m * s2 - s4 / R)).sum(axis=-1), 0.0, None), 2.0 * (w2 * s4).sum(axis=-1)
+    R, K, N = X.shape
+    C = check_group(group, N)
+    x = X.reshape(R, K, N // C, C)
+    m = x.mean(axis=0)  # (K, M, C)
+    dev = x - m
+    S = np.einsum("rkmc,rkmd->kmcd", dev, dev) / (R - 1.0)  # (K, M, C, C)
+    nu = R - 1.0
+    diag = np.einsum("kmcc->kmc", S)
+    if R > 2:
+        S2 = nu * (nu * S * S - diag[..., :, None] * diag[..., None, :]) / ((nu + 2.0) * (nu - 1.0))
+    else:
+        S2 = np.zeros_like(S)
+        idx = np.arange(C)
+        S2[..., idx, idx] = diag * diag * (R - 1.0) / (R + 1.0)
+    wv = np.broadcast_to(np.asarray(w, dtype=np.float64), (N,)).reshape(N // C, C)  # (M, C)
+    ww = wv[:, :, None] * wv[:, None, :]  # (M, C, C)
+    wm = wv * m  # (K, M, C)
+    a = 4.0 * (np.einsum("kmc,kmcd,kmd->k", wm, S, wm) - (ww * S2).sum(axis=(-2, -1)).sum(axis=-1) / R)
+    return np.clip(a, 0.0, None), 2.0 * (ww * S2).sum(axis=(1, 2, 3))
 
 
 def _var(a, b, R: int):
@@ -271,8 +293,8 @@ class Fit:
     @classmethod
     def of(cls, raw: Raw) -> Fit:
         """The variance terms of `raw` (`variance_terms`)."""
-        lam = variance_terms(raw.D, raw.w) if raw.D is not None else None
-        return cls(raw, lam, [{name: variance_terms(J, raw.w) for name, J in stage.rounds.items()}
+        lam = variance_terms(raw.D, raw.w, raw.group) if raw.D is not None else None
+        return cls(raw, lam, [{name: variance_terms(J, raw.w, raw.group) for name, J in stage.rounds.items()}
                               for stage in raw.stages])
 
     def windows(self) -> list[Window]:

@@ -29,8 +29,10 @@ Kinds (parameter units²; `Bound.log10` is the value to quote):
             in expectation on the HCR restricted to the tested Δ (not on the HCR over every Δ);
   barankin  multi-point Barankin bound on Var θ̂ of a scalar θ from the replicate means (plug-in);
   zzb       (curves on a uniform grid) the Ziv–Zakai bound on the Bayesian MSE over the prior on the grid's
-            range, for every estimator (`zzb`): log10 the lower end, with `upper`, `point`; for Poisson noise
-            the Bhattacharyya distance is an upper estimate (`zzb.bhattacharyya_ustat`), which keeps it a bound.
+            range, for every estimator (`zzb`): log10 the lower end (the bound to quote: P_e is convex in the
+            distance, so the point errs either way), with `upper`, `point`; for Poisson noise the Bhattacharyya
+            distance is an upper estimate (`zzb.bhattacharyya_ustat`) whose weight comes from R weight renders,
+            one per replicate set, so the ends carry the weight's noise too.
 
 Poisson weights scale/L come from one render of each θ independent of every replicate (purpose
 "bounds-weight", spp samples): a weight computed from the same replicates as a U-statistic would correlate
@@ -51,7 +53,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from nlosbench.bank import RenderBank
+from nlosbench.bank import RenderBank, Request
 from nlosbench.bounds.barankin import barankin
 from nlosbench.bounds.fd_step import Stage, StepFisher, converge, crlb_term, halving, single
 from nlosbench.bounds.grid import pairwise_lambda
@@ -394,6 +396,8 @@ class BoundService:
         self.bank = bank
         self.noises = dict(noises) if isinstance(noises, dict) else dict(enumerate(noises))
         self.params = bank.model.params
+        #: the values per pixel that share path samples (the model's channels): every standard error groups them
+        self.group = bank.model.channels
         self.level = float(level)
 
     def _select(self, noises) -> dict[int, NoiseModel]:
@@ -473,22 +477,26 @@ class BoundService:
         return torch.from_numpy(np.stack([s.rounds["central"] for s in stages], axis=1))
 
     def _stages(self, thetas: np.ndarray, center: torch.Tensor | None, spp: int, seeds: str, R: int,
-                step: float, first: int = 0) -> list[Stage]:
+                step: float, first: int = 0, purpose: str = PURPOSE) -> list[Stage]:
         """One FD Stage at step ξ per θ of thetas (T, P), R rounds, each independent of the others and with
-        common random numbers inside each stencil. Common seeds: the central differences of replicate r's
-        stencil renders (θ ± ξ e_j clipped into Θ) and, from the θ renders `center` (R, T, *S) of the same
-        replicates (their seed is the stencils'), the forward and backward differences; independent seeds: the
-        bank's central FD Jacobians (a seed per θ and round, the same at every step, so stages pair). Rounds are
-        the replicate sets first … first + R − 1."""
+        common random numbers inside each stencil: the central differences of round r's stencil renders (θ ± ξ e_j
+        clipped into Θ) and, from a render of θ under the stencil's seed, the forward and backward differences —
+        the one-sided variants the step check needs near a kink (`fd_step`). Common seeds: round r is replicate
+        set r (every θ shares its seed) and θ's render is `center` (R, T, *S) of the same replicates (None: no
+        one-sided variants); independent seeds: a seed per θ and round, shared by its stencil and θ's own render
+        (purpose `purpose` + "-stencil", not by other θ), the same at every step, so stages pair. Rounds are the
+        replicate sets first … first + R − 1."""
         T, P = thetas.shape
-        if seeds == "independent":
-            J = torch.stack([self.bank.jacobians_at(thetas, spp, step, PURPOSE, False, r,
-                                                    desc=f"FD Jacobians (round {r})")
-                             for r in range(first, first + R)]).double()
-            return [Stage(step, {"central": J[:, t].reshape(R, P, -1).numpy()}) for t in range(T)]
         st, sep = self._stencils(thetas, step)
-        X = self.replicates(st.reshape(-1, P), spp, seeds, R, "FD stencil renders", first).double().reshape(
-            R, T, P, 2, -1)
+        if seeds == "independent":
+            reqs = [Request.of(pt, spp, self.bank.seed(purpose + "-stencil", spp, thetas[t], r))
+                    for r in range(first, first + R) for t in range(T)
+                    for pt in itertools.chain([thetas[t]], st[t].reshape(2 * P, P))]
+            imgs = self.bank.images(reqs, "FD stencil renders").double().reshape(R, T, 1 + 2 * P, -1)
+            X, center = imgs[:, :, 1:].reshape(R, T, P, 2, -1), imgs[:, :, 0]
+        else:
+            X = self.replicates(st.reshape(-1, P), spp, seeds, R, "FD stencil renders", first).double().reshape(
+                R, T, P, 2, -1)
         diag = np.arange(P)
         out = []
         for t in range(T):
@@ -500,7 +508,7 @@ class BoundService:
                     rounds["forward"] = _diff(X[:, t, :, 0], c, fwd)
                 if np.all(bwd > 0):
                     rounds["backward"] = _diff(c, X[:, t, :, 1], bwd)
-            out.append(Stage(step, rounds))
+            out.append(Stage(step, rounds, self.group))
         return out
 
     def _refine(self, thetas: np.ndarray, stage_fn, weights: dict, step: float, step_tol: float,
@@ -662,7 +670,7 @@ class BoundService:
         points, zzbs = [], {}
         for j, noise in self._select(noises).items():
             Wflat = np.stack([w for w, _ in weights[j]])
-            lam = pairwise_ustat(Xd.reshape(R, G, -1).numpy(), Wflat)
+            lam = pairwise_ustat(Xd.reshape(R, G, -1).numpy(), Wflat, self.group)
             plug = pairwise_lambda(pooled, noise) if not isinstance(noise, Poisson) else _plugin_poisson(pooled, Wflat)
             for g, t in enumerate(T):
                 others = np.flatnonzero(np.arange(G) != g)
@@ -700,7 +708,7 @@ class BoundService:
                 if 0 < g < G - 1:
                     fine["forward"] = _diff(Xd[:, g + 1][:, None], Xd[:, g][:, None], [T[g + 1] - T[g]])
                     fine["backward"] = _diff(Xd[:, g][:, None], Xd[:, g - 1][:, None], [T[g] - T[g - 1]])
-                out.append([Stage(2 * h[g], {"central": _flat(J2[:, g])}), Stage(h[g], fine)])
+                out.append([Stage(2 * h[g], {"central": _flat(J2[:, g])}, self.group), Stage(h[g], fine, self.group)])
             return out
         if gradient == "fd":  # explicit stencils (independent seeds: the grid's renders share no seed)
             fd_step = fd_step or float(np.min(np.diff(T)))
@@ -710,16 +718,18 @@ class BoundService:
             return [[p[g] for p in per] for g in range(G)]
         J = torch.stack([self.bank.jacobians_at(T, spp, float(T[1] - T[0]), PURPOSE, seeds == "common", r,
                                                 method=gradient, ad=ad)[:, 0] for r in range(R)]).double()
-        return [[Stage(math.nan, {"central": _flat(J[:, g])})] for g in range(G)]
+        return [[Stage(math.nan, {"central": _flat(J[:, g])}, self.group)] for g in range(G)]
 
     def _zzb(self, Xd: torch.Tensor, T: np.ndarray, noise: NoiseModel, Wflat: np.ndarray, prior, spp: int) -> Bound:
         R = Xd.shape[0]
         if isinstance(noise, Poisson):
-            Y = self.bank.at(T, spp, PURPOSE + "-weight", desc="Poisson weight renders").double()
-            stat = bhattacharyya_ustat(Xd.reshape(R, len(T), -1).numpy(), Y.reshape(len(T), -1).numpy(), noise.scale)
+            Y = torch.stack([self.bank.at(T, spp, PURPOSE + "-weight", replicate=r,
+                                          desc=f"Poisson weight renders (replicate {r})") for r in range(R)]).double()
+            stat = bhattacharyya_ustat(Xd.reshape(R, len(T), -1).numpy(), Y.reshape(R, len(T), -1).numpy(),
+                                       noise.scale, self.group)
             kind = "bhattacharyya"
         else:
-            stat = pairwise_ustat(Xd.reshape(R, len(T), -1).numpy(), Wflat)
+            stat = pairwise_ustat(Xd.reshape(R, len(T), -1).numpy(), Wflat, self.group)
             kind = "lambda"
         z = zzb_interval(stat, T, kind, prior, self.level)
         limited = not math.isfinite(z.halved) or abs(z.halved) > math.log10(1.1)  # > 10 % when δ is halved
@@ -882,7 +892,7 @@ class BoundService:
                 if need_alt and {"hcr", "hcr_neff"} & set(want):
                     if "hcr" in want:
                         D = (alt - center[:, i][:, None]).reshape(R, alt.shape[1], -1).numpy()  # (R, K, N)
-                        lam = pixel_ustat(D, wflat)
+                        lam = pixel_ustat(D, wflat, self.group)
                         iv = hcr_interval(lam, deltas, sf, self.level, lower, upper)
                         b["hcr"] = interval_bound(iv, zero_flags, sf)
                     plug = _FixedWeight(w).chi2_exponent(L0, alt.mean(dim=0))
@@ -896,7 +906,7 @@ class BoundService:
                 rows[j, i] = BoundPoint(j, str(noise), theta.copy(), b)
                 if keep is not None:
                     keep[j, i] = Raw(D, lam, sf, stages[i] if need_fi else [], wflat, deltas, lower, upper,
-                                     int(np.prod(center.shape[2:4])))
+                                     int(np.prod(center.shape[2:4])), self.group)
         return [rows[j, i] for j in self._select(noises) for i in range(len(thetas))]
 
     # -- Fisher information ------------------------------------------------------------------------------
@@ -905,10 +915,11 @@ class BoundService:
                budget: int | None = None, looks: int = 3) -> list[FisherPoint]:
         """Unbiased per-pixel Fisher information maps and the CRLB per parameter at each θ (T, P).
 
-        Per θ: a render (purpose "fisher", the Poisson weight image) and `rounds` independent central-FD
-        Jacobians (common random numbers inside each stencil; purpose "fisher-fd", replicate r) at step ξ,
-        halved with the same seeds until F has stopped rising within 1 + `step_tol` (at most
-        `max_halvings` times); maps and bounds from the finest step.
+        Per θ: a render (purpose "fisher", the Poisson weight image) and `rounds` independent FD rounds at step ξ:
+        round r renders θ ± ξ e_j and θ itself under one seed (purpose "fisher-stencil", replicate r; common
+        random numbers inside the stencil), so the step check has the one-sided differences as well as the
+        central one; ξ is halved with the same seeds until F has stopped rising within 1 + `step_tol` (at most
+        `max_halvings` times); maps (from the central differences) and bounds from the finest step.
         With a `precision` target p: the CRLB of θ (tr F̂⁻¹; for a scalar θ its only CRLB) to ±p by the
         stopping rule of `bounds.precision` — the given rounds are the pilot, fresh rounds (replicates
         `rounds`, `rounds` + 1, …) are added only at the θ whose CRLB interval is wider than asked, within
@@ -988,11 +999,8 @@ class BoundService:
         wflat = {j: [to_float64(w).expand(Ls.shape[1:]).reshape(-1).numpy() for w, _ in rows]
                  for j, rows in weights.items()}
 
-        def stage_fn(idx, xi):
-            J = torch.stack([self.bank.jacobians_at(thetas[idx], spp, xi, "fisher", replicate=r,
-                                                    desc=f"Fisher-map FD Jacobians (round {r})")
-                             for r in range(first, first + rounds)]).double()  # (rounds, T', P, *S)
-            return [Stage(xi, {"central": J[:, t].reshape(rounds, P, -1).numpy()}) for t in range(len(idx))]
+        def stage_fn(idx, xi):  # independent rounds, θ rendered under each stencil's seed: one-sided variants too
+            return self._stages(thetas[idx], None, spp, "independent", rounds, xi, first, purpose="fisher")
 
         stages = self._refine(thetas, stage_fn, wflat, fd_step, step_tol, max_halvings)
         out, rows = [], {}
@@ -1007,13 +1015,13 @@ class BoundService:
                 sf = converge(stages[i], wflat[j][i], self.level, step_tol, spp)
                 joint = crlb_bound(sf, self.level, flags)  # the CRLB of θ, tr F̂⁻¹: for a scalar θ its only one
                 bounds[j] = [joint] if P == 1 else [
-                    crlb_bound(converge([Stage(s.step, {"central": s.rounds["central"][:, k:k + 1]})
+                    crlb_bound(converge([Stage(s.step, {"central": s.rounds["central"][:, k:k + 1]}, s.group)
                                          for s in stages[i]], wflat[j][i], self.level, step_tol, spp),
                                self.level, flags) for k in range(P)]
                 rows[j, i] = BoundPoint(j, str(noise), t.copy(), {"crlb": joint})
                 if keep is not None:
                     keep[j, i] = Raw(None, None, sf, stages[i], wflat[j][i], np.empty((0, P)), self.params.lower - t,
-                                     self.params.upper - t, int(np.prod(L.shape[:2])))
+                                     self.params.upper - t, int(np.prod(L.shape[:2])), self.group)
             out.append(FisherPoint(t, L, Jf.mean(dim=0), maps, bounds, Jf, stages[i][-1].step, ws))
         return out, [rows[j, i] for j in sel for i in range(len(thetas))]
 

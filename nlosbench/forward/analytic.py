@@ -5,7 +5,9 @@ Optional synthetic rendering noise mimics a Monte Carlo renderer: L̃ = L + ε w
 independent across seeds. With render_noise = 0 the image is exact for every spp and seed.
 `render_noise_dist` "t3" draws ε heavy-tailed instead: Student's t with 3 degrees of freedom scaled to the same
 variance (t/√3; kurtosis infinite), as a renderer's rare bright paths make it; "gauss" (the default) is the
-normal draw above, unchanged.
+normal draw above, unchanged. `render_noise_channels` "shared" draws one standard variate per pixel for all its
+channels (ε_c = z·√Var_c: the channels' errors fully correlated, as a path tracer's channels share their light
+paths — 0.76–0.998 measured on the Π hallway); "independent" (the default) draws one per value.
 """
 from __future__ import annotations
 
@@ -20,13 +22,16 @@ from .model import ForwardModel
 
 #: synthetic rendering-noise distributions (unit variance before scaling)
 NOISE_DISTS = ("gauss", "t3")
+#: how a pixel's channels draw their synthetic rendering noise
+NOISE_CHANNELS = ("independent", "shared")
 
 
 class AnalyticModel(ForwardModel):
     """Base for closed-form models: subclasses give `clean(θ)` as a differentiable torch function."""
 
     def __init__(self, name: str, params: ParamSpace, render_noise: float = 0.0,
-                 render_noise_power: float = 1.0, cache=None, render_noise_dist: str = "gauss"):
+                 render_noise_power: float = 1.0, cache=None, render_noise_dist: str = "gauss",
+                 render_noise_channels: str = "independent"):
         super().__init__(name, params, cache)
         if render_noise < 0:
             raise ValueError(f"render_noise must be >= 0, got {render_noise}")
@@ -34,8 +39,21 @@ class AnalyticModel(ForwardModel):
             raise ValueError(f"render_noise_dist must be one of {list(NOISE_DISTS)}, got {render_noise_dist!r}")
         self.render_noise = float(render_noise)
         self.render_noise_power = float(render_noise_power)
+        if render_noise_channels not in NOISE_CHANNELS:
+            raise ValueError(f"render_noise_channels must be one of {list(NOISE_CHANNELS)}, "
+                             f"got {render_noise_channels!r}")
         self.render_noise_dist = render_noise_dist
+        self.render_noise_channels = render_noise_channels
         self.exact = self.render_noise == 0.0
+        self._channels: int | None = None
+
+    @property
+    def channels(self) -> int:
+        """C of `clean(θ)`'s image (H, W, C), read once from the default θ."""
+        if self._channels is None:
+            with torch.no_grad():
+                self._channels = int(self.clean(torch.as_tensor(self.params.default, dtype=torch.float64)).shape[-1])
+        return self._channels
 
     @abstractmethod
     def clean(self, theta: torch.Tensor) -> torch.Tensor:
@@ -50,9 +68,10 @@ class AnalyticModel(ForwardModel):
         if self.exact:
             return L
         g = torch.Generator().manual_seed(derive(seed, "analytic-render-noise"))
-        z = torch.randn(L.shape, generator=g, dtype=torch.float64)
+        shape = tuple(L.shape[:-1]) + (1,) if self.render_noise_channels == "shared" else tuple(L.shape)
+        z = torch.randn(shape, generator=g, dtype=torch.float64)
         if self.render_noise_dist == "t3":  # t₃ = z / √(χ²₃/3) has variance 3: divided by √3, unit variance
-            chi2 = (torch.randn((3,) + tuple(L.shape), generator=g, dtype=torch.float64) ** 2).sum(dim=0)
+            chi2 = (torch.randn((3,) + shape, generator=g, dtype=torch.float64) ** 2).sum(dim=0)
             z = z / chi2.sqrt()
         return L + z * self.noise_variance(L, spp).sqrt()
 
@@ -81,10 +100,12 @@ class AnalyticModel(ForwardModel):
         return g.numpy()
 
     def content_key(self) -> dict:
-        # the default Gaussian draw is left out, so keys made before the option existed stay valid
+        # the default draws are left out, so keys made before the options existed stay valid
         return {"model": type(self).__name__, **{k: v for k, v in vars(self).items()
-                                                 if isinstance(v, (int, float, str, tuple))
-                                                 and (k, v) != ("render_noise_dist", "gauss")}}
+                                                 if isinstance(v, (int, float, str, tuple)) and not k.startswith("_")
+                                                 and (k, v) not in (
+                                                     ("render_noise_dist", "gauss"),
+                                                     ("render_noise_channels", "independent"))}}
 
 
 class Blob2D(AnalyticModel):
@@ -124,3 +145,26 @@ class Edge1D(AnalyticModel):
     def clean(self, theta: torch.Tensor) -> torch.Tensor:
         coverage = ((self._right - theta[0]) * self.pixels).clamp(0.0, 1.0)
         return (self.background + self.amplitude * coverage)[None, :, None]
+
+
+class SpotRGB(AnalyticModel):
+    """A coloured Gaussian spot at x = θ metres (y = 0.5 m) on a size×size image plane spanning [0, 1]² m, RGB:
+    L_c(u) = background + amplitude_c · exp(−‖u − (θ, 0.5)‖² / (2 width²)). Its synthetic rendering noise is
+    shared by a pixel's three channels by default (`render_noise_channels` "shared"), as a path tracer's is: the
+    toy on which standard errors must group a pixel's channels. Image (size, size, 3)."""
+
+    def __init__(self, size: int = 16, width: float = 0.12, amplitude=(1.0, 0.6, 0.3), background: float = 0.1,
+                 render_noise_channels: str = "shared", **kw):
+        params = ParamSpace([Param("x", 0.2, 0.8, 0.5, "m", "spot centre, horizontal")])
+        super().__init__("spot_rgb", params, render_noise_channels=render_noise_channels, **kw)
+        if len(amplitude) != 3:
+            raise ValueError(f"amplitude needs one value per channel (3), got {amplitude!r}")
+        self.size, self.width, self.background = int(size), float(width), float(background)
+        self.amplitude = tuple(float(a) for a in amplitude)
+        c = (torch.arange(self.size, dtype=torch.float64) + 0.5) / self.size
+        self._v, self._u = torch.meshgrid(c, c, indexing="ij")
+        self._amp = torch.tensor(self.amplitude, dtype=torch.float64)
+
+    def clean(self, theta: torch.Tensor) -> torch.Tensor:
+        r2 = (self._u - theta[0]) ** 2 + (self._v - 0.5) ** 2
+        return self.background + self._amp * torch.exp(-r2 / (2 * self.width**2))[..., None]

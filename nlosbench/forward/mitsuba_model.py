@@ -115,6 +115,7 @@ class MitsubaModel(ForwardModel):
         self.max_pass_samples = pass_samples(self.variant, max_pass_samples)
         film = self.scene.sensors()[0].film()
         self.size = tuple(int(v) for v in film.crop_size())  # (W, H)
+        self._channels = int(film.base_channels_count())  # the developed image's C (RGB: 3, mono: 1)
         if not str(film.rfilter()).startswith("BoxFilter"):
             warnings.warn(f"scene {name!r}: pixel filter {str(film.rfilter()).split('[')[0]} is not a box filter; "
                           "Dr.Jit's multi-threaded splatting then makes renders differ slightly between identical "
@@ -148,6 +149,12 @@ class MitsubaModel(ForwardModel):
             if stop is not None:
                 raise stop from None
             raise SceneError(f"scene {name!r}: {self.scene_file} does not load: {_first_line(e)}") from None
+
+    @property
+    def channels(self) -> int:
+        """C of the film's developed image: 3 for RGB variants, 1 for mono ones (alpha included where the film
+        has one). A path sample adds to every channel of its pixel."""
+        return self._channels
 
     @property
     def freeze(self) -> bool:

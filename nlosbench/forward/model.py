@@ -76,6 +76,13 @@ class ForwardModel(ABC):
         self.cache = RenderCache(cache) if isinstance(cache, (str, bytes)) or hasattr(cache, "__fspath__") else cache
         self.stats = RenderStats()
 
+    @property
+    def channels(self) -> int:
+        """C, the values per pixel of an image (H, W, C). A pixel's C values come from the same light paths, so
+        their rendering errors are correlated: every standard error over images sums them before it treats
+        pixels as independent (`bounds.ustat`). Subclasses say how many their images have."""
+        raise NotImplementedError(f"{type(self).__name__} does not say how many channels its images have")
+
     # -- subclass contract -------------------------------------------------------------------
     @abstractmethod
     def _render(self, theta: np.ndarray, spp: int, seed: int) -> torch.Tensor:
@@ -248,6 +255,10 @@ class Restricted(ForwardModel):
         self.stats = base.stats
         self.exact = base.exact
 
+    @property
+    def channels(self) -> int:
+        return self.base.channels
+
     def expand(self, theta) -> np.ndarray:
         """Full θ (float64) from the restricted θ."""
         t = self.full.copy()
@@ -282,6 +293,10 @@ class Binned(ForwardModel):
         super().__init__(f"{base.name}-bin{self.b}", base.params, None)
         self.stats = base.stats
         self.exact = base.exact
+
+    @property
+    def channels(self) -> int:
+        return self.base.channels
 
     def _fine_spp(self, spp: int) -> int:
         spp, _ = check_spp_seed(spp, 0)

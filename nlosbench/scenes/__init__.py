@@ -1,6 +1,6 @@
 """Scene registry: `get(name_or_path, **options)` → a ForwardModel.
 
-Built in: the analytic toys `blob2d` and `edge1d` (torch, exact gradients) and every scene spec
+Built in: the analytic toys `blob2d`, `edge1d` and `spot_rgb` (torch, exact gradients) and every scene spec
 `<name>.yaml` in the project's `scenes/` folder (a Mitsuba XML file plus its θ bindings). A path to a
 `.yaml` spec works too. Extra folders: the environment variable NLOSBENCH_SCENE_PATH (':'-separated).
 
@@ -18,7 +18,7 @@ from pathlib import Path
 import yaml
 
 from ..forward import llvm_target
-from ..forward.analytic import Blob2D, Edge1D
+from ..forward.analytic import Blob2D, Edge1D, SpotRGB
 from ..forward.model import ForwardModel
 from ..schema import ConfigError
 
@@ -32,7 +32,7 @@ class SpecError(ConfigError):
     """A scene name or spec that cannot be used; `str()` is one line: `name or path: what is wrong`."""
 
 
-_BUILTIN: dict[str, Callable[..., ForwardModel]] = {"blob2d": Blob2D, "edge1d": Edge1D}
+_BUILTIN: dict[str, Callable[..., ForwardModel]] = {"blob2d": Blob2D, "edge1d": Edge1D, "spot_rgb": SpotRGB}
 SCENE_DIR = Path(__file__).resolve().parents[2] / "scenes"
 
 
