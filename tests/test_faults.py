@@ -1039,3 +1039,57 @@ def test_stopping_a_pool_with_queued_tasks_leaves_no_error_in_its_thread(monkeyp
     pool.abort()
     manager.join(10)
     assert not manager.is_alive() and not caught, caught
+
+
+# blob2d's x with rendering noise (tests/test_precision_studies.py): θ = 0.7 misses ±10 % at the pilot; a budget
+# of 300 000 pixel-samples is below the pilot's charge plus a fresh look's, so only a run that counted cached
+# renders as free would take one
+BLOB = {"name": "blob2d", "options": {"width": 0.15, "render_noise": 2.0}, "params": ["x"]}
+PRECISE = {"type": "trials", "id": "t", "theta": [0.7], "n": 2, "n_eff": 16, "truth_replicates": 1,
+           "bounds": ["hcr", "crlb"], "bound_spp": 16, "replicates": 3, "hcr_grid": 3, "hcr_offsets": 1,
+           "fd_step": 0.01, "max_halvings": 1, "bootstrap": 10, "precision": 0.1, "precision_budget": 300000,
+           "estimators": [{"name": "grid-search", "options": {"spp": 4, "num": 5, "refine": False}}]}
+QUOTE = {"type": "bounds", "id": "b", "grid": {"start": 0.2, "stop": 0.8, "num": 3}, "spp": 16, "replicates": 3,
+         "fd_step": 0.01, "max_halvings": 1, "zzb": False, "save_images": False, "precision": 0.1,
+         "precision_at": [0.7], "precision_budget": 10**9}
+
+
+def _numbers(run: Path) -> tuple[bytes, list[dict]]:
+    """bounds.csv's bytes and summary.csv's rows without its wall times."""
+    from nlosbench.io import read_csv
+
+    rows = [{k: v for k, v in r.items() if not k.endswith("_seconds")} for r in read_csv(run / "t" / "summary.csv")]
+    return (run / "t" / "bounds.csv").read_bytes(), rows
+
+
+def test_a_precision_budget_decides_the_same_cold_warm_resumed_and_after_another_study(tmp_path, capsys):
+    """A trials study with `precision` and `precision_budget` on blob2d, run cold on an empty shared `cache`, warm
+    on the same cache (every render served from it), resumed after its `renders/` store and study folder were
+    deleted, and after a bounds study that quotes the same θ* (so every pilot render is already in memory): the
+    budget is charged by request, so bounds.csv is the same byte for byte and summary.csv the same but for wall
+    times; the record says what each run rendered (the warm run: nothing)."""
+    import shutil
+
+    cache = str(tmp_path / "cache")
+    runs = {}
+    for name, studies in (("cold", [PRECISE]), ("warm", [PRECISE]), ("after", [QUOTE, PRECISE])):
+        cfg = config(tmp_path, BLOB, studies, f"{name}.yaml", noise=[{"model": "awgn", "sigma": 0.3}], cache=cache)
+        rc, err = cli(capsys, "run", cfg, "--out", tmp_path / name, "--quiet")
+        assert rc == 0, err
+        runs[name] = tmp_path / name
+    resumed = tmp_path / "resumed"
+    shutil.copytree(runs["cold"], resumed)
+    shutil.rmtree(resumed / "renders")
+    shutil.rmtree(resumed / "t")
+    with pytest.warns(UserWarning, match="rebuilding the study"):
+        rc, err = cli(capsys, "run", tmp_path / "cold.yaml", "--out", resumed, "--resume", "--quiet")
+    assert rc == 0, err
+    runs["resumed"] = resumed
+    recs = {n: json.loads((r / "results.json").read_text())["studies"]["t"]["results"]["precision"][0]
+            for n, r in runs.items()}
+    assert recs["cold"]["rendered_pixel_samples"] > 0 and recs["warm"]["rendered_pixel_samples"] == 0, recs
+    assert len({r["pixel_samples"] for r in recs.values()}) == 1, recs
+    assert not recs["cold"]["met"] and recs["cold"]["pixel_samples"] <= PRECISE["precision_budget"], recs["cold"]
+    reference = _numbers(runs["cold"])
+    for name in ("warm", "resumed", "after"):
+        assert _numbers(runs[name]) == reference, name
