@@ -1093,3 +1093,50 @@ def test_a_precision_budget_decides_the_same_cold_warm_resumed_and_after_another
     reference = _numbers(runs["cold"])
     for name in ("warm", "resumed", "after"):
         assert _numbers(runs[name]) == reference, name
+
+
+@pytest.mark.parametrize("step", [1e-10, 1e-300, 1e-6])
+def test_a_lattice_above_its_ceiling_is_one_line_at_config_time(tmp_path, capsys, step):
+    """The surrogate estimator's `step: 1e-10` (6·10⁹ lattice points on blob2d's region: a 22 GiB allocation and exit
+    3 before), 1e-300, or 1e-6 (6·10⁵ renders: hours with their store writes): exit 2, one line naming the setting,
+    the lattice's size and the ceiling (`estimators.base.MAX_GRID`), and no run folder."""
+    from nlosbench.estimators.base import MAX_GRID
+
+    study = {**TRIALS, "estimators": [{"name": "surrogate", "options": {"step": step, "spp": 4}}]}
+    rc, err = cli(capsys, "run", config(tmp_path, {"name": "blob2d", "params": ["x"]}, [study]), "--out",
+                  tmp_path / "run")
+    assert rc == 2 and len(errors(err)) == 1, err
+    line = errors(err)[0]
+    assert "estimators[0]: surrogate: step" in line and f"above the ceiling of {MAX_GRID}" in line, line
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_estimate_counts_each_renders_store_write_so_many_cheap_renders_need_yes(tmp_path, capsys, monkeypatch):
+    """A measured rate has two parts: per pixel-sample and per render (the bank's task and its store's fsynced write,
+    timed through a bank with a store, > 0). A plan of 5·10⁴ cheap renders (a grid-search of that many points at
+    1 spp on edge1d, a few ms of samples) whose per-render cost is set to 0.1 s in rates.json is estimated above an
+    hour: exit 2 naming its renders and their cost, nothing written."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    study = {**TRIALS, "estimators": [{"name": "grid-search", "options": {"num": 50000, "spp": 1, "refine": False}}]}
+    cfg = config(tmp_path, EDGE, [{**BOUNDS, "spp": 10 ** 12}])  # measures the rate, refused
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "first")[0] == 2
+    rates = tmp_path / "xdg" / "nlosbench" / "rates.json"
+    ((key, kept),) = json.loads(rates.read_text()).items()
+    assert 0 < kept["seconds_per_render"] < 1, kept
+    cfg = config(tmp_path, EDGE, [study], "grid.yaml")
+    rates.write_text(json.dumps({key: {**kept, "seconds_per_render": 0.1}}))
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "run")
+    assert rc == 2 and "pass --yes to run it" in errors(err)[0] and "renders at 100 ms each" in errors(err)[0], err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_render_plan_above_the_ceiling_is_refused_naming_the_study(tmp_path, capsys, monkeypatch):
+    """A study that plans more renders than `runner.MAX_PLAN_RENDERS` (here lowered to 20; the bounds study plans 27):
+    exit 2 at config time, one line naming the study, its renders and the ceiling; nothing written."""
+    from nlosbench.experiment import runner
+
+    monkeypatch.setattr(runner, "MAX_PLAN_RENDERS", 20)
+    rc, err = cli(capsys, "run", config(tmp_path, EDGE, [BOUNDS]), "--out", tmp_path / "run")
+    assert rc == 2 and len(errors(err)) == 1, err
+    assert "00-bounds: plans 27 renders, above the ceiling of 20" in errors(err)[0], err
+    assert not (tmp_path / "run").exists()
