@@ -1140,3 +1140,33 @@ def test_a_render_plan_above_the_ceiling_is_refused_naming_the_study(tmp_path, c
     assert rc == 2 and len(errors(err)) == 1, err
     assert "00-bounds: plans 27 renders, above the ceiling of 20" in errors(err)[0], err
     assert not (tmp_path / "run").exists()
+
+
+def test_a_dask_worker_with_a_changed_copy_of_the_code_is_refused_naming_it(tmp_path, capsys, scheduler):
+    """A Dask worker whose import path holds a changed copy of nlosbench (one line added to forward/model.py, as
+    an out-of-date checkout on a cluster node leaves it): exit 1 with one line naming that worker, that its code
+    differs, and how to resume; none of its results is used (no render in the run's store)."""
+    import shutil
+
+    copy = tmp_path / "elsewhere"
+    shutil.copytree(ROOT / "nlosbench", copy / "nlosbench", ignore=shutil.ignore_patterns("__pycache__"))
+    with open(copy / "nlosbench" / "forward" / "model.py", "a") as f:
+        f.write("\nCHANGED = True\n")
+    address = scheduler.scheduler_address
+    worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--no-nanny",
+                               "--nthreads", "1", "--no-dashboard"], env={**os.environ, "PYTHONPATH": str(copy)},
+                              cwd=copy, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        scheduler.wait_for_workers(1, timeout=60)
+        (name,) = scheduler.scheduler_info["workers"]
+        cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "dask", "address": address, "worker_timeout": 30})
+        run = tmp_path / "run"
+        rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    finally:
+        worker.kill()
+        worker.wait()
+    assert rc == 1 and len(errors(err)) == 1, err
+    line = errors(err)[0]
+    assert f"Dask worker {name} computes with other code" in line and "(differs: code" in line, line
+    assert line.endswith(f"resume with: nlosbench run {cfg} --out {run} --resume"), line
+    assert not list((run / "renders").rglob("*.npc"))
