@@ -1170,3 +1170,72 @@ def test_a_dask_worker_with_a_changed_copy_of_the_code_is_refused_naming_it(tmp_
     assert f"Dask worker {name} computes with other code" in line and "(differs: code" in line, line
     assert line.endswith(f"resume with: nlosbench run {cfg} --out {run} --resume"), line
     assert not list((run / "renders").rglob("*.npc"))
+
+
+@pytest.mark.parametrize("damage", ["torn trials.jsonl", "edited bounds.csv"])
+def test_a_torn_log_line_or_an_edited_table_value_is_rebuilt_on_resume(two_studies, tmp_path, capsys, damage):
+    """A finished run whose trials.jsonl ends in a torn line (half a record, as a copy cut short leaves it; exit 2
+    before), or whose bounds.csv had one value edited in place (same rows; not detected before): `--resume` warns
+    naming the file and rebuilds that study, and the table is the uninterrupted run's again, byte for byte."""
+    import shutil
+
+    cfg, full, files = two_studies
+    run = tmp_path / "run"
+    shutil.copytree(full, run)
+    if damage == "torn trials.jsonl":
+        name, table = "01-trials/trials.jsonl", "01-trials/summary.csv"
+        log = run / name
+        log.write_bytes(log.read_bytes() + log.read_bytes().splitlines(keepends=True)[0][:20])
+        why = "ends in a torn record"
+    else:
+        name = table = "00-bounds/bounds.csv"
+        text = (run / name).read_text()
+        header, first, rest = text.split("\n", 2)
+        cells = first.split(",")
+        cells[-1] = "0" if cells[-1] != "0" else "1"
+        (run / name).write_text("\n".join([header, ",".join(cells), rest]))
+        why = "was changed after it was written"
+    with pytest.warns(UserWarning) as caught:
+        rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")
+    assert rc == 0, err
+    rebuilt = [str(w.message) for w in caught if "rebuilding the study" in str(w.message)]
+    assert len(rebuilt) == 1 and f"{run / name} {why}" in rebuilt[0], rebuilt
+    if table.endswith("bounds.csv"):
+        assert (run / table).read_bytes() == files[table]
+    else:
+        estimates = [[(r["trial"], r["theta_hat"]) for r in RecordLog(d / name).read()] for d in (full, run)]
+        assert estimates[0] == estimates[1] and len(estimates[0]) == TRIALS["n"]
+
+
+def test_the_code_hash_is_the_python_files_and_the_fingerprint_names_scipy(tmp_path, monkeypatch):
+    """An editor's swap file, a backup and a data file beside the package's modules (a package laid out in a
+    temporary folder) leave `sources.digests` as it was, so a resume is not refused as a code change; a .py file
+    added changes it. The fingerprint's versions name scipy (the surrogate's bounded Brent search) and the other
+    numeric packages, with their installed versions."""
+    from importlib import metadata
+
+    from nlosbench import sources
+    from nlosbench.experiment import rundir
+
+    fp = rundir.fingerprint({}, {}, {})
+    assert fp["versions"]["scipy"] == metadata.version("scipy")
+    assert {"python", "numpy", "torch", "mitsuba", "drjit"} <= set(fp["versions"])
+    pkg = tmp_path / "pkg"
+    (pkg / "forward").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "forward" / "model.py").write_text("X = 1\n")
+    monkeypatch.setattr(sources, "PACKAGE", pkg)
+    sources.digests.cache_clear()
+    try:
+        before = sources.digests()
+        for junk in (".model.py.swp", "model.py~", "notes.txt"):
+            (pkg / "forward" / junk).write_text("edited")
+        sources.digests.cache_clear()
+        assert sources.digests() == before == {name: sources.digests()[name] for name in
+                                               ("__init__.py", "forward/model.py")}
+        (pkg / "forward" / "extra.py").write_text("Y = 2\n")
+        sources.digests.cache_clear()
+        assert set(sources.digests()) == {"__init__.py", "forward/model.py", "forward/extra.py"}
+    finally:
+        monkeypatch.undo()
+        sources.digests.cache_clear()
