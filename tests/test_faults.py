@@ -1239,3 +1239,23 @@ def test_the_code_hash_is_the_python_files_and_the_fingerprint_names_scipy(tmp_p
     finally:
         monkeypatch.undo()
         sources.digests.cache_clear()
+
+
+def test_poisson_noise_with_analytic_rendering_noise_is_refused_unless_clipped(tmp_path, capsys):
+    """blob2d with render_noise 2 (at 16 spp a third of its background pixels render negative) and Poisson noise:
+    exit 2 at config time, one line naming scene.options.render_noise_clip, nothing written (exit 3 mid-run
+    before: a negative Poisson mean); with render_noise_clip: true the run finishes and its renders are >= 0."""
+    import nlosbench as nb
+
+    scene = {"name": "blob2d", "options": {"render_noise": 2.0, "width": 0.15}, "params": ["x"]}
+    study = {**BOUNDS, "grid": {"start": 0.2, "stop": 0.8, "num": 3}}
+    poisson = [{"model": "poisson", "scale": 100.0}]
+    rc, err = cli(capsys, "run", config(tmp_path, scene, [study], noise=poisson), "--out", tmp_path / "run")
+    assert rc == 2 and len(errors(err)) == 1 and "scene.options.render_noise_clip: Poisson noise" in err, err
+    assert not (tmp_path / "run").exists()
+    clipped = {**scene, "options": {**scene["options"], "render_noise_clip": True}}
+    rc, err = cli(capsys, "run", config(tmp_path, clipped, [study], "clip.yaml", noise=poisson), "--out",
+                  tmp_path / "clip", "--quiet")
+    assert rc == 0, err
+    model = nb.scenes.get("blob2d", render_noise=2.0, width=0.15, render_noise_clip=True)
+    assert min(float(model.render([0.5, 0.5], 16, s).min()) for s in range(4)) == 0.0

@@ -5,7 +5,9 @@ Optional synthetic rendering noise mimics a Monte Carlo renderer: L̃ = L + ε w
 independent across seeds. With render_noise = 0 the image is exact for every spp and seed.
 `render_noise_dist` "t3" draws ε heavy-tailed instead: Student's t with 3 degrees of freedom scaled to the same
 variance (t/√3; kurtosis infinite), as a renderer's rare bright paths make it; "gauss" (the default) is the
-normal draw above, unchanged.
+normal draw above, unchanged. Either can make a pixel negative where L is below a few SDs of ε, which no renderer
+does and Poisson noise cannot take as a mean: `render_noise_clip` renders max(L̃, 0) instead (biased up where it
+clips; a run refuses Poisson noise with rendering noise unless it is on).
 """
 from __future__ import annotations
 
@@ -26,7 +28,8 @@ class AnalyticModel(ForwardModel):
     """Base for closed-form models: subclasses give `clean(θ)` as a differentiable torch function."""
 
     def __init__(self, name: str, params: ParamSpace, render_noise: float = 0.0,
-                 render_noise_power: float = 1.0, cache=None, render_noise_dist: str = "gauss"):
+                 render_noise_power: float = 1.0, cache=None, render_noise_dist: str = "gauss",
+                 render_noise_clip: bool = False):
         super().__init__(name, params, cache)
         if render_noise < 0:
             raise ValueError(f"render_noise must be >= 0, got {render_noise}")
@@ -35,6 +38,7 @@ class AnalyticModel(ForwardModel):
         self.render_noise = float(render_noise)
         self.render_noise_power = float(render_noise_power)
         self.render_noise_dist = render_noise_dist
+        self.render_noise_clip = bool(render_noise_clip)
         self.exact = self.render_noise == 0.0
 
     @abstractmethod
@@ -54,7 +58,8 @@ class AnalyticModel(ForwardModel):
         if self.render_noise_dist == "t3":  # t₃ = z / √(χ²₃/3) has variance 3: divided by √3, unit variance
             chi2 = (torch.randn((3,) + tuple(L.shape), generator=g, dtype=torch.float64) ** 2).sum(dim=0)
             z = z / chi2.sqrt()
-        return L + z * self.noise_variance(L, spp).sqrt()
+        out = L + z * self.noise_variance(L, spp).sqrt()
+        return out.clamp_min(0.0) if self.render_noise_clip else out
 
     def _render(self, theta: np.ndarray, spp: int, seed: int) -> torch.Tensor:
         with torch.no_grad():
@@ -81,10 +86,11 @@ class AnalyticModel(ForwardModel):
         return g.numpy()
 
     def content_key(self) -> dict:
-        # the default Gaussian draw is left out, so keys made before the option existed stay valid
+        # the default Gaussian draw and no clipping are left out, so keys made before the options existed stay valid
         return {"model": type(self).__name__, **{k: v for k, v in vars(self).items()
                                                  if isinstance(v, (int, float, str, tuple))
-                                                 and (k, v) != ("render_noise_dist", "gauss")}}
+                                                 and (k, v) not in (("render_noise_dist", "gauss"),
+                                                                    ("render_noise_clip", False))}}
 
 
 class Blob2D(AnalyticModel):
