@@ -38,7 +38,7 @@ import time
 import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, CancelledError, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 
 from . import interrupts, scenes, sources
@@ -360,6 +360,10 @@ class WorkersLost(ConnectionError):
     """No Dask worker was alive for `executor.worker_timeout` seconds (none at the start, or all lost mid-run)."""
 
 
+class SchedulerLost(ConnectionError):
+    """The Dask scheduler went away mid-run (its connection closed, its futures cancelled)."""
+
+
 #: what Dask raises when a wait times out (asyncio's TimeoutError is the builtin one from Python 3.11 on)
 _TIMEOUTS = (TimeoutError, asyncio.TimeoutError)
 #: seconds between a Dask run's checks that a worker is alive (at most; a quarter of the timeout when shorter)
@@ -371,10 +375,11 @@ class DaskExecutor(_Workers):
     ConnectionError naming it), or a LocalCluster of `workers` processes with one thread each. Every
     worker process loads the scene once (on its first task). A run whose scheduler has no live worker for
     `worker_timeout` seconds — none at the start, or all lost mid-run — stops with `WorkersLost` (a
-    ConnectionError naming the scheduler and the key): finished work is kept, the run can be resumed.
-    With `log`, the `distributed` loggers of this process write to that file, not to the terminal (and a
-    LocalCluster's worker processes log only what is critical). Each worker's results are used only once its
-    identity matches `model`'s (`_Workers`)."""
+    ConnectionError naming the scheduler and the key): finished work is kept, the run can be resumed. A
+    scheduler lost mid-run stops it with `SchedulerLost` naming its address (and the log). With `log`, the
+    `distributed` loggers of this process write to that file, not to the terminal (and a LocalCluster's worker
+    processes log only what is critical). Each worker's results are used only once its identity matches
+    `model`'s (`_Workers`)."""
 
     def __init__(self, spec: dict, address: str | None = None, workers: int = 2, threads: int | None = None,
                  connect_timeout: float = 10.0, worker_timeout: float = 60.0, log: str | os.PathLike | None = None,
@@ -455,8 +460,16 @@ class DaskExecutor(_Workers):
                 pending = list(left)
                 for fut in done:
                     yield self._result(fut.result())
+        except (CancelledError, OSError) as e:  # a cancelled future or a closed comm: lost, unless still connected
+            if client.status == "running":
+                raise
+            where = self.address or "the LocalCluster"
+            log = f"; Dask's messages are in {self.log}" if self.log is not None else ""
+            raise SchedulerLost(f"lost the Dask scheduler at {where} mid-run ({type(e).__name__}); finished work is "
+                                f"kept: restart the scheduler and its workers{log}") from None
         finally:
-            client.cancel([f for f in pending if not f.done()])
+            if client.status == "running":
+                client.cancel([f for f in pending if not f.done()])
 
     def close(self) -> None:
         if self._client is not None:
@@ -472,7 +485,8 @@ class DaskExecutor(_Workers):
 
 class _DaskLog:
     """The `distributed` loggers (and tornado's, which Dask's networking uses) of this process written to a file
-    instead of the terminal, until `close` puts their handlers back."""
+    instead of the terminal, until `close` puts their handlers back: the top ones and every one below them with
+    its own handler (Dask gives `distributed.client` a terminal handler of its own)."""
 
     NAMES = ("distributed", "tornado")
 
@@ -480,7 +494,10 @@ class _DaskLog:
         self.handler = logging.FileHandler(path, encoding="utf-8")
         self.handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
         self.saved = {}
-        for name in self.NAMES:
+        below = [name for name, logger in list(logging.root.manager.loggerDict.items())
+                 if isinstance(logger, logging.Logger) and logger.handlers
+                 and any(name.startswith(top + ".") for top in self.NAMES)]
+        for name in (*self.NAMES, *below):
             logger = logging.getLogger(name)
             self.saved[name] = (list(logger.handlers), logger.propagate)
             for h in list(logger.handlers):

@@ -1259,3 +1259,38 @@ def test_poisson_noise_with_analytic_rendering_noise_is_refused_unless_clipped(t
     assert rc == 0, err
     model = nb.scenes.get("blob2d", render_noise=2.0, width=0.15, render_noise_clip=True)
     assert min(float(model.render([0.5, 0.5], 16, s).min()) for s in range(4)) == 0.0
+
+
+def test_a_lost_dask_scheduler_is_one_line_naming_it_with_the_details_in_dask_log(tmp_path, capsys, scheduler,
+                                                                                  monkeypatch):
+    """The Dask scheduler closed mid-run (once the first renders are back; each task takes 0.3 s),
+    `executor.connect_timeout: 2` (how long the client tries to reconnect): exit 1 with one line on stderr naming
+    the scheduler's address, RUN/dask.log and how to resume (36 lines with two distributed.client tracebacks
+    before); Dask's messages, the client's included, are in RUN/dask.log."""
+    import threading
+
+    from nlosbench import executors
+
+    monkeypatch.setattr(executors, "_call", _slow_call)
+    scheduler.scale(1)
+    scheduler.wait_for_workers(1, timeout=30)
+    address = scheduler.scheduler_address
+    cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "dask", "address": address, "connect_timeout": 2})
+    run = tmp_path / "run"
+
+    def lose_scheduler() -> None:
+        wait_for(lambda: any((run / "renders").rglob("*.npc")), timeout=60, every=0.02)
+        scheduler.sync(scheduler.scheduler.close)
+
+    threading.Thread(target=lose_scheduler, daemon=True).start()
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    assert rc == 1 and [line for line in err.splitlines() if line.strip()] == [
+        f"nlosbench: error: lost the Dask scheduler at {address} mid-run (FuturesCancelledError); finished work is "
+        f"kept: restart the scheduler and its workers; Dask's messages are in {run / 'dask.log'}; resume with: "
+        f"nlosbench run {cfg} --out {run} --resume"], err
+    log = (run / "dask.log").read_text()
+    assert "distributed.client" in log and "distributed.scheduler" in log
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):  # not 30 s trying the closed scheduler
+        scheduler.close()
