@@ -26,14 +26,20 @@ bank makes is also kept on disk (atomic, checksummed), keyed by the model's cont
 request: a resumed run reads them back instead of rendering, and a changed scene or setting can never
 be served an old image (its key differs).
 
+Charges. A caller whose decisions depend on what it spends (a precision budget) opens a `Ledger`: it is charged
+every distinct request it asks for at what making it costs, whether the bank renders it, reads it from the store
+or serves it from memory, so its decisions are the same cold, warm, resumed or after another study; the renders
+this process made meanwhile are kept beside it (what was paid, never what decides).
+
 Executor tasks are module-level functions `fn(model, item)` (pickled by reference into spawned
 workers); each returns its result with the number of renders it made in that process.
 """
 from __future__ import annotations
 
 from collections import OrderedDict
-from collections.abc import Callable, Hashable, Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -98,6 +104,35 @@ class JacobianRequest:
     def settings(self) -> GradientSettings:
         """The forward layer's GradientSettings for this request."""
         return GradientSettings(self.method, step=self.step, rounds=self.rounds, ad=dict(self.ad))
+
+
+def charge(request: Request | JacobianRequest, result: torch.Tensor) -> int:
+    """Pixel-samples a request costs to make, from its result's shape: spp × H × W per render; a Jacobian (P, H, W,
+    C) 2 renders per parameter and round (central FD) or one pass per parameter (AD)."""
+    pixels = int(result.shape[-3]) * int(result.shape[-2])
+    if isinstance(request, JacobianRequest):
+        per = 2 * request.rounds if request.method == "fd" else 1
+        return per * int(result.shape[0]) * request.spp * pixels
+    return request.spp * pixels
+
+
+@dataclass
+class Ledger:
+    """What a caller asked a bank for while the ledger was open (`RenderBank.ledger`): `pixel_samples`, every
+    distinct request charged once at its cost to make (`charge`), whatever served it; `rendered`, the
+    pixel-samples of the renders (and AD passes) this process, its workers included, made for them (spp × H × W
+    each; a render served by the model's disk cache is not made)."""
+
+    pixel_samples: int = 0
+    rendered: int = 0
+    _seen: set = field(default_factory=set, repr=False)
+
+    def ask(self, request: Request | JacobianRequest, result: torch.Tensor, renders: int) -> None:
+        """Charge `request` (once) and record the `renders` made for it now."""
+        if request not in self._seen:
+            self._seen.add(request)
+            self.pixel_samples += charge(request, result)
+        self.rendered += renders * request.spp * int(result.shape[-3]) * int(result.shape[-2])
 
 
 def check_spp(levels: Sequence[int], replicates: int = 1) -> np.ndarray:
@@ -177,6 +212,21 @@ class RenderBank:
         self._counted: set[str] = set()  # store keys whose renders this bank has counted
         self._memo: OrderedDict[Hashable, torch.Tensor] = OrderedDict()
         self._held = 0
+        self._ledgers: list[Ledger] = []
+
+    @contextmanager
+    def ledger(self) -> Iterator[Ledger]:
+        """A Ledger charged every request asked for inside the `with` block (see the module docstring)."""
+        book = Ledger()
+        self._ledgers.append(book)
+        try:
+            yield book
+        finally:
+            self._ledgers.remove(book)
+
+    def _ask(self, request: Request | JacobianRequest, result: torch.Tensor, renders: int) -> None:
+        for book in self._ledgers:
+            book.ask(request, result, renders)
 
     # -- seeds and render sets ---------------------------------------------------------------------
     def seed(self, purpose: str, spp: int, theta=None, replicate: int = 0) -> int:
@@ -410,9 +460,11 @@ class RenderBank:
                 todo.append(r)
             else:
                 out[r] = hit
+                self._ask(r, hit, 0)
         for r, imgs, renders in self._tasks(render_task, [(r, [r]) for r in todo], desc):
             out[r] = imgs[0]
             self._keep(r, imgs[0], renders)
+            self._ask(r, imgs[0], renders)
         return torch.stack([out[r] for r in requests])
 
     def jacobians(self, requests: Sequence[JacobianRequest], desc: str = "FD Jacobians") -> torch.Tensor:
@@ -438,9 +490,11 @@ class RenderBank:
                 todo.append(r)
             else:
                 out[r] = hit
+                self._ask(r, hit, 0)
         for r, jac, renders in self._tasks(jacobian_task, [(r, r) for r in todo], desc):
             out[r] = jac
             self._keep(r, jac, renders)
+            self._ask(r, jac, renders)
         return torch.stack([out[r] for r in requests])
 
 

@@ -11,6 +11,12 @@ model — built once per worker process from a picklable model spec (`scenes.bui
 `fn` must be a module-level function (it is pickled by reference) and `item` picklable. Warnings raised in
 a worker come back with its result and are shown by the run's process, each once per run (`_replay`).
 
+Workers prove their code: every result comes with its worker's name and `identity` (the package's code hash, the
+render keys' components, the numeric packages' versions and the model's content key as that worker builds it:
+variant, ISA, scene files), computed once per worker process. A pool or Dask worker whose identity differs from
+the run's process (another copy of the code on its import path, another scipy, another CPU) stops the run with
+`WorkerMismatch` naming the worker and what differs, before any of its results is used.
+
 Stopping: pool workers never see Ctrl-C, SIGTERM or SIGHUP (started with them blocked, `_spawning`: the
 parent decides: `abort` kills them at once, `close` lets running tasks finish), and each runs a watchdog
 thread that exits the worker as soon as its parent is gone — killed with SIGKILL included — so no worker
@@ -20,6 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import errno
+import hashlib
 import json
 import logging
 import multiprocessing
@@ -31,10 +38,11 @@ import time
 import warnings
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, CancelledError, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 
-from . import interrupts, scenes
+from . import interrupts, scenes, sources
+from .forward import keys
 from .forward.model import ForwardModel
 
 # -- the worker side -------------------------------------------------------------------------
@@ -105,13 +113,62 @@ def _spawning() -> Iterator[None]:
             signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
-def _call(spec: dict, threads: int | None, fn: Callable, item) -> tuple[object, list[tuple]]:
-    """In a worker: fn(model, item) and the warnings it raised as (message, category, file, line), for the
-    run's process to show (`_replay`): a warning raised in every worker is then shown once, not once each."""
+def identity(model: ForwardModel) -> dict:
+    """What this process's numbers depend on beyond the config: {"code": the package's Python files' hash,
+    "render": a hash of the render keys' components (`keys.environment`), "versions": Python's and the numeric
+    packages' (`sources.versions`), "model": a hash per component of the model's content key (variant, ISA,
+    scene files, Mitsuba and Dr.Jit versions...)}."""
+    def short(value) -> str:
+        return hashlib.sha256(keys.canonical(value).encode()).hexdigest()[:16]
+
+    return {"code": sources.digest(), "render": short(keys.environment()), "versions": sources.versions(),
+            "model": {k: short(v) for k, v in model.content_key().items()}}
+
+
+class WorkerMismatch(ConnectionError):
+    """A worker computes with other code, package versions or render settings than the run's process."""
+
+
+#: spec key → this worker process's identity for that model (`_call`)
+_IDENTITIES: dict[str, dict] = {}
+
+
+def _worker_name() -> str:
+    if "distributed" in sys.modules:
+        from distributed import get_worker
+
+        try:
+            return f"Dask worker {get_worker().address}"
+        except ValueError:  # not inside a Dask worker
+            pass
+    return f"pool worker (PID {os.getpid()})"
+
+
+def _call(spec: dict, threads: int | None, fn: Callable, item) -> tuple[object, list[tuple], tuple[str, dict]]:
+    """In a worker: fn(model, item), the warnings it raised as (message, category, file, line), for the
+    run's process to show (`_replay`): a warning raised in every worker is then shown once, not once each; and
+    (this worker's name, its `identity`) for the run's process to check (`_checked`)."""
     with _LOCK, warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        value = fn(worker_model(spec, threads, load_warnings=False), item)
-    return value, [(str(w.message), _picklable(w.category), w.filename, w.lineno) for w in caught]
+        model = worker_model(spec, threads, load_warnings=False)
+        key = json.dumps(spec, sort_keys=True, default=repr)
+        if key not in _IDENTITIES:
+            _IDENTITIES[key] = identity(model)
+        value = fn(model, item)
+    return value, [(str(w.message), _picklable(w.category), w.filename, w.lineno) for w in caught], (
+        _worker_name(), _IDENTITIES[key])
+
+
+def _differences(want: dict, got: dict, prefix: str = "") -> list[str]:
+    """The dotted names in which two identities differ."""
+    out = []
+    for k in sorted(set(want) | set(got)):
+        a, b = want.get(k), got.get(k)
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _differences(a, b, f"{prefix}{k}.")
+        elif a != b:
+            out.append(f"{prefix}{k}" + (f" ({b} there, {a} here)" if prefix == "versions." else ""))
+    return out
 
 
 def _picklable(category: type[Warning]) -> type[Warning]:
@@ -120,6 +177,17 @@ def _picklable(category: type[Warning]) -> type[Warning]:
 
 #: (category, message) of the worker warnings shown in this process
 _SHOWN: set[tuple[type, str]] = set()
+
+
+def _checked(result: tuple, expected: dict) -> object:
+    """The value of a `_call` (`_replay`) once its worker's identity is `expected`; else `WorkerMismatch` naming the
+    worker and what differs, its result unused."""
+    name, got = result[2]
+    if got != expected:
+        raise WorkerMismatch(f"{name} computes with other code or settings than this process (differs: "
+                             f"{', '.join(_differences(expected, got))}); its results are not used: install the same "
+                             "nlosbench and packages on every worker (its import path must not hold another copy)")
+    return _replay(result[:2])
 
 
 def _replay(result: tuple[object, list[tuple]]):
@@ -216,13 +284,28 @@ def _shared_memory_errors() -> Iterator[None]:
         raise
 
 
-class LocalPoolExecutor(Executor):
+class _Workers(Executor):
+    """An executor whose tasks run in other processes: each result is used only once its worker's identity is this
+    process's (`_checked`), that of `model` (the run's loaded model; None: one built here from `spec`)."""
+
+    spec: dict
+    model: ForwardModel | None = None
+    _identity: dict | None = None
+
+    def _result(self, result: tuple) -> object:
+        if self._identity is None:
+            self._identity = identity(self.model if self.model is not None else worker_model(self.spec))
+        return _checked(result, self._identity)
+
+
+class LocalPoolExecutor(_Workers):
     """A pool of `workers` spawned processes, each loading the scene once (on its first task) and
     using `threads` CPU threads for torch and Dr.Jit (default: cores / workers). At most
-    `2 × workers` tasks are queued at a time, so a stopped run leaves little work in flight."""
+    `2 × workers` tasks are queued at a time, so a stopped run leaves little work in flight; `model` the run's
+    loaded model, whose identity the workers' must match (`_Workers`)."""
 
-    def __init__(self, spec: dict, workers: int = 2, threads: int | None = None):
-        self.spec, self.workers = spec, _check_workers(workers)
+    def __init__(self, spec: dict, workers: int = 2, threads: int | None = None, model: ForwardModel | None = None):
+        self.spec, self.workers, self.model = spec, _check_workers(workers), model
         self.threads = threads or _default_threads(self.workers)
         self._pool: ProcessPoolExecutor | None = None
 
@@ -247,7 +330,7 @@ class LocalPoolExecutor(Executor):
                     return
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 for f in done:
-                    yield _replay(f.result())
+                    yield self._result(f.result())
         finally:
             for f in pending:
                 f.cancel()
@@ -277,28 +360,35 @@ class WorkersLost(ConnectionError):
     """No Dask worker was alive for `executor.worker_timeout` seconds (none at the start, or all lost mid-run)."""
 
 
+class SchedulerLost(ConnectionError):
+    """The Dask scheduler went away mid-run (its connection closed, its futures cancelled)."""
+
+
 #: what Dask raises when a wait times out (asyncio's TimeoutError is the builtin one from Python 3.11 on)
 _TIMEOUTS = (TimeoutError, asyncio.TimeoutError)
 #: seconds between a Dask run's checks that a worker is alive (at most; a quarter of the timeout when shorter)
 WORKER_POLL = 1.0
 
 
-class DaskExecutor(Executor):
+class DaskExecutor(_Workers):
     """dask.distributed: a scheduler at `address` (given up after `connect_timeout` seconds with a
     ConnectionError naming it), or a LocalCluster of `workers` processes with one thread each. Every
     worker process loads the scene once (on its first task). A run whose scheduler has no live worker for
     `worker_timeout` seconds — none at the start, or all lost mid-run — stops with `WorkersLost` (a
-    ConnectionError naming the scheduler and the key): finished work is kept, the run can be resumed.
-    With `log`, the `distributed` loggers of this process write to that file, not to the terminal (and a
-    LocalCluster's worker processes log only what is critical)."""
+    ConnectionError naming the scheduler and the key): finished work is kept, the run can be resumed. A
+    scheduler lost mid-run stops it with `SchedulerLost` naming its address (and the log). With `log`, the
+    `distributed` loggers of this process write to that file, not to the terminal (and a LocalCluster's worker
+    processes log only what is critical). Each worker's results are used only once its identity matches
+    `model`'s (`_Workers`)."""
 
     def __init__(self, spec: dict, address: str | None = None, workers: int = 2, threads: int | None = None,
-                 connect_timeout: float = 10.0, worker_timeout: float = 60.0, log: str | os.PathLike | None = None):
+                 connect_timeout: float = 10.0, worker_timeout: float = 60.0, log: str | os.PathLike | None = None,
+                 model: ForwardModel | None = None):
         try:
             import distributed  # noqa: F401
         except ImportError:
             raise ImportError("the dask executor needs dask.distributed: pip install 'nlosbench[dask]'") from None
-        self.spec, self.address, self.workers = spec, address, _check_workers(workers)
+        self.spec, self.address, self.workers, self.model = spec, address, _check_workers(workers), model
         self.threads = threads or _default_threads(self.workers)
         self.connect_timeout = float(connect_timeout)
         self.worker_timeout = float(worker_timeout)
@@ -369,9 +459,17 @@ class DaskExecutor(Executor):
                 self._check_workers()
                 pending = list(left)
                 for fut in done:
-                    yield _replay(fut.result())
+                    yield self._result(fut.result())
+        except (CancelledError, OSError) as e:  # a cancelled future or a closed comm: lost, unless still connected
+            if client.status == "running":
+                raise
+            where = self.address or "the LocalCluster"
+            log = f"; Dask's messages are in {self.log}" if self.log is not None else ""
+            raise SchedulerLost(f"lost the Dask scheduler at {where} mid-run ({type(e).__name__}); finished work is "
+                                f"kept: restart the scheduler and its workers{log}") from None
         finally:
-            client.cancel([f for f in pending if not f.done()])
+            if client.status == "running":
+                client.cancel([f for f in pending if not f.done()])
 
     def close(self) -> None:
         if self._client is not None:
@@ -387,7 +485,8 @@ class DaskExecutor(Executor):
 
 class _DaskLog:
     """The `distributed` loggers (and tornado's, which Dask's networking uses) of this process written to a file
-    instead of the terminal, until `close` puts their handlers back."""
+    instead of the terminal, until `close` puts their handlers back: the top ones and every one below them with
+    its own handler (Dask gives `distributed.client` a terminal handler of its own)."""
 
     NAMES = ("distributed", "tornado")
 
@@ -395,7 +494,10 @@ class _DaskLog:
         self.handler = logging.FileHandler(path, encoding="utf-8")
         self.handler.setFormatter(logging.Formatter("%(asctime)s %(name)s %(levelname)s %(message)s"))
         self.saved = {}
-        for name in self.NAMES:
+        below = [name for name, logger in list(logging.root.manager.loggerDict.items())
+                 if isinstance(logger, logging.Logger) and logger.handlers
+                 and any(name.startswith(top + ".") for top in self.NAMES)]
+        for name in (*self.NAMES, *below):
             logger = logging.getLogger(name)
             self.saved[name] = (list(logger.handlers), logger.propagate)
             for h in list(logger.handlers):
@@ -417,15 +519,16 @@ def create(config: dict, spec: dict, model: ForwardModel | None = None,
            log: str | os.PathLike | None = None) -> Executor:
     """The executor a run config asks for: `config` is its `executor` block {type: local | serial |
     dask, workers, address, connect_timeout, worker_timeout}; `spec` the model spec workers build from; `model`
-    the already-loaded model (used by the serial executor, so it loads nothing); `log` where Dask logs."""
+    the already-loaded model (used by the serial executor, so it loads nothing; the others check their workers'
+    identity against it); `log` where Dask logs."""
     kind = config.get("type", "local")
     workers = config.get("workers", 2)
     if kind == "serial":
         return SerialExecutor(model=model, spec=spec)
     if kind == "local":
-        return LocalPoolExecutor(spec, workers=workers)
+        return LocalPoolExecutor(spec, workers=workers, model=model)
     if kind == "dask":
         return DaskExecutor(spec, address=config.get("address"), workers=workers,
                             connect_timeout=config.get("connect_timeout", 10.0),
-                            worker_timeout=config.get("worker_timeout", 60.0), log=log)
+                            worker_timeout=config.get("worker_timeout", 60.0), log=log, model=model)
     raise ValueError(f"unknown executor type {kind!r}; expected serial, local or dask")

@@ -1,26 +1,31 @@
 """The installed package's own source files and their hashes: what "the code" of a run or a render is.
 
-`digests()` maps every source file of the package as installed (an editable install included: the files
-as they are now, not as they were when installed; `__pycache__` and compiled files left out) to the
-SHA-256 of its bytes. `digest(names)` folds a set of them into one hex string. Reading the ~80 files takes
-a few milliseconds; the result is computed once per process.
+`digests()` maps every Python source file (`*.py`) of the package as installed (an editable install included: the
+files as they are now, not as they were when installed; an editor's swap or backup file, `__pycache__` and compiled
+files left out) to the SHA-256 of its bytes. `digest(names)` folds a set of them into one hex string. Reading the
+~80 files takes a few milliseconds; the result is computed once per process. `versions()` names the installed
+version of Python and of every package whose code computes a number of a run (`NUMERIC`).
 """
 from __future__ import annotations
 
 import ast
 import hashlib
+import platform
 from functools import cache, lru_cache
+from importlib import metadata
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent
+#: the packages whose code computes a run's numbers (renders, bounds, fits: scipy's bounded Brent search included)
+NUMERIC = ("numpy", "scipy", "torch", "mitsuba", "drjit")
 
 
 @lru_cache(maxsize=1)
 def digests() -> dict[str, str]:
-    """Relative path under the package (e.g. 'forward/cache.py') → SHA-256 hex of its bytes."""
+    """Relative path under the package (e.g. 'forward/cache.py') → SHA-256 hex of its bytes, for its `*.py` files."""
     out = {}
-    for p in sorted(PACKAGE.rglob("*")):
-        if p.is_file() and "__pycache__" not in p.parts and p.suffix not in (".pyc", ".pyo"):
+    for p in sorted(PACKAGE.rglob("*.py")):
+        if p.is_file() and "__pycache__" not in p.parts:
             out[p.relative_to(PACKAGE).as_posix()] = hashlib.sha256(p.read_bytes()).hexdigest()
     return out
 
@@ -45,3 +50,15 @@ def closure(folder: str) -> tuple[str, ...]:
             if isinstance(node, ast.ImportFrom) and node.level == name.count("/") + 1:
                 top.update([node.module.split(".")[0]] if node.module else [a.name for a in node.names])
     return tuple(names + sorted(f"{m}.py" for m in top if f"{m}.py" in digests()))
+
+
+@lru_cache(maxsize=1)
+def versions() -> dict[str, str | None]:
+    """{"python": its version, and each of `NUMERIC`: its installed version, None where it is not installed}."""
+    out: dict[str, str | None] = {"python": platform.python_version()}
+    for name in NUMERIC:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out

@@ -1039,3 +1039,258 @@ def test_stopping_a_pool_with_queued_tasks_leaves_no_error_in_its_thread(monkeyp
     pool.abort()
     manager.join(10)
     assert not manager.is_alive() and not caught, caught
+
+
+# blob2d's x with rendering noise (tests/test_precision_studies.py): θ = 0.7 misses ±10 % at the pilot; a budget
+# of 300 000 pixel-samples is below the pilot's charge plus a fresh look's, so only a run that counted cached
+# renders as free would take one
+BLOB = {"name": "blob2d", "options": {"width": 0.15, "render_noise": 2.0}, "params": ["x"]}
+PRECISE = {"type": "trials", "id": "t", "theta": [0.7], "n": 2, "n_eff": 16, "truth_replicates": 1,
+           "bounds": ["hcr", "crlb"], "bound_spp": 16, "replicates": 3, "hcr_grid": 3, "hcr_offsets": 1,
+           "fd_step": 0.01, "max_halvings": 1, "bootstrap": 10, "precision": 0.1, "precision_budget": 300000,
+           "estimators": [{"name": "grid-search", "options": {"spp": 4, "num": 5, "refine": False}}]}
+QUOTE = {"type": "bounds", "id": "b", "grid": {"start": 0.2, "stop": 0.8, "num": 3}, "spp": 16, "replicates": 3,
+         "fd_step": 0.01, "max_halvings": 1, "zzb": False, "save_images": False, "precision": 0.1,
+         "precision_at": [0.7], "precision_budget": 10**9}
+
+
+def _numbers(run: Path) -> tuple[bytes, list[dict]]:
+    """bounds.csv's bytes and summary.csv's rows without its wall times."""
+    from nlosbench.io import read_csv
+
+    rows = [{k: v for k, v in r.items() if not k.endswith("_seconds")} for r in read_csv(run / "t" / "summary.csv")]
+    return (run / "t" / "bounds.csv").read_bytes(), rows
+
+
+def test_a_precision_budget_decides_the_same_cold_warm_resumed_and_after_another_study(tmp_path, capsys):
+    """A trials study with `precision` and `precision_budget` on blob2d, run cold on an empty shared `cache`, warm
+    on the same cache (every render served from it), resumed after its `renders/` store and study folder were
+    deleted, and after a bounds study that quotes the same θ* (so every pilot render is already in memory): the
+    budget is charged by request, so bounds.csv is the same byte for byte and summary.csv the same but for wall
+    times; the record says what each run rendered (the warm run: nothing)."""
+    import shutil
+
+    cache = str(tmp_path / "cache")
+    runs = {}
+    for name, studies in (("cold", [PRECISE]), ("warm", [PRECISE]), ("after", [QUOTE, PRECISE])):
+        cfg = config(tmp_path, BLOB, studies, f"{name}.yaml", noise=[{"model": "awgn", "sigma": 0.3}], cache=cache)
+        rc, err = cli(capsys, "run", cfg, "--out", tmp_path / name, "--quiet")
+        assert rc == 0, err
+        runs[name] = tmp_path / name
+    resumed = tmp_path / "resumed"
+    shutil.copytree(runs["cold"], resumed)
+    shutil.rmtree(resumed / "renders")
+    shutil.rmtree(resumed / "t")
+    with pytest.warns(UserWarning, match="rebuilding the study"):
+        rc, err = cli(capsys, "run", tmp_path / "cold.yaml", "--out", resumed, "--resume", "--quiet")
+    assert rc == 0, err
+    runs["resumed"] = resumed
+    recs = {n: json.loads((r / "results.json").read_text())["studies"]["t"]["results"]["precision"][0]
+            for n, r in runs.items()}
+    assert recs["cold"]["rendered_pixel_samples"] > 0 and recs["warm"]["rendered_pixel_samples"] == 0, recs
+    assert len({r["pixel_samples"] for r in recs.values()}) == 1, recs
+    assert not recs["cold"]["met"] and recs["cold"]["pixel_samples"] <= PRECISE["precision_budget"], recs["cold"]
+    reference = _numbers(runs["cold"])
+    for name in ("warm", "resumed", "after"):
+        assert _numbers(runs[name]) == reference, name
+
+
+@pytest.mark.parametrize("step", [1e-10, 1e-300, 1e-6])
+def test_a_lattice_above_its_ceiling_is_one_line_at_config_time(tmp_path, capsys, step):
+    """The surrogate estimator's `step: 1e-10` (6·10⁹ lattice points on blob2d's region: a 22 GiB allocation and exit
+    3 before), 1e-300, or 1e-6 (6·10⁵ renders: hours with their store writes): exit 2, one line naming the setting,
+    the lattice's size and the ceiling (`estimators.base.MAX_GRID`), and no run folder."""
+    from nlosbench.estimators.base import MAX_GRID
+
+    study = {**TRIALS, "estimators": [{"name": "surrogate", "options": {"step": step, "spp": 4}}]}
+    rc, err = cli(capsys, "run", config(tmp_path, {"name": "blob2d", "params": ["x"]}, [study]), "--out",
+                  tmp_path / "run")
+    assert rc == 2 and len(errors(err)) == 1, err
+    line = errors(err)[0]
+    assert "estimators[0]: surrogate: step" in line and f"above the ceiling of {MAX_GRID}" in line, line
+    assert not (tmp_path / "run").exists()
+
+
+def test_the_estimate_counts_each_renders_store_write_so_many_cheap_renders_need_yes(tmp_path, capsys, monkeypatch):
+    """A measured rate has two parts: per pixel-sample and per render (the bank's task and its store's fsynced write,
+    timed through a bank with a store, > 0). A plan of 5·10⁴ cheap renders (a grid-search of that many points at
+    1 spp on edge1d, a few ms of samples) whose per-render cost is set to 0.1 s in rates.json is estimated above an
+    hour: exit 2 naming its renders and their cost, nothing written."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    study = {**TRIALS, "estimators": [{"name": "grid-search", "options": {"num": 50000, "spp": 1, "refine": False}}]}
+    cfg = config(tmp_path, EDGE, [{**BOUNDS, "spp": 10 ** 12}])  # measures the rate, refused
+    assert cli(capsys, "run", cfg, "--out", tmp_path / "first")[0] == 2
+    rates = tmp_path / "xdg" / "nlosbench" / "rates.json"
+    ((key, kept),) = json.loads(rates.read_text()).items()
+    assert 0 < kept["seconds_per_render"] < 1, kept
+    cfg = config(tmp_path, EDGE, [study], "grid.yaml")
+    rates.write_text(json.dumps({key: {**kept, "seconds_per_render": 0.1}}))
+    rc, err = cli(capsys, "run", cfg, "--out", tmp_path / "run")
+    assert rc == 2 and "pass --yes to run it" in errors(err)[0] and "renders at 100 ms each" in errors(err)[0], err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_render_plan_above_the_ceiling_is_refused_naming_the_study(tmp_path, capsys, monkeypatch):
+    """A study that plans more renders than `runner.MAX_PLAN_RENDERS` (here lowered to 20; the bounds study plans 27):
+    exit 2 at config time, one line naming the study, its renders and the ceiling; nothing written."""
+    from nlosbench.experiment import runner
+
+    monkeypatch.setattr(runner, "MAX_PLAN_RENDERS", 20)
+    rc, err = cli(capsys, "run", config(tmp_path, EDGE, [BOUNDS]), "--out", tmp_path / "run")
+    assert rc == 2 and len(errors(err)) == 1, err
+    assert "00-bounds: plans 27 renders, above the ceiling of 20" in errors(err)[0], err
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_dask_worker_with_a_changed_copy_of_the_code_is_refused_naming_it(tmp_path, capsys, scheduler):
+    """A Dask worker whose import path holds a changed copy of nlosbench (one line added to forward/model.py, as
+    an out-of-date checkout on a cluster node leaves it): exit 1 with one line naming that worker, that its code
+    differs, and how to resume; none of its results is used (no render in the run's store)."""
+    import shutil
+
+    copy = tmp_path / "elsewhere"
+    shutil.copytree(ROOT / "nlosbench", copy / "nlosbench", ignore=shutil.ignore_patterns("__pycache__"))
+    with open(copy / "nlosbench" / "forward" / "model.py", "a") as f:
+        f.write("\nCHANGED = True\n")
+    address = scheduler.scheduler_address
+    worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--no-nanny",
+                               "--nthreads", "1", "--no-dashboard"], env={**os.environ, "PYTHONPATH": str(copy)},
+                              cwd=copy, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        scheduler.wait_for_workers(1, timeout=60)
+        (name,) = scheduler.scheduler_info["workers"]
+        cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "dask", "address": address, "worker_timeout": 30})
+        run = tmp_path / "run"
+        rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    finally:
+        worker.kill()
+        worker.wait()
+    assert rc == 1 and len(errors(err)) == 1, err
+    line = errors(err)[0]
+    assert f"Dask worker {name} computes with other code" in line and "(differs: code" in line, line
+    assert line.endswith(f"resume with: nlosbench run {cfg} --out {run} --resume"), line
+    assert not list((run / "renders").rglob("*.npc"))
+
+
+@pytest.mark.parametrize("damage", ["torn trials.jsonl", "edited bounds.csv"])
+def test_a_torn_log_line_or_an_edited_table_value_is_rebuilt_on_resume(two_studies, tmp_path, capsys, damage):
+    """A finished run whose trials.jsonl ends in a torn line (half a record, as a copy cut short leaves it; exit 2
+    before), or whose bounds.csv had one value edited in place (same rows; not detected before): `--resume` warns
+    naming the file and rebuilds that study, and the table is the uninterrupted run's again, byte for byte."""
+    import shutil
+
+    cfg, full, files = two_studies
+    run = tmp_path / "run"
+    shutil.copytree(full, run)
+    if damage == "torn trials.jsonl":
+        name, table = "01-trials/trials.jsonl", "01-trials/summary.csv"
+        log = run / name
+        log.write_bytes(log.read_bytes() + log.read_bytes().splitlines(keepends=True)[0][:20])
+        why = "ends in a torn record"
+    else:
+        name = table = "00-bounds/bounds.csv"
+        text = (run / name).read_text()
+        header, first, rest = text.split("\n", 2)
+        cells = first.split(",")
+        cells[-1] = "0" if cells[-1] != "0" else "1"
+        (run / name).write_text("\n".join([header, ",".join(cells), rest]))
+        why = "was changed after it was written"
+    with pytest.warns(UserWarning) as caught:
+        rc, err = cli(capsys, "run", cfg, "--out", run, "--resume", "--quiet")
+    assert rc == 0, err
+    rebuilt = [str(w.message) for w in caught if "rebuilding the study" in str(w.message)]
+    assert len(rebuilt) == 1 and f"{run / name} {why}" in rebuilt[0], rebuilt
+    if table.endswith("bounds.csv"):
+        assert (run / table).read_bytes() == files[table]
+    else:
+        estimates = [[(r["trial"], r["theta_hat"]) for r in RecordLog(d / name).read()] for d in (full, run)]
+        assert estimates[0] == estimates[1] and len(estimates[0]) == TRIALS["n"]
+
+
+def test_the_code_hash_is_the_python_files_and_the_fingerprint_names_scipy(tmp_path, monkeypatch):
+    """An editor's swap file, a backup and a data file beside the package's modules (a package laid out in a
+    temporary folder) leave `sources.digests` as it was, so a resume is not refused as a code change; a .py file
+    added changes it. The fingerprint's versions name scipy (the surrogate's bounded Brent search) and the other
+    numeric packages, with their installed versions."""
+    from importlib import metadata
+
+    from nlosbench import sources
+    from nlosbench.experiment import rundir
+
+    fp = rundir.fingerprint({}, {}, {})
+    assert fp["versions"]["scipy"] == metadata.version("scipy")
+    assert {"python", "numpy", "torch", "mitsuba", "drjit"} <= set(fp["versions"])
+    pkg = tmp_path / "pkg"
+    (pkg / "forward").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "forward" / "model.py").write_text("X = 1\n")
+    monkeypatch.setattr(sources, "PACKAGE", pkg)
+    sources.digests.cache_clear()
+    try:
+        before = sources.digests()
+        for junk in (".model.py.swp", "model.py~", "notes.txt"):
+            (pkg / "forward" / junk).write_text("edited")
+        sources.digests.cache_clear()
+        assert sources.digests() == before == {name: sources.digests()[name] for name in
+                                               ("__init__.py", "forward/model.py")}
+        (pkg / "forward" / "extra.py").write_text("Y = 2\n")
+        sources.digests.cache_clear()
+        assert set(sources.digests()) == {"__init__.py", "forward/model.py", "forward/extra.py"}
+    finally:
+        monkeypatch.undo()
+        sources.digests.cache_clear()
+
+
+def test_poisson_noise_with_analytic_rendering_noise_is_refused_unless_clipped(tmp_path, capsys):
+    """blob2d with render_noise 2 (at 16 spp a third of its background pixels render negative) and Poisson noise:
+    exit 2 at config time, one line naming scene.options.render_noise_clip, nothing written (exit 3 mid-run
+    before: a negative Poisson mean); with render_noise_clip: true the run finishes and its renders are >= 0."""
+    import nlosbench as nb
+
+    scene = {"name": "blob2d", "options": {"render_noise": 2.0, "width": 0.15}, "params": ["x"]}
+    study = {**BOUNDS, "grid": {"start": 0.2, "stop": 0.8, "num": 3}}
+    poisson = [{"model": "poisson", "scale": 100.0}]
+    rc, err = cli(capsys, "run", config(tmp_path, scene, [study], noise=poisson), "--out", tmp_path / "run")
+    assert rc == 2 and len(errors(err)) == 1 and "scene.options.render_noise_clip: Poisson noise" in err, err
+    assert not (tmp_path / "run").exists()
+    clipped = {**scene, "options": {**scene["options"], "render_noise_clip": True}}
+    rc, err = cli(capsys, "run", config(tmp_path, clipped, [study], "clip.yaml", noise=poisson), "--out",
+                  tmp_path / "clip", "--quiet")
+    assert rc == 0, err
+    model = nb.scenes.get("blob2d", render_noise=2.0, width=0.15, render_noise_clip=True)
+    assert min(float(model.render([0.5, 0.5], 16, s).min()) for s in range(4)) == 0.0
+
+
+def test_a_lost_dask_scheduler_is_one_line_naming_it_with_the_details_in_dask_log(tmp_path, capsys, scheduler,
+                                                                                  monkeypatch):
+    """The Dask scheduler closed mid-run (once the first renders are back; each task takes 0.3 s),
+    `executor.connect_timeout: 2` (how long the client tries to reconnect): exit 1 with one line on stderr naming
+    the scheduler's address, RUN/dask.log and how to resume (36 lines with two distributed.client tracebacks
+    before); Dask's messages, the client's included, are in RUN/dask.log."""
+    import threading
+
+    from nlosbench import executors
+
+    monkeypatch.setattr(executors, "_call", _slow_call)
+    scheduler.scale(1)
+    scheduler.wait_for_workers(1, timeout=30)
+    address = scheduler.scheduler_address
+    cfg = config(tmp_path, EDGE, [BOUNDS], executor={"type": "dask", "address": address, "connect_timeout": 2})
+    run = tmp_path / "run"
+
+    def lose_scheduler() -> None:
+        wait_for(lambda: any((run / "renders").rglob("*.npc")), timeout=60, every=0.02)
+        scheduler.sync(scheduler.scheduler.close)
+
+    threading.Thread(target=lose_scheduler, daemon=True).start()
+    rc, err = cli(capsys, "run", cfg, "--out", run, "--quiet")
+    assert rc == 1 and [line for line in err.splitlines() if line.strip()] == [
+        f"nlosbench: error: lost the Dask scheduler at {address} mid-run (FuturesCancelledError); finished work is "
+        f"kept: restart the scheduler and its workers; Dask's messages are in {run / 'dask.log'}; resume with: "
+        f"nlosbench run {cfg} --out {run} --resume"], err
+    log = (run / "dask.log").read_text()
+    assert "distributed.client" in log and "distributed.scheduler" in log
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):  # not 30 s trying the closed scheduler
+        scheduler.close()

@@ -277,7 +277,7 @@ def _study_config(tmp_path, **study):
         "seed": 2,
         "scene": {
             "name": "blob2d",
-            "options": {"render_noise": S_RENDER, **study.pop("scene_options", {})},
+            "options": {"render_noise": S_RENDER, "render_noise_clip": True, **study.pop("scene_options", {})},
             "params": ["x"],
         },
         "noise": [{"model": "awgn", "sigma": 1.0}, {"model": "poisson", "scale": 1.0}],

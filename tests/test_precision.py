@@ -143,7 +143,8 @@ def test_a_met_target_adds_no_renders_and_an_unmet_one_adds_fresh_sets():
 def test_the_budget_caps_the_pixel_samples_and_the_report_says_what_more_would_cost():
     """blob2d's x (24 × 24 px, 16 spp), precision 0.1, seed 1: unlimited, it adds fresh sets; with a budget just
     above the pilot's cost no fresh look fits, the pixel-samples spent stay within the budget, the target is
-    reported unmet with a finite predicted extra, and the CSV row carries the precision columns."""
+    reported unmet with a finite predicted extra, and the CSV row carries the precision columns; asked again of
+    the same bank (every render in memory) the call is charged and decides the same, having rendered nothing."""
     m = _blob()
     per_render = 16 * 24 * 24
     free = RenderBank(m, seed=1)
@@ -154,8 +155,13 @@ def test_the_budget_caps_the_pixel_samples_and_the_report_says_what_more_would_c
     (pc,) = BoundService(capped, [nb.noise.AWGN(0.3)]).at([[0.45]], 16, precision=0.1, budget=pilot + per_render,
                                                           **BLOB)
     rec = pc.precision
-    assert capped.renders * per_render == pilot == rec.pixel_samples <= pilot + per_render
+    assert capped.renders * per_render == pilot == rec.pixel_samples == rec.rendered <= pilot + per_render
     assert not rec.met and rec.looks == 1 and "budget" in rec.note
+    # asked again of the same bank, every render is served from memory: charged the same, so decided the same
+    (again,) = BoundService(capped, [nb.noise.AWGN(0.3)]).at([[0.45]], 16, precision=0.1, budget=pilot + per_render,
+                                                             **BLOB)
+    assert again.precision.rendered == 0 and capped.renders * per_render == pilot
+    assert (again.precision.pixel_samples, again.precision.looks, again.precision.note) == (pilot, 1, rec.note)
     assert 0 < rec.extra_sets < math.inf and 0 < rec.extra_pixel_samples < math.inf
     row = pc.row(["x"])
     assert row["precision_target"] == 0.1 and row["precision_reached"] == rec.worst > 0.1

@@ -52,9 +52,11 @@ predicted the way they are computed. Where a look's λ̂(Δ) ≤ 0 (no informati
 local quadratic ΔᵀF̂Δ instead. Plans only choose R; the proof above does not depend on them. This is not
 n·(width/target)² (SE ∝ R^−½): where the noise × noise part b dominates, SE falls like 1/R.
 
-Budget: pixel-samples = spp × H × W × renders made by the call (the bank's `renders` counter). The pilot is
-always made; a fresh look is made only if the pixel-samples spent so far plus its worst-case cost (every FD
-halving taken) stay within the budget.
+Budget: the call is charged by request (the bank's `Ledger`): every distinct render or Jacobian its looks ask for
+costs its spp × H × W per render (an FD Jacobian 2 renders per parameter and round) whether it is rendered, read
+from the store or served from a cache, so its decisions are the same cold, warm, resumed or after another study.
+The pilot is always made; a fresh look is made only if the pixel-samples charged so far plus its worst-case cost
+(every FD halving taken) stay within the budget. What this process rendered is reported beside it, never used.
 """
 from __future__ import annotations
 
@@ -168,10 +170,11 @@ class Precision:
     target: the relative half-width asked for; reached: {kind: precision reached} for this noise model;
     met: every interval bound of every noise model at this θ* reached the target; looks: looks made for this
     θ* (1: the pilot only); pilot_sets / fresh_sets: replicate sets of the pilot and of the reported look
-    (0: the pilot's are reported); level: the one-sided level of each end (1 − α/K); pixel_samples: spent by
-    the whole call (every θ*; spp × H × W × renders); extra_sets / extra_pixel_samples: predicted fresh sets
-    and pixel-samples still needed to meet it (0 when met, +inf when no number of sets is predicted to);
-    note: why it stopped."""
+    (0: the pilot's are reported); level: the one-sided level of each end (1 − α/K); pixel_samples: charged to
+    the whole call (every θ*; spp × H × W per render requested, however served: what the budget decides on);
+    rendered: the pixel-samples of those renders this process made (0 when all were cached); extra_sets /
+    extra_pixel_samples: predicted fresh sets and pixel-samples still needed to meet it (0 when met, +inf when no
+    number of sets is predicted to); note: why it stopped."""
 
     target: float
     reached: dict[str, float]
@@ -184,6 +187,7 @@ class Precision:
     extra_sets: float = 0.0
     extra_pixel_samples: float = 0.0
     note: str = ""
+    rendered: int = 0
 
     @property
     def worst(self) -> float:
@@ -492,10 +496,16 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     """The stopping rule of the module docstring over T θ*. look(index array, R, first, level, keep, window,
     tested) gives the BoundPoints (noise-major) of those θ* from replicate sets first … first + R − 1 at `level`,
     their FD stages those of `window` (None: the service's own) and their tested Δ those of `tested` ({position:
-    mask over the pilot's Δ}; None: all), filling keep {(noise, position): Raw}; `bank.renders` counts renders.
-    Returns the BoundPoints (noise-major), each with its `precision` record."""
+    mask over the pilot's Δ}; None: all), filling keep {(noise, position): Raw}. The call is charged by request
+    (`bank.ledger()`); `spp` turns SetCost's renders into pixel-samples. Returns the BoundPoints (noise-major), each
+    with its `precision` record."""
+    with bank.ledger() as spend:
+        return _refine(look, T, noises, R0, target, budget, K, alpha, cost, spp, spend)
+
+
+def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float, budget: int | None, K: int,
+            alpha: float, cost: SetCost, spp: int, spend) -> list:
     level = 1.0 - alpha / K
-    start = bank.renders
     st = _State()
 
     def run(idx: np.ndarray, R: int, first: int, k: int, window: Window | None = None,
@@ -532,7 +542,7 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
     per_sample = spp * pixels
 
     def spent() -> int:
-        return (bank.renders - start) * per_sample
+        return spend.pixel_samples
 
     active = [i for i in range(T) if worst(i) > target]
     for i in range(T):
@@ -595,6 +605,6 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float
             pt = st.points[j, i]
             pt.precision = Precision(
                 float(target), {k: reached(pt.bounds[k]) for k in kinds(i)}, worst(i) <= target, st.looks[i], R0,
-                st.fresh[i], level, int(total), extra[i], extra_px[i], st.notes[i])
+                st.fresh[i], level, int(total), extra[i], extra_px[i], st.notes[i], int(spend.rendered))
             out.append(pt)
     return out

@@ -33,6 +33,8 @@ from .predict import Linearisation, Prediction, target
 
 #: Poisson NLL policy: model means below this many expected photons per pixel are raised to it
 POISSON_FLOOR = 1e-3
+#: the most points a grid or lattice that an estimator renders before its fits may hold (one render each)
+MAX_GRID = 100_000
 #: how a fit stopped: its own convergence rule, steps shrunk by the schedule, no acceptable step, the
 #: budget, or the iteration cap (only "converged" counts as converged)
 STATUSES = ("converged", "stalled", "step-rejected", "budget", "max-iterations")

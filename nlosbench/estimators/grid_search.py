@@ -19,7 +19,7 @@ import torch
 
 from ..params import ParamSpace
 from ..seeds import derive
-from .base import Estimator, Outcome, Problem, Tracker, finite_or_raise, nll, render_seed
+from .base import MAX_GRID, Estimator, Outcome, Problem, Tracker, finite_or_raise, nll, render_seed
 
 
 class _OutOfBudget(Exception):
@@ -43,7 +43,7 @@ class GridSearch(Estimator):
         Maximum refinement renders.
     xtol : float, default 1e-4
         The refinement's θ tolerance, in units of Θ's width.
-    max_grid : int, default 100000
+    max_grid : int, default MAX_GRID (100000)
         Refuse grids with more points than this.
     """
 
@@ -56,7 +56,7 @@ class GridSearch(Estimator):
                   "to the grid; the grid renders' own noise enters the profile.")
 
     def __init__(self, num: int = 65, spp: int = 1024, refine: bool = True, refine_spp: int | None = None,
-                 refine_evals: int = 150, xtol: float = 1e-4, max_grid: int = 100_000):
+                 refine_evals: int = 150, xtol: float = 1e-4, max_grid: int = MAX_GRID):
         ints = {"num": num, "spp": spp, "refine_spp": spp if refine_spp is None else refine_spp,
                 "refine_evals": refine_evals, "max_grid": max_grid}
         for k, v in ints.items():

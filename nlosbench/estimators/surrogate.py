@@ -59,7 +59,7 @@ import torch
 
 from ..params import ParamSpace
 from ..seeds import derive
-from .base import Budget, Estimator, Outcome, Problem, Tracker, finite_or_raise, floored, nll
+from .base import MAX_GRID, Budget, Estimator, Outcome, Problem, Tracker, finite_or_raise, floored, nll
 from .predict import Linearisation, weight
 
 
@@ -133,7 +133,8 @@ class Surrogate(Estimator):
         Raises
         ------
         ValueError
-            For more than one parameter, a region outside Θ, or fewer points than the window needs.
+            For more than one parameter, a region outside Θ, fewer points than the window needs or more than
+            `MAX_GRID`.
         """
         if params.dim != 1:
             raise ValueError(f"surrogate: one parameter only, the model has {list(params.names)}")
@@ -141,6 +142,9 @@ class Surrogate(Estimator):
         if lo < params.lower[0] - 1e-12 or hi > params.upper[0] + 1e-12:
             raise ValueError(f"surrogate: region [{lo}, {hi}] is not inside Θ = [{params.lower[0]}, {params.upper[0]}]")
         h = (hi - lo) / 24 if self.step is None else self.step
+        if not (hi - lo) / h < MAX_GRID:  # before anything is allocated (a tiny step is billions of points)
+            raise ValueError(f"surrogate: step {h:g} gives {(hi - lo) / h:.3g} lattice renders over [{lo:g}, {hi:g}], "
+                             f"above the ceiling of {MAX_GRID}; use a larger step or a smaller region")
         G = int(np.floor((hi - lo) / h + 1e-9)) + 1
         if G < 2 * self.window + 1:
             raise ValueError(f"surrogate: the region holds {G} lattice points at step {h:g}, the window needs "

@@ -6,8 +6,9 @@ the keys that cannot change a number (`NUMBERLESS`), the model's content key (a 
 scene loads, defines, variant, integrator, bindings, pass size, Mitsuba and Dr.Jit versions, and under
 `model.render` what else decides a render's bits: the LLVM target, libLLVM, the host's ISA; the analytic
 toys' settings), the components every render key holds (`forward.keys.environment`: the rendering code's
-hash, ...), the code (nlosbench's version and a hash of each of its installed source files), the versions
-of torch and numpy, and what each study's plan fixes beyond the config (its `Plan.fingerprint`, e.g. the
+hash, ...), the code (nlosbench's version and a hash of each of its installed Python files), the versions of
+Python and of every package that computes a number (`sources.versions`: numpy, scipy, torch, Mitsuba, Dr.Jit),
+and what each study's plan fixes beyond the config (its `Plan.fingerprint`, e.g. the
 trials study's `auto` gradients as resolved from a verdicts file). A resume whose fingerprint differs is
 refused with the first differing key, before anything is written (a different machine named as such); a
 difference in the code alone is refused naming the changed files unless the resume is asked for `anyway`
@@ -42,9 +43,6 @@ class RunFolderError(ConfigError):
 
 def fingerprint(cfg: dict, content_key: dict, plans: dict) -> dict:
     """The run's fingerprint (see the module docstring); JSON-normalised so it compares equal to its file."""
-    import numpy
-    import torch
-
     from .. import __version__, sources
     from ..forward import keys
 
@@ -53,7 +51,7 @@ def fingerprint(cfg: dict, content_key: dict, plans: dict) -> dict:
     fp = {"config": numbers, "model": content_key, "render": keys.environment(),
           "code": {"nlosbench": __version__, "source": sources.digest(),
                    "files": {name: d[:16] for name, d in sources.digests().items()}},
-          "versions": {"torch": torch.__version__, "numpy": numpy.__version__},
+          "versions": sources.versions(),
           "plans": {sid: v for sid, v in extra.items() if v is not None}}
     return json.loads(json.dumps(fp, sort_keys=True, default=repr))
 

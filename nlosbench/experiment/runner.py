@@ -35,6 +35,8 @@ from .report import make_report
 
 #: an estimated time above this (seconds) needs `yes` (the CLI's --yes)
 CONFIRM_ABOVE = 3600.0
+#: the most renders one study may plan (each is a task and an entry in RUN/renders/): above it the config is refused
+MAX_PLAN_RENDERS = 10**7
 
 
 class RebuildWarning(UserWarning):
@@ -141,23 +143,31 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
         mod = studies.get(study["type"])
         plans[study["id"]] = mod.plan(ctx, study)
         estimates[study["id"]] = mod.cost(ctx, study, plans[study["id"]])
+        if estimates[study["id"]].renders > MAX_PLAN_RENDERS:
+            raise ConfigError(study["id"], f"plans {estimates[study['id']].renders} renders, above the ceiling "
+                                           f"of {MAX_PLAN_RENDERS} a study may plan; make its grids, sets or trials "
+                                           "smaller")
     fp = rundir.fingerprint(cfg, ctx.model.content_key(), plans)
     rundir.check(run_dir, fp, resume, anyway)
     rate = estimate.rate(ctx.model)
     ctx.rate = rate.seconds_per_sample  # what a study predicts further work's time from
     total = sum(rate.seconds(e) for e in estimates.values())
-    least = sum(e.floor for e in estimates.values()) * rate.seconds_per_sample  # seconds if every pilot suffices
+    least = sum(_least(e, rate) for e in estimates.values())  # seconds if every pilot suffices
     lines = [f"[{sid}] plan: {_cost(e, rate)}" + (f" ({e.note})" if e.note else "") for sid, e in estimates.items()]
     lines.append(f"estimate: ≈ {estimate.describe(total)} in all" + (
         f" at most, {estimate.describe(least)} if every precision pilot meets its target" if least < total else "") +
-                 f", at {rate.seconds_per_sample * 1e9:.3g} ns per pixel-sample ({rate.source}); a resumed run skips "
+                 f", at {rate.seconds_per_sample * 1e9:.3g} ns per pixel-sample and "
+                 f"{rate.seconds_per_render * 1e3:.3g} ms per render for its task and store write ({rate.source}); "
+                 "a resumed run skips "
                  "what is done")
     for line in lines:
         ctx.log(line)
     if total > CONFIRM_ABOVE and not yes:
         samples = sum(e.samples for e in estimates.values())
+        renders = sum(e.renders for e in estimates.values())
         raise ConfigError("--yes", f"this run is estimated at {estimate.describe(total)} ({samples:.3g} pixel-samples "
-                                   f"at {rate.seconds_per_sample * 1e9:.3g} ns each), above "
+                                   f"at {rate.seconds_per_sample * 1e9:.3g} ns each and {renders} renders at "
+                                   f"{rate.seconds_per_render * 1e3:.3g} ms each), above "
                                    f"{estimate.describe(CONFIRM_ABOVE)}: pass --yes to run it, or try --smoke first")
     return Run(cfg, run_dir, ctx, plans, estimates, total, fp, resume, lines, anyway)
 
@@ -167,9 +177,15 @@ def _cost(e: estimate.Estimate, rate: estimate.Rate) -> str:
     from what is spent in any case to the most the budget allows."""
     if e.floor >= e.samples:
         return f"{e.renders} renders, {e.samples:.3g} pixel-samples, ≈ {estimate.describe(rate.seconds(e))}"
-    lo = estimate.describe(e.floor * rate.seconds_per_sample)
+    lo = estimate.describe(_least(e, rate))
     return (f"at most {e.renders} renders, {e.floor:.3g} to {e.samples:.3g} pixel-samples (the pilot meeting its "
             f"precision target, or its budget spent), ≈ {lo} to {estimate.describe(rate.seconds(e))}")
+
+
+def _least(e: estimate.Estimate, rate: estimate.Rate) -> float:
+    """Seconds of what a study spends in any case (its pilots meeting their targets): pixel-samples and renders in
+    the same proportion as its whole plan."""
+    return rate.seconds(e) * (e.floor / e.samples if e.samples else 1.0)
 
 
 def run(config_path: str | Path, overrides: list[str] = (), out: str | Path | None = None,

@@ -7,7 +7,10 @@ independent across seeds. With render_noise = 0 the image is exact for every spp
 variance (t/√3; kurtosis infinite), as a renderer's rare bright paths make it; "gauss" (the default) is the
 normal draw above, unchanged. `render_noise_channels` "shared" draws one standard variate per pixel for all its
 channels (ε_c = z·√Var_c: the channels' errors fully correlated, as a path tracer's channels share their light
-paths — 0.76–0.998 measured on the Π hallway); "independent" (the default) draws one per value.
+paths — 0.76–0.998 measured on the Π hallway); "independent" (the default) draws one per value. Any of these can
+make a pixel negative where L is below a few SDs of ε, which no renderer does and Poisson noise cannot take as a
+mean: `render_noise_clip` renders max(L̃, 0) instead (biased up where it clips; a run refuses Poisson noise with
+rendering noise unless it is on).
 """
 from __future__ import annotations
 
@@ -31,7 +34,7 @@ class AnalyticModel(ForwardModel):
 
     def __init__(self, name: str, params: ParamSpace, render_noise: float = 0.0,
                  render_noise_power: float = 1.0, cache=None, render_noise_dist: str = "gauss",
-                 render_noise_channels: str = "independent"):
+                 render_noise_channels: str = "independent", render_noise_clip: bool = False):
         super().__init__(name, params, cache)
         if render_noise < 0:
             raise ValueError(f"render_noise must be >= 0, got {render_noise}")
@@ -44,6 +47,7 @@ class AnalyticModel(ForwardModel):
                              f"got {render_noise_channels!r}")
         self.render_noise_dist = render_noise_dist
         self.render_noise_channels = render_noise_channels
+        self.render_noise_clip = bool(render_noise_clip)
         self.exact = self.render_noise == 0.0
         self._channels: int | None = None
 
@@ -73,7 +77,8 @@ class AnalyticModel(ForwardModel):
         if self.render_noise_dist == "t3":  # t₃ = z / √(χ²₃/3) has variance 3: divided by √3, unit variance
             chi2 = (torch.randn((3,) + shape, generator=g, dtype=torch.float64) ** 2).sum(dim=0)
             z = z / chi2.sqrt()
-        return L + z * self.noise_variance(L, spp).sqrt()
+        out = L + z * self.noise_variance(L, spp).sqrt()
+        return out.clamp_min(0.0) if self.render_noise_clip else out
 
     def _render(self, theta: np.ndarray, spp: int, seed: int) -> torch.Tensor:
         with torch.no_grad():
@@ -100,12 +105,12 @@ class AnalyticModel(ForwardModel):
         return g.numpy()
 
     def content_key(self) -> dict:
-        # the default draws are left out, so keys made before the options existed stay valid
+        # the default draws and no clipping are left out, so keys made before the options existed stay valid
         return {"model": type(self).__name__, **{k: v for k, v in vars(self).items()
                                                  if isinstance(v, (int, float, str, tuple)) and not k.startswith("_")
-                                                 and (k, v) not in (
-                                                     ("render_noise_dist", "gauss"),
-                                                     ("render_noise_channels", "independent"))}}
+                                                 and (k, v) not in (("render_noise_dist", "gauss"),
+                                                                    ("render_noise_channels", "independent"),
+                                                                    ("render_noise_clip", False))}}
 
 
 class Blob2D(AnalyticModel):

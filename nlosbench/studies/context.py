@@ -77,7 +77,15 @@ class RunContext:
                 noises.append(noise_models.get(n["model"], **options))
             except (KeyError, TypeError, ValueError) as e:
                 raise ConfigError(f"noise[{i}]", e.args[0] if isinstance(e, KeyError) and e.args else str(e)) from None
-        return cls(dir=run_dir, config=cfg, model_spec=spec, model=load_model(spec), noises=noises,
+        model = base = load_model(spec)
+        while hasattr(base, "base"):  # a model with fixed parameters wraps the scene's
+            base = base.base
+        if any(isinstance(n, noise_models.Poisson) for n in noises) and getattr(base, "render_noise", 0) > 0 \
+                and not base.render_noise_clip:
+            raise ConfigError("scene.options.render_noise_clip", "Poisson noise needs renders >= 0, and the analytic "
+                              "scene's render_noise can make a pixel negative: set render_noise_clip: true (renders "
+                              "clipped at 0), render_noise: 0, or use awgn noise")
+        return cls(dir=run_dir, config=cfg, model_spec=spec, model=model, noises=noises,
                    seed=cfg["seed"], resume=resume, quiet=quiet)
 
     def start(self) -> None:

@@ -6,9 +6,11 @@ pixel-samples (renders × spp × pixels; an FD Jacobian counts its 2 renders per
 pass counts as `AD_PASS_RENDERS` renders). It is an upper bound where work may be skipped (a resumed run,
 a render shared between sets, an estimator that converges early) and an estimate where the work depends on
 the data (a trial's fit: the estimator's iterations × spp). The time is samples × a rate in seconds per
-pixel-sample for this scene, variant and versions (the model's content key), measured once on this
-machine with a tiny timed render (after an untimed one that compiles the kernels) and kept in
-`rates_path()` (~/.cache/nlosbench/rates.json, or $XDG_CACHE_HOME/nlosbench/rates.json).
+pixel-sample plus renders × the cost every render has beside its samples (the bank's task and its store's
+checksummed, fsynced write: what makes a lattice of 10⁵ cheap renders take minutes), for this scene, variant
+and versions (the model's content key), measured once on this machine with tiny timed renders (after untimed
+ones that compile the kernels) and kept in `rates_path()` (~/.cache/nlosbench/rates.json, or
+$XDG_CACHE_HOME/nlosbench/rates.json).
 """
 from __future__ import annotations
 
@@ -17,10 +19,13 @@ import hashlib
 import json
 import math
 import os
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..bank import RenderBank
+from ..forward.cache import RenderCache
 from ..forward.model import ForwardModel
 from ..io import write_json
 
@@ -28,6 +33,8 @@ from ..io import write_json
 AD_PASS_RENDERS = 4
 #: pixel-samples of the timed render that measures a rate
 RATE_SAMPLES = 1 << 18
+#: 1-spp renders timed through a bank with a store to measure a render's cost beside its samples
+OVERHEAD_RENDERS = 4
 
 
 @dataclass(frozen=True)
@@ -54,13 +61,16 @@ class Estimate:
 
 @dataclass(frozen=True)
 class Rate:
-    """Seconds per pixel-sample of a model on this machine, and where the number comes from."""
+    """Seconds per pixel-sample of a model on this machine, seconds per render beside its samples (the bank's
+    task and store write), and where the numbers come from."""
 
     seconds_per_sample: float
     source: str
+    seconds_per_render: float = 0.0
 
     def seconds(self, est: Estimate) -> float:
-        return est.samples * self.seconds_per_sample
+        """Seconds of an Estimate: its pixel-samples and its renders, each at its rate."""
+        return est.samples * self.seconds_per_sample + est.renders * self.seconds_per_render
 
 
 def _base(model: ForwardModel) -> ForwardModel:
@@ -97,30 +107,35 @@ def _key(model: ForwardModel) -> str:
 
 
 def rate(model: ForwardModel) -> Rate:
-    """This machine's seconds per pixel-sample for `model` (cached in `rates_path()`; measured on a miss)."""
+    """This machine's seconds per pixel-sample and per render for `model` (cached in `rates_path()`; measured on a
+    miss)."""
     path, key = rates_path(), _key(model)
     try:
         known = json.loads(path.read_text())
     except (OSError, ValueError):
         known = {}
     hit = known.get(key) if isinstance(known, dict) else None
-    if isinstance(hit, dict) and _usable(hit.get("seconds_per_sample")):  # else (NaN, 0, < 0, text) measured again
-        return Rate(float(hit["seconds_per_sample"]), f"measured {hit.get('when', '')} ({path})")
+    if isinstance(hit, dict) and _usable(hit.get("seconds_per_sample")) and _usable(hit.get("seconds_per_render"),
+                                                                                    zero=True):
+        return Rate(float(hit["seconds_per_sample"]), f"measured {hit.get('when', '')} ({path})",
+                    float(hit["seconds_per_render"]))  # else (NaN, 0, < 0, text, missing) measured again
     r = measure(model)
+    o = measure_overhead(model, r)
     try:
         write_json(path, {**(known if isinstance(known, dict) else {}),
-                          key: {"seconds_per_sample": r, "scene": model.name,
+                          key: {"seconds_per_sample": r, "seconds_per_render": o, "scene": model.name,
                                 "variant": getattr(_base(model), "variant", type(_base(model)).__name__),
                                 "when": datetime.date.today().isoformat()}})
     except OSError:  # a read-only home: the estimate still stands, it is just measured again next time
         pass
-    return Rate(r, "measured now")
+    return Rate(r, "measured now", o)
 
 
-def _usable(value) -> bool:
-    """A kept rate is a finite number > 0: NaN, infinity, zero or a negative rate (a hand-edited or damaged
-    rates.json) would make every estimate NaN, infinite or 0 and switch off the one-hour `--yes` guard."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value) and value > 0
+def _usable(value, zero: bool = False) -> bool:
+    """A kept rate is a finite number > 0 (≥ 0 with `zero`): NaN, infinity, zero or a negative rate (a hand-edited
+    or damaged rates.json) would make every estimate NaN, infinite or 0 and switch off the one-hour `--yes` guard."""
+    return (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            and (value >= 0 if zero else value > 0))
 
 
 def measure(model: ForwardModel) -> float:
@@ -139,6 +154,32 @@ def measure(model: ForwardModel) -> float:
     finally:
         base.cache = cache
     return max(seconds, 1e-9) / (spp * pixels(model))
+
+
+def measure_overhead(model: ForwardModel, seconds_per_sample: float) -> float:
+    """Seconds per render beside its pixel-samples (≥ 0): OVERHEAD_RENDERS 1-spp renders through a RenderBank with
+    a store (the task, the checksummed entry and its fsynced write) in a temporary folder beside rates.json (the
+    system's temporary folder where that cannot be made), less their samples' time at `seconds_per_sample`, after
+    an untimed one; the model's render cache is bypassed."""
+    base = _base(model)
+    cache, base.cache = base.cache, None
+    try:
+        where = rates_path().parent
+        where.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        where = None
+    try:
+        with tempfile.TemporaryDirectory(dir=where) as tmp:
+            bank = RenderBank(model, store=RenderCache(tmp))
+            theta = [model.params.default]
+            bank.at(theta, 1, "rate")
+            t0 = time.perf_counter()
+            for r in range(1, OVERHEAD_RENDERS + 1):
+                bank.at(theta, 1, "rate", replicate=r)
+            seconds = (time.perf_counter() - t0) / OVERHEAD_RENDERS
+    finally:
+        base.cache = cache
+    return max(seconds - pixels(model) * seconds_per_sample, 0.0)
 
 
 def describe(seconds: float) -> str:

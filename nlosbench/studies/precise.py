@@ -70,7 +70,8 @@ def smoke(block: dict) -> dict:
 def records(points: Sequence, T: int, names: Sequence[str]) -> list[dict]:
     """What a run keeps (results.json) of each BoundPoint's `Precision`: noise, θ index, θ, per interval bound
     its log10 point and ends and the precision reached, and the record's target, met, looks, level, pixel-samples
-    (of the whole call), predicted extra sets and pixel-samples, note. [] without a precision target."""
+    charged to the whole call (by request) and rendered by this process, predicted extra sets and pixel-samples,
+    note. [] without a precision target."""
     out = []
     for n, pt in enumerate(points):
         pr = pt.precision
@@ -81,7 +82,8 @@ def records(points: Sequence, T: int, names: Sequence[str]) -> list[dict]:
                     "bounds": {k: {"point": pt.bounds[k].point, "lower": pt.bounds[k].lower,
                                    "upper": pt.bounds[k].upper, "reached": r} for k, r in pr.reached.items()},
                     "target": pr.target, "met": pr.met, "looks": pr.looks, "fresh_sets": pr.fresh_sets,
-                    "level": pr.level, "pixel_samples": pr.pixel_samples, "extra_sets": pr.extra_sets,
+                    "level": pr.level, "pixel_samples": pr.pixel_samples,
+                    "rendered_pixel_samples": pr.rendered, "extra_sets": pr.extra_sets,
                     "extra_pixel_samples": pr.extra_pixel_samples, "note": pr.note})
     return out
 
@@ -105,8 +107,10 @@ def table(recs: list[dict], units: str, seconds_per_sample: float | None = None)
     lvl = f"{recs[0]['level']:.2%}"
     lines = [f"Target: every interval bound within ±{fmt(100 * recs[0]['target'], 3)} % (relative half-width, linear "
              f"units); each end a one-sided {lvl} limit (the level divided over the looks, so the reported interval "
-             "keeps its coverage whatever look it stops at). Pixel-samples are those of the whole call (every θ "
-             "listed); the predicted extra is what more fresh replicate sets the service's plan says the target needs" +
+             "keeps its coverage whatever look it stops at). Pixel-samples are those the whole call asked for (every "
+             "θ listed), charged whether rendered or served from a cache or store, so the budget decides the same way "
+             "cold or warm (in brackets: what this run rendered); the predicted extra is what more fresh replicate "
+             "sets the service's plan says the target needs" +
              ("" if seconds_per_sample else " (no time: this run has no measured render rate)") + ".", "",
              f"| noise | θ | bound | point [{lvl} ends] ({units}) | reached (target) | met | looks | pixel-samples | "
              "predicted extra | note |", "|---|---|---|---|---|---|---|---|---|---|"]
@@ -116,5 +120,6 @@ def table(recs: list[dict], units: str, seconds_per_sample: float | None = None)
             ends = f"{fmt_end(b['point'])} [{fmt_end(b['lower'])}, {fmt_end(b['upper'])}]"
             lines.append(f"| {r['noise']} | {theta} | {kind} | {ends} | ±{fmt(100 * b['reached'], 3)} % "
                          f"(±{fmt(100 * r['target'], 3)} %) | {'yes' if r['met'] else 'no'} | {r['looks']} | "
-                         f"{r['pixel_samples']:.3g} | {_extra(r, seconds_per_sample)} | {r['note']} |")
+                         f"{r['pixel_samples']:.3g} ({r.get('rendered_pixel_samples', 0):.3g}) | "
+                         f"{_extra(r, seconds_per_sample)} | {r['note']} |")
     return lines
