@@ -112,8 +112,8 @@ studies:
     bound_spp: 32
     hcr_grid: 21
     bounds: [hcr, crlb]
-    precision: 0.25              # the bounds at θ* to ±25 % if 2e6 pixel-samples (about 80 renders) allow it;
-    precision_budget: 2000000    # each run says what it reached and what more would cost
+    precision: 0.25              # the bounds at θ* to ±25 % if 6e6 pixel-samples (about 240 renders) allow it;
+    precision_budget: 6000000    # each run says what it reached and what more would cost
     start_width: 0.2             # grid-search ignores starts; gauss-newton starts at the profile minimum
     estimators:
       - name: grid-search
@@ -189,7 +189,7 @@ def report(run: Path) -> dict:
     print(f"\nFisher map at crate_x = 0 (01-fisher-maps/fisher_maps.png): total information "
           f"{float(f['fisher_total']):.4g} m⁻², CRLB {exp10(f['log10_crlb'])} m²")
     prec = rows(run / "02-trials" / "bounds.csv")
-    print("\nPrecision of the bounds at θ* (target ±25 %, within 2e6 pixel-samples; 02-trials/bounds.csv):")
+    print("\nPrecision of the bounds at θ* (target ±25 %, within 6e6 pixel-samples; 02-trials/bounds.csv):")
     for r in prec:
         extra = float(r["precision_extra_pixel_samples"])
         print(f"  θ* = {float(r['theta_crate_x']):.2f}: reached ±{100 * float(r['precision_reached']):.3g} % "

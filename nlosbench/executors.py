@@ -293,8 +293,9 @@ class _Workers(Executor):
     _identity: dict | None = None
 
     def _result(self, result: tuple) -> object:
-        if self._identity is None:
-            self._identity = identity(self.model if self.model is not None else worker_model(self.spec))
+        if self._identity is None:  # the run's process has loaded this scene and shown its warnings already
+            model = self.model if self.model is not None else worker_model(self.spec, load_warnings=False)
+            self._identity = identity(model)
         return _checked(result, self._identity)
 
 

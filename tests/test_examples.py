@@ -93,11 +93,11 @@ def test_own_scene_estimators_have_mse_rows_against_the_bounds(own_scene):
     # the ZZB bounds every estimator's Bayesian MSE: 'below' at the verdict's level would mean a bug
     assert bayes["vs_zzb"].startswith(VERDICTS) and not bayes["vs_zzb"].startswith("below")
     assert stdout.count("hcr ") >= 4 and "MSE / ZZB" in stdout
-    # the bounds at θ* to ±25 % within 2e6 pixel-samples: each θ* says what it reached, within the budget, and
-    # where it missed, a predicted extra cost
+    # the bounds at θ* to ±25 % within 6e6 pixel-samples (the pilot charged too): each θ* says what it reached,
+    # within the budget, and where it missed, a predicted extra cost
     prec = rows(out / "run" / "02-trials" / "bounds.csv")
     assert {float(r["theta_crate_x"]) for r in prec} == {0.0, 0.4}
     for r in prec:
-        assert float(r["precision_target"]) == 0.25 and 0 < int(r["precision_pixel_samples"]) <= 2_000_000
+        assert float(r["precision_target"]) == 0.25 and 0 < int(r["precision_pixel_samples"]) <= 6_000_000
         assert float(r["precision_reached"]) <= 0.25 or float(r["precision_extra_pixel_samples"]) > 0
     assert "Precision of the bounds at θ*" in stdout

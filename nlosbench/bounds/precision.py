@@ -187,7 +187,8 @@ class Precision:
     extra_sets: float = 0.0
     extra_pixel_samples: float = 0.0
     note: str = ""
-    rendered: int = 0
+    #: what this process happened to render: not part of the result (records that decide alike compare equal)
+    rendered: int = field(default=0, compare=False)
 
     @property
     def worst(self) -> float:

@@ -477,23 +477,25 @@ class BoundService:
         return torch.from_numpy(np.stack([s.rounds["central"] for s in stages], axis=1))
 
     def _stages(self, thetas: np.ndarray, center: torch.Tensor | None, spp: int, seeds: str, R: int,
-                step: float, first: int = 0, purpose: str = PURPOSE) -> list[Stage]:
+                step: float, first: int = 0, purpose: str = PURPOSE, sided: bool = True) -> list[Stage]:
         """One FD Stage at step ξ per θ of thetas (T, P), R rounds, each independent of the others and with
         common random numbers inside each stencil: the central differences of round r's stencil renders (θ ± ξ e_j
         clipped into Θ) and, from a render of θ under the stencil's seed, the forward and backward differences —
         the one-sided variants the step check needs near a kink (`fd_step`). Common seeds: round r is replicate
         set r (every θ shares its seed) and θ's render is `center` (R, T, *S) of the same replicates (None: no
         one-sided variants); independent seeds: a seed per θ and round, shared by its stencil and θ's own render
-        (purpose `purpose` + "-stencil", not by other θ), the same at every step, so stages pair. Rounds are the
-        replicate sets first … first + R − 1."""
+        (purpose `purpose` + "-stencil", not by other θ), the same at every step, so stages pair; `sided` False
+        leaves θ's render out (one step, no check: the one-sided variants would decide nothing; with common seeds
+        `center` costs nothing and is used regardless). Rounds are the replicate sets first … first + R − 1."""
         T, P = thetas.shape
         st, sep = self._stencils(thetas, step)
         if seeds == "independent":
+            own = 1 if sided else 0
             reqs = [Request.of(pt, spp, self.bank.seed(purpose + "-stencil", spp, thetas[t], r))
                     for r in range(first, first + R) for t in range(T)
-                    for pt in itertools.chain([thetas[t]], st[t].reshape(2 * P, P))]
-            imgs = self.bank.images(reqs, "FD stencil renders").double().reshape(R, T, 1 + 2 * P, -1)
-            X, center = imgs[:, :, 1:].reshape(R, T, P, 2, -1), imgs[:, :, 0]
+                    for pt in itertools.chain([thetas[t]] * own, st[t].reshape(2 * P, P))]
+            imgs = self.bank.images(reqs, "FD stencil renders").double().reshape(R, T, own + 2 * P, -1)
+            X, center = imgs[:, :, own:].reshape(R, T, P, 2, -1), (imgs[:, :, 0] if sided else None)
         else:
             X = self.replicates(st.reshape(-1, P), spp, seeds, R, "FD stencil renders", first).double().reshape(
                 R, T, P, 2, -1)
@@ -714,7 +716,7 @@ class BoundService:
             fd_step = fd_step or float(np.min(np.diff(T)))
             center = Xd if seeds == "common" else None
             steps = (fd_step, fd_step / 2) if check_step else (fd_step,)
-            per = [self._stages(T[:, None], center, spp, seeds, R, xi) for xi in steps]
+            per = [self._stages(T[:, None], center, spp, seeds, R, xi, sided=check_step) for xi in steps]
             return [[p[g] for p in per] for g in range(G)]
         J = torch.stack([self.bank.jacobians_at(T, spp, float(T[1] - T[0]), PURPOSE, seeds == "common", r,
                                                 method=gradient, ad=ad)[:, 0] for r in range(R)]).double()
@@ -858,11 +860,11 @@ class BoundService:
         stages = None
         if need_fi:
             common = center if seeds == "common" else None
+            most = max_halvings if halvings is None else halvings
             stages = self._refine(thetas, lambda idx, xi: self._stages(  # a torch index: a numpy one is ~500× slower
-                thetas[idx], None if common is None else common[:, torch.as_tensor(idx)], spp, seeds, R, xi, first),
-                                  {j: [w for w, _ in rows] for j, rows in weights.items()},
-                                  fd_step if fd_start is None else fd_start, step_tol,
-                                  max_halvings if halvings is None else halvings)
+                thetas[idx], None if common is None else common[:, torch.as_tensor(idx)], spp, seeds, R, xi, first,
+                sided=most > 0), {j: [w for w, _ in rows] for j, rows in weights.items()},
+                                  fd_step if fd_start is None else fd_start, step_tol, most)
         rows: dict[tuple[int, int], BoundPoint] = {}
         for i, theta in enumerate(thetas):
             near, offs = tests[i]
@@ -918,8 +920,9 @@ class BoundService:
         Per θ: a render (purpose "fisher", the Poisson weight image) and `rounds` independent FD rounds at step ξ:
         round r renders θ ± ξ e_j and θ itself under one seed (purpose "fisher-stencil", replicate r; common
         random numbers inside the stencil), so the step check has the one-sided differences as well as the
-        central one; ξ is halved with the same seeds until F has stopped rising within 1 + `step_tol` (at most
-        `max_halvings` times); maps (from the central differences) and bounds from the finest step.
+        central one (θ's render is left out with `max_halvings` 0: no check); ξ is halved with the same seeds until
+        F has stopped rising within 1 + `step_tol` (at most `max_halvings` times); maps (from the central
+        differences) and bounds from the finest step.
         With a `precision` target p: the CRLB of θ (tr F̂⁻¹; for a scalar θ its only CRLB) to ±p by the
         stopping rule of `bounds.precision` — the given rounds are the pilot, fresh rounds (replicates
         `rounds`, `rounds` + 1, …) are added only at the θ whose CRLB interval is wider than asked, within
@@ -1000,7 +1003,8 @@ class BoundService:
                  for j, rows in weights.items()}
 
         def stage_fn(idx, xi):  # independent rounds, θ rendered under each stencil's seed: one-sided variants too
-            return self._stages(thetas[idx], None, spp, "independent", rounds, xi, first, purpose="fisher")
+            return self._stages(thetas[idx], None, spp, "independent", rounds, xi, first, purpose="fisher",
+                                sided=max_halvings > 0)
 
         stages = self._refine(thetas, stage_fn, wflat, fd_step, step_tol, max_halvings)
         out, rows = [], {}
