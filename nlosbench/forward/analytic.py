@@ -175,10 +175,6 @@ class SpotRGB(AnalyticModel):
         return self.background + self._amp * torch.exp(-r2 / (2 * self.width**2))[..., None]
 
 
-#: the speed of light, m/s: optical path (m) = c · time (s); 1 ps is 0.299792458 mm of optical path
-C_LIGHT = 299_792_458.0
-
-
 class TransientPoint(AnalyticModel):
     """A point reflector at θ = (x, y, depth) metres behind a relay wall, scanned confocally: the analytic
     transient toy, with its Fisher information in closed form (`fisher`).
@@ -218,7 +214,9 @@ class TransientPoint(AnalyticModel):
             float(bin_width), float(start)
         self.jitter_ps, self.photons, self.background, self.albedo = float(jitter_ps), float(photons), \
             float(background), float(albedo)
-        self.sigma = self.jitter_ps * 1e-12 * C_LIGHT  # metres of optical path
+        from .detector import ps_to_m
+
+        self.sigma = ps_to_m(self.jitter_ps)  # metres of optical path
         c = (np.arange(self.scan) + 0.5) / self.scan * self.wall - self.wall / 2
         py, px = np.meshgrid(c, c, indexing="ij")
         self.points = np.stack([px, py, np.zeros_like(px)], axis=-1)  # (scan, scan, 3): p_ij, metres
