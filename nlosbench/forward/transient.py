@@ -33,6 +33,7 @@ import torch
 
 from .. import interrupts
 from .. import variant as _variant
+from ..capture_io import CaptureFile, read_ytal
 from ..params import ParamSpace
 from . import llvm_target as _llvm_target
 from .bindings import Binding, SceneBinder
@@ -138,6 +139,41 @@ class Capture:
 
     def as_dict(self) -> dict:
         return asdict(self)
+
+    def to_file(self, image, scene_info: dict | None = None) -> CaptureFile:
+        """A capture in y-tal's layout (`capture_io.CaptureFile`: write it with `capture_io.write_ytal`) of an image
+        (scan_y, scan_x, T[, C]) of this set-up (channels summed). Confocal only."""
+        if self.capture_type != "confocal":
+            raise ValueError("only confocal captures are written in y-tal's layout here")
+        return CaptureFile.from_image(image, self.scan_points(), self.bin_width, self.start,
+                                      laser_xyz=np.array(self.laser_origin), sensor_xyz=np.array(self.sensor_origin),
+                                      t_accounts_first_and_last_bounces=False, scene_info=dict(scene_info or {}))
+
+    @classmethod
+    def from_file(cls, capture: CaptureFile | str | Path, **options) -> Capture:
+        """The set-up of a y-tal capture (a `CaptureFile` or its path): a confocal, regular scan grid on the plane
+        z = 0, centred on the origin, normals +z, time without the first and last bounces (what this model
+        renders); ValueError naming what differs otherwise. `options` override Capture fields (e.g. max_depth)."""
+        cf = capture if isinstance(capture, CaptureFile) else read_ytal(capture)
+        g = cf.sensor_grid_xyz.astype(np.float64)  # (Sx, Sy, 3)
+        Sx, Sy = g.shape[:2]
+        if not cf.is_confocal():
+            raise ValueError("the capture is not confocal (laser and sensor grids differ)")
+        if cf.t_accounts_first_and_last_bounces:
+            raise ValueError("the capture's time includes the first and last bounces; this model's does not")
+        if Sx < 2 or Sy < 2:
+            raise ValueError(f"the scan grid must have at least 2 points per axis, got {Sx} × {Sy}")
+        if not np.allclose(g[..., 2], 0, atol=1e-6) or not np.allclose(cf.sensor_grid_normals[..., 2], 1, atol=1e-6):
+            raise ValueError("the relay wall must be the plane z = 0 with normals +z")
+        dx, dy = g[1, 0, 0] - g[0, 0, 0], g[0, 1, 1] - g[0, 0, 1]
+        want = Capture(scan=(Sx, Sy), wall=(Sx * abs(dx), Sy * abs(dy))).scan_points().transpose(1, 0, 2)
+        if dx <= 0 or dy <= 0 or not np.allclose(g, want, atol=1e-5):
+            raise ValueError("the scan grid must be regular, increasing in x along Sx and in y along Sy, and centred "
+                             "on the origin")
+        fields = {"scan": (Sx, Sy), "wall": (Sx * dx, Sy * dy), "bins": int(cf.H.shape[0]),
+                  "bin_width": float(cf.delta_t), "start": float(cf.t_start),
+                  "laser_origin": tuple(cf.laser_xyz.tolist()), "sensor_origin": tuple(cf.sensor_xyz.tolist())}
+        return cls(**{**fields, **options})
 
 
 @dataclass(frozen=True)
