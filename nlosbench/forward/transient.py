@@ -370,3 +370,44 @@ def transient_patch(scan: int = 8, bins: int = 96, bin_width: float = 0.006, sta
     ]
     return TransientModel("transient_patch", Capture(scan=(scan, scan), bins=bins, bin_width=bin_width, start=start),
                           [Hidden(center=(0.0, 0.0, depth), size=size)], params, **options)
+
+
+def confocal_geometry(model: ForwardModel) -> tuple[np.ndarray, np.ndarray]:
+    """(scan points (scan_y, scan_x, 3), bin edges (T + 1,)) of a confocal transient model, metres (optical path
+    for the edges), looked up through wrappers (`Restricted`, `Detected`): a `TransientModel`'s capture or the
+    analytic `TransientPoint`'s grid. ValueError for anything else."""
+    m = model
+    while m is not None:
+        cap = getattr(m, "capture", None)
+        if isinstance(cap, Capture):
+            if cap.capture_type != "confocal":
+                raise ValueError(f"{model.name!r}: a {cap.capture_type} capture, not a confocal one")
+            return cap.scan_points(), cap.bin_edges()
+        if hasattr(m, "points") and hasattr(m, "edges"):
+            return np.asarray(m.points), np.asarray(m.edges)
+        m = getattr(m, "base", None)
+    raise ValueError(f"{model.name!r} is not a confocal transient model (no capture geometry)")
+
+
+def position_map(model: ForwardModel) -> tuple[np.ndarray, np.ndarray]:
+    """(origin (3,), A (P, 3)): the hidden object's centre is origin + Σ_j θ_j A_j, metres, for θ in `model`'s
+    parameter order; A_j = 0 for a parameter that does not translate it (albedo, radius …). Known for the
+    analytic `TransientPoint` (θ = (x, y, depth)) and for a `TransientModel` whose translate bindings move one
+    object; through `Restricted` (held parameters enter the origin) and `Detected`. ValueError otherwise."""
+    from .model import Restricted
+
+    if isinstance(model, Restricted):
+        o, A = position_map(model.base)
+        return o + model.full @ A - model.full[model.index] @ A[model.index], A[model.index]
+    if isinstance(model, TransientModel):
+        objs = {b.object for b in model.binder.bindings if b.kind == "translate"}
+        if len(objs) != 1 or any(b.kind == "path" for b in model.binder.bindings):
+            raise ValueError(f"{model.name!r}: localisation needs translate bindings of one object, got {sorted(objs)}")
+        (obj,) = objs
+        A = np.array([b.axis if b.kind == "translate" else np.zeros(3) for b in model.binder.bindings])
+        return np.asarray(model.binder.objects[obj].center, dtype=np.float64), A
+    if hasattr(model, "points") and hasattr(model, "edges") and tuple(model.params.names) == ("x", "y", "depth"):
+        return np.zeros(3), np.eye(3)
+    if getattr(model, "base", None) is not None:
+        return position_map(model.base)
+    raise ValueError(f"{model.name!r}: no known map from θ to the hidden object's position")
