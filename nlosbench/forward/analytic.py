@@ -236,10 +236,11 @@ class TransientPoint(AnalyticModel):
         cdf = torch.special.ndtr(u)
         return (self.background + amp[..., None] * (cdf[..., 1:] - cdf[..., :-1]))[..., None]
 
-    def fisher(self, theta) -> np.ndarray:
+    def fisher(self, theta, summed: bool = False) -> np.ndarray:
         """The exact Fisher information matrix (3, 3) of θ (1/m²) for Poisson counts at θ, float64:
         F = Σ_ijk ∇μ_ijk ∇μ_ijkᵀ / μ_ijk, with ∇μ written out by hand (numpy; independent of `clean`'s autograd)
-        from ∂d/∂θ = 2(θ − p)/r, ∂A/∂θ = −4A(θ − p)/r² and ∂Φ(u)/∂d = −φ(u)/σ."""
+        from ∂d/∂θ = 2(θ − p)/r, ∂A/∂θ = −4A(θ − p)/r² and ∂Φ(u)/∂d = −φ(u)/σ. `summed`: of a detector without
+        timing, which counts Σ_k μ_ijk per scan point."""
         from scipy.special import ndtr
 
         t = self.params.validate(theta)
@@ -253,6 +254,8 @@ class TransientPoint(AnalyticModel):
         mu = self.background + amp[..., None] * mass
         grad = (-4.0 * amp[..., None, None] * diff[..., None, :] / (r ** 2)[..., None, None] * mass[..., None]
                 + amp[..., None, None] * dmass_dd[..., None] * (2.0 * diff / r[..., None])[..., None, :])
+        if summed:
+            mu, grad = mu.sum(axis=2, keepdims=True), grad.sum(axis=2, keepdims=True)
         return np.einsum("ijka,ijkb->ab", grad / mu[..., None], grad)
 
     def crlb(self, theta, names=None) -> float:
