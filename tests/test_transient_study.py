@@ -18,9 +18,11 @@ SA, SB, W = 30.0, 40.0, 0.006
 
 def test_study_bounds_and_ratio_match_the_closed_forms(tmp_path):
     cfg = {"name": "tof-toy", "seed": 0, "scene": {"name": "transient_point",
-                                                   "options": {"jitter_ps": SA, "background": 1e-9, **WINDOW}},
+                                                   "options": {"jitter_ps": SA, "background": 1e-9, "free_albedo": True,
+                                                               **WINDOW}},
            "noise": [{"model": "poisson", "scale": 1.0}], "executor": {"type": "serial"},
-           "studies": [{"type": "time-of-flight", "param": "depth", "photons": 1e5, "jitters_ps": [SB],
+           "studies": [{"type": "time-of-flight", "param": "depth", "nuisance": ["albedo"], "photons": 1e5,
+                        "jitters_ps": [SB],
                         "background": 0.5, "wall_return": 0.0, "spp": 4, "replicates": 3, "fd_step": 1e-3,
                         "max_halvings": 1, "reference_spp": 4, "trials": 3, "voxel": 0.001}]}
     path = tmp_path / "tof.yaml"
@@ -42,3 +44,16 @@ def test_study_bounds_and_ratio_match_the_closed_forms(tmp_path):
     assert float(ratio["ratio"]) == pytest.approx(rms_sum / rms_tr, rel=0.02)
     assert float(ratio["ratio_lower"]) <= float(ratio["ratio"]) <= float(ratio["ratio_upper"])
     assert int(rows[f"transient {SB:g} ps"]["bp_trials"]) == 3
+    # the albedo unknown too: (F⁻¹)_depth,depth of the toy's closed-form 2 × 2 Fisher matrix over (depth, albedo)
+    joint = TransientPoint(jitter_ps=sigma, background=0.5, photons=1e5 * gain, free_albedo=True, **WINDOW)
+    F2 = joint.fisher(joint.params.default)[np.ix_([2, 3], [2, 3])]
+    F2s = joint.fisher(joint.params.default, summed=True)[np.ix_([2, 3], [2, 3])]
+    nu_tr, nu_sum = np.sqrt(np.linalg.inv(F2)[0, 0]), np.sqrt(np.linalg.inv(F2s)[0, 0])
+    # an unknown albedo never helps (Schur complement); without timing, depth and albedo both only scale the counts
+    assert nu_tr >= rms_tr and nu_sum > 2 * rms_sum, (nu_tr / rms_tr, nu_sum / rms_sum)
+    for label, want in ((f"transient {SB:g} ps", nu_tr), ("time-summed", nu_sum)):
+        r = rows[label]
+        assert float(r["rms_nuisance"]) == pytest.approx(want, rel=0.01), (label, r["rms_nuisance"], want)
+        assert float(r["rms_nuisance_lower"]) <= float(r["rms_nuisance"]) <= float(r["rms_nuisance_upper"])
+    assert float(ratio["ratio_nuisance"]) == pytest.approx(nu_sum / nu_tr, rel=0.02)
+    assert "albedo unknown" in (tmp_path / "run" / "report.md").read_text()

@@ -11,11 +11,12 @@ from nlosbench.bounds import BoundService
 from nlosbench.forward.analytic import TransientPoint
 
 
-@pytest.mark.parametrize("theta", [None, [-0.12, 0.2, 0.6]])
+@pytest.mark.parametrize("theta", [None, [-0.12, 0.2, 0.6], [-0.12, 0.2, 0.6, 0.4]])
 def test_closed_form_fisher_matches_the_autograd_jacobian(theta):
-    m = TransientPoint()
+    m = TransientPoint(free_albedo=theta is not None and len(theta) == 4)
     t = m.params.default if theta is None else np.array(theta)
-    J = torch.stack([m.jvp(t, j) for j in range(3)]).double()[..., 0]  # (3, scan, scan, T), counts per metre
+    P = m.params.dim
+    J = torch.stack([m.jvp(t, j) for j in range(P)]).double()[..., 0]  # (P, scan, scan, T), counts per unit
     mu = m.clean(torch.as_tensor(t))[..., 0]
     F_auto = torch.einsum("aijk,bijk->ab", J / mu, J).numpy()
     F = m.fisher(t)
@@ -40,6 +41,27 @@ def test_exact_renders_give_the_closed_form_crlb():
     (pt,) = BoundService(RenderBank(m, seed=0), [nb.noise.Poisson(1.0)]).at([t], 16, ("crlb",), replicates=3,
                                                                              fd_step=1e-3)
     assert 10 ** pt.bounds["crlb"].point == pytest.approx(m.crlb(t), rel=1e-3)
+
+
+def test_depth_crlb_with_the_albedo_unknown_is_the_closed_form_two_by_two():
+    """θ = (depth, albedo), x and y known: the service's "crlb_each" gives each parameter's CRLB from the full
+    Fisher matrix, (F⁻¹)_jj, against the closed form 1 / (F_dd − F_da² / F_aa) (depth) within 0.1 % (exact renders:
+    FD truncation only); its ends bracket it; the known-albedo 1 / F_dd is below it."""
+    m = TransientPoint(free_albedo=True, albedo=0.8)
+    sub = m.restrict(["depth", "albedo"], {"x": 0.05, "y": -0.03})
+    t = np.array([0.75, 0.8])
+    F = m.fisher([0.05, -0.03, 0.75, 0.8])[np.ix_([2, 3], [2, 3])]
+    nuisance = 1.0 / (F[0, 0] - F[0, 1] ** 2 / F[1, 1])
+    (pt,) = BoundService(RenderBank(sub, seed=0), [nb.noise.Poisson(1.0)]).at([t], 1, ("crlb", "crlb_each"),
+                                                                               replicates=3, fd_step=1e-3)
+    d, a = pt.bounds["crlb_depth"], pt.bounds["crlb_albedo"]
+    assert 10 ** d.point == pytest.approx(nuisance, rel=1e-3)
+    assert 10 ** a.point == pytest.approx(1.0 / (F[1, 1] - F[0, 1] ** 2 / F[0, 0]), rel=1e-3)
+    assert d.lower <= d.point <= d.upper and "the others unknown" in d.reason
+    assert 10 ** pt.bounds["crlb"].point == pytest.approx(10 ** d.point + 10 ** a.point, rel=1e-9)  # the trace
+    assert nuisance > 1.0 / F[0, 0]
+    with pytest.raises(ValueError, match="albedo must be in"):
+        TransientPoint(free_albedo=True, albedo=20.0)
 
 
 def test_noisy_renders_bracket_the_closed_form_crlb():

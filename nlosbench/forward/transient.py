@@ -406,8 +406,8 @@ def position_map(model: ForwardModel) -> tuple[np.ndarray, np.ndarray]:
         (obj,) = objs
         A = np.array([b.axis if b.kind == "translate" else np.zeros(3) for b in model.binder.bindings])
         return np.asarray(model.binder.objects[obj].center, dtype=np.float64), A
-    if hasattr(model, "points") and hasattr(model, "edges") and tuple(model.params.names) == ("x", "y", "depth"):
-        return np.zeros(3), np.eye(3)
+    if hasattr(model, "points") and hasattr(model, "edges") and tuple(model.params.names)[:3] == ("x", "y", "depth"):
+        return np.zeros(3), np.vstack([np.eye(3), np.zeros((model.params.dim - 3, 3))])  # albedo: no translation
     if getattr(model, "base", None) is not None:
         return position_map(model.base)
     raise ValueError(f"{model.name!r}: no known map from θ to the hidden object's position")

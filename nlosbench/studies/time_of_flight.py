@@ -4,7 +4,9 @@ against the same scan summed over time (a detector without timing), with and wit
 sided limits on the ratio of RMS bounds; and a backprojection localiser's MSE against the transient bound.
 
 The scene is a transient model (`transient_patch`, or any `TransientModel` / `TransientPoint`); its other parameters
-are held at `at` (known). A reference render at θ* (`reference_spp`) fixes the detector gain so that it gives
+are held at `at` (known), or with `nuisance` (e.g. [albedo]) those are unknown too: the parameter's CRLB is then
+(F⁻¹)_00 of the full Fisher matrix over it and them (bound kind "crlb_each"), reported beside the known one, with
+its own ratio limits. A reference render at θ* (`reference_spp`) fixes the detector gain so that it gives
 `photons` expected signal counts per capture (`Detector.for_budget`, no jitter, no gate); every detector has that
 gain (one laser power and exposure), `background` dark + ambient counts per bin and scan point, and counts are
 Poisson. The time-summed detector sums all T bins (its background summed over them); "+ wall" adds the direct wall
@@ -48,6 +50,8 @@ SCHEMA = {
     "at": Field(list, None, "θ* (one value per parameter of the scene; default: the defaults)", items=float,
                 nullable=True),
     "param": Field(str, "depth", "the parameter whose bound is compared (the others held at `at`, known)"),
+    "nuisance": Field(list, [], "parameters also unknown (e.g. albedo): the CRLB of `param` from the full Fisher "
+                      "matrix over it and these, (F⁻¹)_00, reported beside the known-parameter one", items=str),
     "photons": Field(float, 1e6, "expected signal photons per capture at θ* (the photon budget)"),
     "jitters_ps": Field(list, [10.0, 30.0, 100.0], "Gaussian detector jitters (standard deviation, ps) of the "
                         "transient detectors", items=float),
@@ -89,6 +93,11 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.at", str(e)) from None
     if cfg["param"] not in m.params.names:
         raise ConfigError(f"{sid}.param", f"expected one of {list(m.params.names)}, got {cfg['param']!r}")
+    nuis = list(cfg["nuisance"])
+    bad = [n for n in nuis if n not in m.params.names or n == cfg["param"]]
+    if bad or len(set(nuis)) != len(nuis):
+        raise ConfigError(f"{sid}.nuisance", f"expected distinct parameters of {list(m.params.names)} other than "
+                          f"{cfg['param']!r}, got {nuis}")
     try:
         confocal_geometry(m)
     except ValueError as e:
@@ -107,9 +116,11 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
-    """A reference render, then per detector a weight render and 2·R FD renders per step tried (at most
-    1 + max_halvings steps)."""
-    n = len(p.detectors) * (1 + 2 * cfg["replicates"] * (1 + cfg["max_halvings"]))
+    """A reference render, then per detector a weight render and 2·R FD renders per parameter and step tried (at
+    most 1 + max_halvings steps), for the parameter alone and, with nuisance parameters, for all of them."""
+    fd = 2 * cfg["replicates"] * (1 + cfg["max_halvings"])
+    per = 1 + fd + ((1 + fd * (1 + len(cfg["nuisance"]))) if cfg["nuisance"] else 0)
+    n = len(p.detectors) * per
     px = pixels(ctx.model)
     return Estimate(1 + n, px * (cfg["reference_spp"] + n * cfg["spp"]),
                     note="at most: the FD step is halved only where F has not settled")
@@ -148,6 +159,9 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                "wall_return": det.wall_return, "log10_crlb": b.point, "crlb_lower": b.lower, "crlb_upper": b.upper,
                "rms_bound": _rms(b.point), "rms_lower": _rms(b.lower), "rms_upper": _rms(b.upper),
                "lower_note": b.lower_note, "flags": ",".join(b.flags), "how": b.reason, "renders": bank.renders}
+        if cfg["nuisance"]:
+            row.update(_nuisance(ctx, cfg, p, det))
+            renders += row["nuisance_renders"]
         if det.timing and cfg["trials"]:
             row.update(_trials(ctx, cfg, p, model, det, ref, label, trial_rows))
         rows.append(row)
@@ -162,16 +176,39 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                            "ratio_lower": _ratio(s["crlb_lower"], r["crlb_upper"]),
                            "ratio_upper": _ratio(s["crlb_upper"], r["crlb_lower"]),
                            "level": 1 - 2 * (1 - ctx.bounds.level)})
+            if cfg["nuisance"]:
+                ratios[-1].update({"ratio_nuisance": 10 ** ((s["log10_crlb_nuisance"] - r["log10_crlb_nuisance"]) / 2),
+                                   "ratio_nuisance_lower": _ratio(s["crlb_nuisance_lower"], r["crlb_nuisance_upper"]),
+                                   "ratio_nuisance_upper": _ratio(s["crlb_nuisance_upper"], r["crlb_nuisance_lower"])})
     write_csv(out / "bounds.csv", rows)
     write_csv(out / "ratios.csv", ratios)
     if trial_rows:
         write_csv(out / "trials.csv", trial_rows)
     _figure(out, rows, ratios, cfg["param"])
-    return {"param": cfg["param"], "units": m.params.units[p.index], "theta": p.theta.tolist(),
+    return {"param": cfg["param"], "nuisance": list(cfg["nuisance"]), "units": m.params.units[p.index],
+            "theta": p.theta.tolist(),
             "photons": cfg["photons"], "gain": gain, "background": cfg["background"], "spp": cfg["spp"],
             "replicates": cfg["replicates"], "level": ctx.bounds.level, "renders": renders,
             "ratios": [{k: v for k, v in r.items()} for r in ratios], "trials": cfg["trials"],
             "voxel": cfg["voxel"]}
+
+
+def _nuisance(ctx: RunContext, cfg: dict, p: Plan, det: Detector) -> dict:
+    """The CRLB of `param` with the `nuisance` parameters unknown too: (F̂⁻¹)_00 of the full Fisher matrix over
+    (param, *nuisance) from the bound service (kind "crlb_each"), the same FD rule, rounds and level; log10 ends
+    and RMS ends (parameter units), and the renders it took."""
+    m = ctx.model
+    names = [cfg["param"], *cfg["nuisance"]]
+    fixed = {n: float(v) for n, v in zip(m.params.names, p.theta, strict=True) if n not in names}
+    joint = Detected(m.restrict(names, fixed), det)
+    bank = RenderBank(joint, seed=ctx.seed)
+    (pt,) = BoundService(bank, [Poisson(1.0)], ctx.bounds.level).at(
+        [p.theta[[m.params.index(n) for n in names]]], cfg["spp"], ("crlb_each",), "common", cfg["replicates"],
+        fd_step=cfg["fd_step"], max_halvings=cfg["max_halvings"])
+    b = pt.bounds[f"crlb_{cfg['param']}"]
+    return {"nuisance": ",".join(cfg["nuisance"]), "log10_crlb_nuisance": b.point, "crlb_nuisance_lower": b.lower,
+            "crlb_nuisance_upper": b.upper, "rms_nuisance": _rms(b.point), "rms_nuisance_lower": _rms(b.lower),
+            "rms_nuisance_upper": _rms(b.upper), "nuisance_note": b.lower_note, "nuisance_renders": bank.renders}
 
 
 def _rms(lg) -> float:
@@ -266,6 +303,10 @@ def report(study_dir: Path, results: dict) -> str:
              f"![time of flight]({study_dir.name}/time_of_flight.png)", "",
              f"| detector | √CRLB [{u}] | ends [{u}] | backprojection RMSE [{u}] | its bias ± SE | discretisation |",
              "|---|---|---|---|---|---|"]
+    nuis = results.get("nuisance") or []
+    if nuis:
+        lines[-2] += f" √CRLB, {', '.join(nuis)} unknown [{u}] | its ends [{u}] |"
+        lines[-1] += "---|---|"
     for r in rows:
         bp = ("–", "–", "–")
         if r.get("bp_mse") not in (None, ""):
@@ -274,11 +315,19 @@ def report(study_dir: Path, results: dict) -> str:
         note = " †" if r.get("lower_note") else ""
         lines.append(f"| {r['detector']} | {_num(r['rms_bound'])} | [{_num(r['rms_lower'])}{note}, "
                      f"{_num(r['rms_upper'])}] | {bp[0]} | {bp[1]} | {bp[2]} |")
+        if nuis:
+            lines[-1] += (f" {_num(r['rms_nuisance'])} | [{_num(r['rms_nuisance_lower'])}"
+                          f"{' †' if r.get('nuisance_note') else ''}, {_num(r['rms_nuisance_upper'])}] |")
     lines += ["", f"What time of flight buys: √(CRLB summed / CRLB transient), with one-sided limits each at "
                   f"{float(ratios[0]['level']) if ratios else 0:.0%} (Bonferroni over the two bounds' ends).", "",
               "| transient | against | ratio of RMS bounds | lower limit | upper limit |", "|---|---|---|---|---|"]
     lines += [f"| {r['transient']} | {r['summed']} | {_num(r['ratio'])} | {_num(r['ratio_lower'])} | "
               f"{_num(r['ratio_upper'])} |" for r in ratios]
+    if nuis:
+        lines += ["", f"With {', '.join(nuis)} unknown too (the CRLB from the full Fisher matrix):", "",
+                  "| transient | against | ratio of RMS bounds | lower limit | upper limit |", "|---|---|---|---|---|"]
+        lines += [f"| {r['transient']} | {r['summed']} | {_num(r['ratio_nuisance'])} | "
+                  f"{_num(r['ratio_nuisance_lower'])} | {_num(r['ratio_nuisance_upper'])} |" for r in ratios]
     if any(r.get("lower_note") for r in rows):
         lines += ["", "† not a confidence limit: the FD step did not converge (bounds.csv says why)."]
     return "\n".join(lines)
