@@ -36,8 +36,8 @@ from ..bank import RenderBank
 from ..bounds import BoundService
 from ..estimators import Problem
 from ..estimators.backprojection import Backprojection
-from ..forward.detector import Detected, Detector
-from ..forward.transient import confocal_geometry
+from ..forward.detector import STEP_FRACTION, Detected, Detector, max_fd_step, ps_to_m
+from ..forward.transient import confocal_geometry, position_map
 from ..io import read_csv, write_csv
 from ..noise import Poisson
 from ..schema import MAX_HALVINGS, ConfigError, Field
@@ -60,7 +60,9 @@ SCHEMA = {
                          "point (the time-summed detector '+ wall' collects it)"),
     "spp": Field(int, 4096, "samples per pixel (scan point) of every bound render"),
     "replicates": Field(int, 4, "independent FD rounds of the unbiased Fisher information (>= 3 for limits)"),
-    "fd_step": Field(float, 5e-4, "first FD step ξ (parameter units; halved while F rises)"),
+    "fd_step": Field(float, 5e-4, "first FD step ξ (parameter units; halved while F rises); for a parameter that "
+                     "moves the object, its arrival shift 2ξ at most half the sharpest response's σ "
+                     "(`forward.detector.max_fd_step`)"),
     "max_halvings": MAX_HALVINGS,
     "reference_spp": Field(int, 16384, "samples per scan point of the reference render (gain and trial mean)"),
     "trials": Field(int, 50, "Poisson draws localised by backprojection per transient detector (0: none)"),
@@ -109,10 +111,41 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.wall_return", f"expected a finite number >= 0, got {cfg['wall_return']}")
     if not cfg["jitters_ps"] or any(not (math.isfinite(j) and j >= 0) for j in cfg["jitters_ps"]):
         raise ConfigError(f"{sid}.jitters_ps", f"expected a non-empty list of jitters >= 0 ps, got {cfg['jitters_ps']}")
+    tightest = math.hypot(ps_to_m(min(cfg["jitters_ps"])), _own_sigma(m))
+    rate = _path_rate(m, cfg["param"])  # metres of optical path per unit of the parameter, at most
+    if rate > 0:
+        try:
+            limit = max_fd_step(tightest, rate)
+        except ValueError as e:
+            raise ConfigError(f"{sid}.jitters_ps", str(e)) from None
+        if cfg["fd_step"] > limit:
+            raise ConfigError(f"{sid}.fd_step", f"{cfg['fd_step']:g} shifts the arrival by "
+                              f"{rate * cfg['fd_step']:.3g} m of optical path, more than {STEP_FRACTION:g} σ = "
+                              f"{STEP_FRACTION * tightest:.3g} m of the sharpest response "
+                              f"({min(cfg['jitters_ps']):g} ps): use fd_step <= {limit:.3g}")
     for key, least in (("spp", 1), ("reference_spp", 1), ("replicates", 2), ("trials", 0)):
         if cfg[key] < least:
             raise ConfigError(f"{sid}.{key}", f"expected an integer >= {least}, got {cfg[key]}")
     return Plan(theta, m.params.index(cfg["param"]), _detectors(cfg))
+
+
+def _own_sigma(m) -> float:
+    """The model's own Gaussian response σ (metres of optical path: the analytic toy's), through wrappers; 0 for a
+    render without one (mitransient applies none)."""
+    while m is not None:
+        if hasattr(m, "sigma") and hasattr(m, "edges"):
+            return float(m.sigma)
+        m = getattr(m, "base", None)
+    return 0.0
+
+
+def _path_rate(m, param: str) -> float:
+    """The largest rate of the confocal arrival path d = 2‖c − p‖ with `param`, 2‖A_j‖ (metres of optical path per
+    parameter unit) where it translates the hidden object; 0 where it does not or no map is known (no step rule)."""
+    try:
+        return 2.0 * float(np.linalg.norm(position_map(m)[1][m.params.index(param)]))
+    except ValueError:
+        return 0.0
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
