@@ -256,19 +256,20 @@ class CRLBTerm:
             ("fd-step-not-converged",) if self.lower_note or self.zero_note else ())
 
 
-def crlb_term(sf: StepFisher, level: float, tests: int = 1) -> CRLBTerm:
+def crlb_term(sf: StepFisher, level: float, tests: int = 1, index: int | None = None) -> CRLBTerm:
     """The CRLB term's ends at one-sided `level` (Bonferroni share 1/`tests`) over every stage and variant
-    of `sf` (see the module docstring)."""
-    point = trace_inv(sf.final.est)
+    of `sf` (see the module docstring): of trace(F⁻¹), or with `index` j of (F⁻¹)_jj alone (θ_j's CRLB with every
+    other parameter unknown: nuisance parameters), units²."""
+    point = inv_part(sf.final.est, index)
     lows, ups = [], []
     settled = settled_from(sf)
     for k, stage in enumerate(sf.stats):
         for u in stage.values():
-            lo, hi = _ends(u, level, tests)
+            lo, hi = _ends(u, level, tests, index)
             lows.append(lo)
             if k >= settled:
                 ups.append(hi)
-    lows += [_ends(u, level, tests)[0] for u in _extrapolated(sf)]
+    lows += [_ends(u, level, tests, index)[0] for u in _extrapolated(sf)]
     lower, upper = min(lows), max(ups)
     note = zero = ""
     if sf.diverging:
@@ -284,7 +285,7 @@ def crlb_term(sf: StepFisher, level: float, tests: int = 1) -> CRLBTerm:
                   "F unresolved")  # F̂ ≤ 0 at a step: rendering noise above the signal, no ratio to quote
         note = f"not a confidence limit: FD step not converged ({change} from ξ = {h.step:.3g} to ξ/2)"
     final = sf.final
-    loo = np.array([_log(trace_inv(Fk)) for Fk in final.loo]) if final.loo.size else np.empty(0)
+    loo = np.array([_log(inv_part(Fk, index)) for Fk in final.loo]) if final.loo.size else np.empty(0)
     return CRLBTerm(_log(point), _log(lower), _log(upper), note, zero, loo)
 
 
@@ -304,10 +305,11 @@ def _extrapolated(sf: StepFisher) -> list[UStat]:
     return list(sf.halvings[-1].extrapolated.values()) if sf.halvings else []
 
 
-def _ends(u: UStat, level: float, tests: int) -> tuple[float, float]:
-    """(lower, upper) one-sided limits of trace(F⁻¹) (units²) from one UStat of F; (value, value) without SE."""
+def _ends(u: UStat, level: float, tests: int, index: int | None = None) -> tuple[float, float]:
+    """(lower, upper) one-sided limits of trace(F⁻¹), or of (F⁻¹)_jj for `index` j (units²), from one UStat of F;
+    (value, value) without SE."""
     P, R = u.est.shape[0], u.replicates
-    value = trace_inv(u.est)
+    value = inv_part(u.est, index)
     if R < 3:
         return value, value
     if P == 1:
@@ -315,7 +317,7 @@ def _ends(u: UStat, level: float, tests: int) -> tuple[float, float]:
         t = one_sided_t(level, float(u.dof[0, 0]), s, tests)
         hi_f, lo_f = f + t * s, f - t * s
         return (1.0 / hi_f if hi_f > 0 else math.inf), (1.0 / lo_f if lo_f > 0 else math.inf)
-    loo = np.array([trace_inv(Fk) for Fk in u.loo])
+    loo = np.array([inv_part(Fk, index) for Fk in u.loo])
     if not (math.isfinite(value) and np.all(np.isfinite(loo))):
         return 0.0, math.inf
     se = math.sqrt((R - 1) / R * ((loo - loo.mean()) ** 2).sum())
@@ -333,6 +335,32 @@ def trace_inv(F: np.ndarray) -> float:
     except np.linalg.LinAlgError:
         return math.inf
     return float(np.trace(np.linalg.inv(F)))
+
+
+def inv_part(F: np.ndarray, index: int | None = None) -> float:
+    """trace(F⁻¹) (index None) or (F⁻¹)_jj (index j), units²; +inf where F is not (numerically) positive definite.
+
+    Parameters
+    ----------
+    F : numpy.ndarray
+        A Fisher matrix (P, P), 1/(parameter units)².
+    index : int, optional
+        The parameter of interest j (0 ≤ j < P); the others are nuisance parameters, unknown.
+
+    Returns
+    -------
+    float
+        The CRLB of θ (the trace) or of θ_j alone.
+    """
+    if index is None:
+        return trace_inv(F)
+    if not 0 <= index < F.shape[0]:
+        raise ValueError(f"index {index} is outside the Fisher matrix's {F.shape[0]} parameters")
+    try:
+        np.linalg.cholesky(F)
+    except np.linalg.LinAlgError:
+        return math.inf
+    return float(np.linalg.inv(F)[index, index])
 
 
 def _log(v: float) -> float:

@@ -333,11 +333,13 @@ def interval_bound(iv: HCRInterval, extra_flags: tuple = (), step: StepFisher | 
                  point=iv.point, level=iv.level, terms=terms, loo=iv.point_loo, lower_note=iv.lower_note)
 
 
-def crlb_bound(sf: StepFisher | UStat, level: float, extra_flags: tuple = ()) -> Bound:
+def crlb_bound(sf: StepFisher | UStat, level: float, extra_flags: tuple = (), index: int | None = None,
+               kind: str = "crlb") -> Bound:
     """The `crlb` Bound (trace of F̂⁻¹, units²) from the unbiased Fisher information at every FD stage tried
-    (`fd_step`; a UStat of F (P, P): one stage, no step check), with one-sided ends at `level`."""
+    (`fd_step`; a UStat of F (P, P): one stage, no step check), with one-sided ends at `level`; with `index` j the
+    CRLB of θ_j alone, (F̂⁻¹)_jj, every other parameter unknown (nuisance), under the name `kind`."""
     sf = sf if isinstance(sf, StepFisher) else single(sf)
-    term = crlb_term(sf, level)
+    term = crlb_term(sf, level, index=index)
     R = sf.final.replicates
     flags = list(extra_flags) + list(term.flags)
     if not math.isfinite(term.point):
@@ -348,7 +350,9 @@ def crlb_bound(sf: StepFisher | UStat, level: float, extra_flags: tuple = ()) ->
               f"CRLB from an unbiased FI (U-statistic over {R} FD rounds; the FI of the FD-smoothed derivative)")
     if sf.checked:
         reason += "; " + (term.zero_note or sf.note()) + (f" ({sf.settle()})" if sf.settle() else "")
-    return Bound("crlb", term.point, flags=tuple(flags), reason=reason, lower=term.lower, upper=term.upper,
+    if index is not None:
+        reason += f"; (F̂⁻¹)_{index}{index} of the full {sf.final.est.shape[0]}-parameter F̂: the others unknown"
+    return Bound(kind, term.point, flags=tuple(flags), reason=reason, lower=term.lower, upper=term.upper,
                  point=term.point, level=level if R >= 3 else None, loo=term.loo, lower_note=term.lower_note)
 
 
@@ -768,7 +772,8 @@ class BoundService:
         spp : int
             Samples per pixel of each replicate render.
         want : sequence of str, optional
-            The kinds to compute, from "hcr", "crlb", "hcr_neff", "barankin" (scalar θ only), "hcr_hat".
+            The kinds to compute, from "hcr", "crlb", "crlb_each" (each θ_j's CRLB (F̂⁻¹)_jj with the other
+            parameters unknown, as kinds "crlb_<name>"), "hcr_neff", "barankin" (scalar θ only), "hcr_hat".
         seeds : {"common", "independent"}, optional
             Common random numbers across θ within a replicate, or a seed per θ.
         replicates : int, optional
@@ -802,7 +807,7 @@ class BoundService:
         list of BoundPoint
             A BoundPoint per (noise, θ*), noise-major, with a Bound per kind asked for.
         """
-        known = {"hcr", "crlb", "hcr_neff", "barankin", "hcr_hat"}
+        known = {"hcr", "crlb", "crlb_each", "hcr_neff", "barankin", "hcr_hat"}
         bad = sorted(set(want) - known)
         if bad:
             raise ValueError(f"unknown bound kinds {bad}; known: {sorted(known)}")
@@ -816,7 +821,7 @@ class BoundService:
         if precision is None:
             return self._at(thetas, R, 0, *args)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
-        need_fi = bool({"hcr", "crlb"} & set(want))
+        need_fi = bool({"hcr", "crlb", "crlb_each"} & set(want))
         cost = SetCost(p.grid(test_grid).shape[0] if need_alt else 0,
                        np.array([1 + (len(axis_offsets(p, t, offsets, fd_step)) if need_alt else 0) for t in thetas]),
                        2 * p.dim if need_fi else 0, max_halvings + 1)
@@ -842,7 +847,7 @@ class BoundService:
         p = self.params
         grid = p.grid(test_grid)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
-        need_fi = bool({"hcr", "crlb"} & set(want))
+        need_fi = bool({"hcr", "crlb", "crlb_each"} & set(want))
         center = self.replicates(thetas, spp, seeds, R, "bound renders at θ*", first).double()
         tests = []  # per θ*: (its grid points, its offsets)
         for i, theta in enumerate(thetas):
@@ -890,6 +895,9 @@ class BoundService:
                 sf = converge(stages[i], wflat, self.level, step_tol, spp) if need_fi else None
                 if "crlb" in want:
                     b["crlb"] = crlb_bound(sf, self.level, zero_flags)
+                if "crlb_each" in want:  # each θ_j's own CRLB from the full F̂, the other parameters unknown
+                    b.update({f"crlb_{n}": crlb_bound(sf, self.level, zero_flags, k, f"crlb_{n}")
+                              for k, n in enumerate(p.names)})
                 D = lam = None
                 if need_alt and {"hcr", "hcr_neff"} & set(want):
                     if "hcr" in want:

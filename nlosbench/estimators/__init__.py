@@ -159,3 +159,13 @@ def describe() -> dict[str, str]:
 __all__ = ["BankGrid", "Budget", "Estimate", "Estimator", "Outcome", "Problem", "Tracker", "AdamMLE", "GridSearch",
            "GaussNewton", "MultiStart", "Surrogate", "ENTRY_POINT_GROUP", "register", "available", "factory", "get",
            "describe"]
+
+
+def _backprojection(**options) -> Estimator:
+    """The backprojection peak localiser of confocal transient captures (`estimators.backprojection`)."""
+    from .backprojection import Backprojection
+
+    return Backprojection(**options)
+
+
+register("backprojection", _backprojection)

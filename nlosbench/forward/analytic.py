@@ -110,7 +110,8 @@ class AnalyticModel(ForwardModel):
                                                  if isinstance(v, (int, float, str, tuple)) and not k.startswith("_")
                                                  and (k, v) not in (("render_noise_dist", "gauss"),
                                                                     ("render_noise_channels", "independent"),
-                                                                    ("render_noise_clip", False))}}
+                                                                    ("render_noise_clip", False),
+                                                                    ("free_albedo", False))}}
 
 
 class Blob2D(AnalyticModel):
@@ -173,3 +174,104 @@ class SpotRGB(AnalyticModel):
     def clean(self, theta: torch.Tensor) -> torch.Tensor:
         r2 = (self._u - theta[0]) ** 2 + (self._v - 0.5) ** 2
         return self.background + self._amp * torch.exp(-r2 / (2 * self.width**2))[..., None]
+
+
+class TransientPoint(AnalyticModel):
+    """A point reflector at θ = (x, y, depth) metres behind a relay wall, scanned confocally: the analytic
+    transient toy, with its Fisher information in closed form (`fisher`).
+
+    The wall is the plane z = 0; its scan points p_ij form a scan×scan grid of pitch `wall / scan` centred on
+    the origin (i along y, j along x); the reflector sits at (x, y, depth), depth > 0. A laser pulse at p_ij
+    returns to p_ij after the optical path d_ij = 2‖θ − p_ij‖ (the wall-to-laser and wall-to-detector legs
+    excluded, as y-tal's t_accounts_first_and_last_bounces = False), spread by a Gaussian temporal response
+    of standard deviation σ = `jitter_ps` · c (optical path). Bin k collects optical paths in
+    [start + k·bin_width, start + (k+1)·bin_width) metres. Expected counts per bin (the image is in counts:
+    use `nb.noise.Poisson(scale=1.0)`):
+
+        μ_ijk(θ) = background + A_ij(θ) · [Φ((e_k+1 − d_ij)/σ) − Φ((e_k − d_ij)/σ)],
+        A_ij(θ) = photons · albedo · ‖θ − p_ij‖⁻⁴ / Σ_ij ‖θ₀ − p_ij‖⁻⁴,
+
+    θ₀ the default point, so that `photons` is the expected signal count of a whole capture at θ₀ (albedo 1)
+    and the radiometric r⁻⁴ fall-off moves with θ. With `free_albedo` the albedo (dimensionless, in [0.1, 10],
+    default `albedo`) is a fourth parameter, θ = (x, y, depth, albedo): a nuisance parameter for the position
+    (equivalently an unknown laser power, which scales A the same way). `background` (dark counts plus ambient
+    light, counts per bin, > 0) keeps every bin's information finite. Image (scan, scan, T, 1) float32; a scan
+    point's T·1 values share their rendering noise's paths (`channels`).
+    """
+
+    def __init__(self, scan: int = 4, wall: float = 1.0, bins: int = 96, bin_width: float = 0.006,
+                 start: float = 1.4, jitter_ps: float = 30.0, photons: float = 1e5, background: float = 0.5,
+                 albedo: float = 1.0, free_albedo: bool = False, **kw):
+        ps = [Param("x", -0.3, 0.3, 0.05, "m", "reflector position along the wall's x"),
+              Param("y", -0.3, 0.3, -0.03, "m", "reflector position along the wall's y"),
+              Param("depth", 0.5, 1.0, 0.75, "m", "reflector distance from the wall")]
+        if free_albedo:
+            if not 0.1 <= albedo <= 10.0:
+                raise ValueError(f"albedo must be in [0.1, 10] with free_albedo, got {albedo!r}")
+            ps.append(Param("albedo", 0.1, 10.0, float(albedo), "", "reflector albedo (× the budget's)"))
+        super().__init__("transient_point", ParamSpace(ps), **kw)
+        self.free_albedo = bool(free_albedo)
+        for name, v in (("scan", scan), ("bins", bins)):
+            if isinstance(v, bool) or int(v) != v or v < 1:
+                raise ValueError(f"{name} must be a positive integer, got {v!r}")
+        for name, v in (("wall", wall), ("bin_width", bin_width), ("jitter_ps", jitter_ps), ("photons", photons),
+                        ("background", background), ("albedo", albedo)):
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {v!r}")
+        self.scan, self.wall, self.bins, self.bin_width, self.start = int(scan), float(wall), int(bins), \
+            float(bin_width), float(start)
+        self.jitter_ps, self.photons, self.background, self.albedo = float(jitter_ps), float(photons), \
+            float(background), float(albedo)
+        from .detector import ps_to_m
+
+        self.sigma = ps_to_m(self.jitter_ps)  # metres of optical path
+        c = (np.arange(self.scan) + 0.5) / self.scan * self.wall - self.wall / 2
+        py, px = np.meshgrid(c, c, indexing="ij")
+        self.points = np.stack([px, py, np.zeros_like(px)], axis=-1)  # (scan, scan, 3): p_ij, metres
+        self.edges = self.start + self.bin_width * np.arange(self.bins + 1)  # (T + 1,) metres of optical path
+        self._norm = float((np.linalg.norm(self.params.default[:3] - self.points, axis=-1) ** -4.0).sum())
+
+    @property
+    def channels(self) -> int:
+        """T·C = bins: the values per scan point that share path samples."""
+        return self.bins
+
+    def clean(self, theta: torch.Tensor) -> torch.Tensor:
+        p = torch.as_tensor(self.points)
+        r = torch.linalg.vector_norm(theta[:3] - p, dim=-1)  # (scan, scan)
+        amp = self.photons * (theta[3] if self.free_albedo else self.albedo) * r ** -4.0 / self._norm
+        u = (torch.as_tensor(self.edges) - 2.0 * r[..., None]) / self.sigma  # (scan, scan, T + 1)
+        cdf = torch.special.ndtr(u)
+        return (self.background + amp[..., None] * (cdf[..., 1:] - cdf[..., :-1]))[..., None]
+
+    def fisher(self, theta, summed: bool = False) -> np.ndarray:
+        """The exact Fisher information matrix (P, P) of θ for Poisson counts at θ, float64 (1/m² for the position;
+        P = 3, or 4 with `free_albedo`: the albedo's entries per unit albedo): F = Σ_ijk ∇μ_ijk ∇μ_ijkᵀ / μ_ijk, with
+        ∇μ written out by hand (numpy; independent of `clean`'s autograd) from ∂d/∂θ = 2(θ − p)/r,
+        ∂A/∂θ = −4A(θ − p)/r², ∂Φ(u)/∂d = −φ(u)/σ and ∂A/∂albedo = A/albedo. `summed`: of a detector without
+        timing, which counts Σ_k μ_ijk per scan point."""
+        from scipy.special import ndtr
+
+        t = self.params.validate(theta)
+        albedo = t[3] if self.free_albedo else self.albedo
+        diff = t[:3] - self.points  # (scan, scan, 3)
+        r = np.linalg.norm(diff, axis=-1)
+        amp = self.photons * albedo * r ** -4.0 / self._norm
+        u = (self.edges - 2.0 * r[..., None]) / self.sigma
+        phi = np.exp(-0.5 * u * u) / np.sqrt(2 * np.pi)
+        mass = np.diff(ndtr(u), axis=-1)  # (scan, scan, T)
+        dmass_dd = -np.diff(phi, axis=-1) / self.sigma
+        mu = self.background + amp[..., None] * mass
+        grad = (-4.0 * amp[..., None, None] * diff[..., None, :] / (r ** 2)[..., None, None] * mass[..., None]
+                + amp[..., None, None] * dmass_dd[..., None] * (2.0 * diff / r[..., None])[..., None, :])
+        if self.free_albedo:
+            grad = np.concatenate([grad, (amp[..., None] * mass / albedo)[..., None]], axis=-1)
+        if summed:
+            mu, grad = mu.sum(axis=2, keepdims=True), grad.sum(axis=2, keepdims=True)
+        return np.einsum("ijka,ijkb->ab", grad / mu[..., None], grad)
+
+    def crlb(self, theta, names=None) -> float:
+        """tr F⁻¹ over the parameters `names` (all of them by default; m² for the position), the others unknown
+        too."""
+        idx = list(range(self.params.dim)) if names is None else [self.params.index(n) for n in names]
+        return float(np.trace(np.linalg.inv(self.fisher(theta))[np.ix_(idx, idx)]))

@@ -192,3 +192,21 @@ def build(spec: dict) -> ForwardModel:
     if spec.get("params"):
         model = model.restrict(spec["params"], spec.get("fixed") or {})
     return model
+
+
+def _transient_patch(**options) -> ForwardModel:
+    """A confocal transient capture of a 10 cm patch 0.75 m behind a 1 m relay wall, rendered with mitransient (the
+    `transient` extra); θ = (x, y, depth offset, albedo)."""
+    from ..forward.transient import transient_patch
+
+    return transient_patch(**options)
+
+
+def _register_transient() -> None:
+    from ..forward.analytic import TransientPoint
+
+    register("transient_point", TransientPoint)
+    register("transient_patch", _transient_patch)
+
+
+_register_transient()

@@ -472,7 +472,8 @@ def run(ctx, cfg: dict) -> dict:
                 cleans[i, c] = img
         for i in range(len(p.thetas)):
             mean = sum(cleans[i, c] for c in range(p.clusters)) / p.clusters
-            io.write_exr(folder / "images" / f"clean_{i:03d}.exr", mean)
+            # a transient capture (scan_y, scan_x, T, C) goes in as T·C channels of its scan grid
+            io.write_exr(folder / "images" / f"clean_{i:03d}.exr", mean.reshape(*mean.shape[:2], -1))
         want = cfg["bounds"]
         points = svc.at(p.thetas, p.bound_spp, want, cfg["seeds"], p.replicates, cfg["hcr_grid"], cfg["hcr_offsets"],
                         cfg["fd_step"], cfg["levels"], noises=list(p.noises), step_tol=cfg["step_tol"],

@@ -1,0 +1,59 @@
+"""The `time-of-flight` study on the analytic toy, against closed forms: the transient detector's depth bound is the
+toy's at the combined response (σ² = σ_toy² + σ_det² + w²/12), the time-summed one the toy's summed-counts Fisher
+information, and the ratio of RMS bounds their quotient (exact renders: only FD truncation separates them)."""
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from nlosbench.cli import main
+from nlosbench.forward.analytic import TransientPoint
+from nlosbench.forward.detector import ps_to_m
+from nlosbench.io import read_csv
+
+WINDOW = {"start": 1.15, "bins": 144}
+SA, SB, W = 30.0, 40.0, 0.006
+
+
+def test_study_bounds_and_ratio_match_the_closed_forms(tmp_path):
+    cfg = {"name": "tof-toy", "seed": 0, "scene": {"name": "transient_point",
+                                                   "options": {"jitter_ps": SA, "background": 1e-9, "free_albedo": True,
+                                                               **WINDOW}},
+           "noise": [{"model": "poisson", "scale": 1.0}], "executor": {"type": "serial"},
+           "studies": [{"type": "time-of-flight", "param": "depth", "nuisance": ["albedo"], "photons": 1e5,
+                        "jitters_ps": [SB],
+                        "background": 0.5, "wall_return": 0.0, "spp": 4, "replicates": 3, "fd_step": 1e-3,
+                        "max_halvings": 1, "reference_spp": 4, "trials": 3, "voxel": 0.001}]}
+    path = tmp_path / "tof.yaml"
+    path.write_text(yaml.safe_dump(cfg))
+    assert main(["run", str(path), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    study = tmp_path / "run" / "00-time-of-flight"
+    rows = {r["detector"]: r for r in read_csv(study / "bounds.csv")}
+    results = json.loads((tmp_path / "run" / "results.json").read_text())["studies"]["00-time-of-flight"]["results"]
+    gain = results["gain"]
+    assert gain == pytest.approx(1.0, rel=1e-3)  # the toy's own 1e5 photons: the budget asks for as many
+    sigma = np.sqrt(ps_to_m(SA) ** 2 + ps_to_m(SB) ** 2 + W**2 / 12) / ps_to_m(1.0)
+    toy = TransientPoint(jitter_ps=sigma, background=0.5, photons=1e5 * gain, **WINDOW)
+    t = toy.params.default
+    rms_tr = 1 / np.sqrt(toy.fisher(t)[2, 2])
+    rms_sum = 1 / np.sqrt(toy.fisher(t, summed=True)[2, 2])
+    assert float(rows[f"transient {SB:g} ps"]["rms_bound"]) == pytest.approx(rms_tr, rel=0.01)
+    assert float(rows["time-summed"]["rms_bound"]) == pytest.approx(rms_sum, rel=0.01)
+    (ratio,) = [r for r in read_csv(study / "ratios.csv") if r["summed"] == "time-summed"]
+    assert float(ratio["ratio"]) == pytest.approx(rms_sum / rms_tr, rel=0.02)
+    assert float(ratio["ratio_lower"]) <= float(ratio["ratio"]) <= float(ratio["ratio_upper"])
+    assert int(rows[f"transient {SB:g} ps"]["bp_trials"]) == 3
+    # the albedo unknown too: (F⁻¹)_depth,depth of the toy's closed-form 2 × 2 Fisher matrix over (depth, albedo)
+    joint = TransientPoint(jitter_ps=sigma, background=0.5, photons=1e5 * gain, free_albedo=True, **WINDOW)
+    F2 = joint.fisher(joint.params.default)[np.ix_([2, 3], [2, 3])]
+    F2s = joint.fisher(joint.params.default, summed=True)[np.ix_([2, 3], [2, 3])]
+    nu_tr, nu_sum = np.sqrt(np.linalg.inv(F2)[0, 0]), np.sqrt(np.linalg.inv(F2s)[0, 0])
+    # an unknown albedo never helps (Schur complement); without timing, depth and albedo both only scale the counts
+    assert nu_tr >= rms_tr and nu_sum > 2 * rms_sum, (nu_tr / rms_tr, nu_sum / rms_sum)
+    for label, want in ((f"transient {SB:g} ps", nu_tr), ("time-summed", nu_sum)):
+        r = rows[label]
+        assert float(r["rms_nuisance"]) == pytest.approx(want, rel=0.01), (label, r["rms_nuisance"], want)
+        assert float(r["rms_nuisance_lower"]) <= float(r["rms_nuisance"]) <= float(r["rms_nuisance_upper"])
+    assert float(ratio["ratio_nuisance"]) == pytest.approx(nu_sum / nu_tr, rel=0.02)
+    assert "albedo unknown" in (tmp_path / "run" / "report.md").read_text()
