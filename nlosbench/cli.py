@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import errno
+import math
 import shlex
 import signal
 import sys
@@ -38,6 +39,8 @@ EPILOG = """examples:
   nlosbench run configs/paper_pi_trials.yaml --smoke --out runs/check   # seconds-long dry run
   nlosbench render cornell_ball --theta 0.1 0.3 0.8 --spp 256 --out runs/render
   nlosbench check-scene my_scene.yaml --out runs/check   # does each θ binding move what it claims?
+  nlosbench bound blob2d --param x --at 0.5 --sigma 0.05   # one HCR interval and CRLB, one line
+  nlosbench bound blob2d --param x --at 0.5 --sigma 0.05 --precision 0.1   # to ±10 %
   nlosbench list                                         # every kind: scenes, estimators, noise, studies
   nlosbench list estimators                              # one kind
   nlosbench list keys trials                             # a study's config keys with their help
@@ -97,6 +100,7 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
                    help="scene XML default, e.g. --define resx=64 (repeatable)")
     c.add_argument("--out", default="runs/check-scene", help="output folder (check.png, check.json)")
+    _bound_parser(sub)
     ls = sub.add_parser("list", help="list scenes, estimators, noise models and studies (or one kind of them), "
                         "or the config keys of a study")
     ls.add_argument("what", nargs="?", choices=(*LIST_KINDS, "keys"), help="one kind only (default: every kind, "
@@ -110,6 +114,83 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--reduced", action="store_true", help="tiny sizes (seconds), as in the test suite")
     b.add_argument("names", nargs="*", help="benchmark modules to run (default: all)")
     return p
+
+
+def _bound_parser(sub) -> None:
+    from .api import FD_STEP_FRACTION, MAX_HALVINGS, REPLICATES, SPP, STEP_TOL, TEST_GRID
+
+    b = sub.add_parser("bound", help="one parameter's HCR interval and CRLB at one θ*, in one line (no config file)",
+                       description="The HCR interval and the CRLB (parameter units²) of one parameter at one θ*, the "
+                       "others held at their defaults (or --fix), from replicate render sets through the bound "
+                       "service, as a bounds study computes them. Exactly one noise: --sigma, --scale or --noise. "
+                       "Where the FD step did not settle, an end is open or a precision target was not met, the "
+                       "line says so and what would settle it.")
+    b.add_argument("scene", help="scene name (see `nlosbench list scenes`) or a scene spec .yaml")
+    b.add_argument("--param", help="the parameter bounded (default: the scene's only one)")
+    b.add_argument("--at", type=float, help="θ*, in the parameter's units (default: its default)")
+    b.add_argument("--sigma", type=float, help="AWGN standard deviation, radiance units")
+    b.add_argument("--scale", type=float, help="Poisson noise: expected photons per unit radiance")
+    b.add_argument("--noise", metavar="NAME", help="a registered noise model (see `nlosbench list noise`), with "
+                   "its parameters as --noise-option")
+    b.add_argument("--noise-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a parameter of --noise, e.g. --noise-option scale=300 (repeatable)")
+    b.add_argument("--spp", type=int, default=SPP, help=f"samples per pixel of every render (default: {SPP})")
+    b.add_argument("--replicates", type=int, default=REPLICATES, help="independent replicate sets of every render "
+                   f"(default: {REPLICATES}, the fewest that give confidence limits)")
+    b.add_argument("--fd-step", type=float, help=f"first FD step ξ, parameter units (default: {FD_STEP_FRACTION:.0%} "
+                   "of Θ's width)")
+    b.add_argument("--max-halvings", type=int, default=MAX_HALVINGS, help="the most halvings of ξ while F has not "
+                   f"settled within {STEP_TOL:.0%} (default: {MAX_HALVINGS})")
+    b.add_argument("--test-grid", type=int, default=TEST_GRID, help=f"HCR test points over Θ (default: {TEST_GRID}), "
+                   "besides the offsets ±ξ·2^k")
+    b.add_argument("--precision", type=float, help="target relative half-width of both intervals, e.g. 0.1 for ±10 %%: "
+                   "replicate sets are added until it is met (default: one pilot of --replicates sets)")
+    b.add_argument("--budget", type=float, help="with --precision: the most pixel-samples to spend (default: none)")
+    b.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                   help="hold another parameter at VALUE (default: its default; repeatable)")
+    b.add_argument("--seed", type=int, default=0, help="the seed every render seed derives from (default: 0)")
+    b.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
+                   help="scene XML default, e.g. --define res=16 (repeatable)")
+
+
+def _bound(args) -> None:
+    import yaml
+
+    from . import api, noise, scenes
+
+    given = [k for k in ("sigma", "scale", "noise") if getattr(args, k) is not None]
+    if len(given) != 1:
+        raise ConfigError("noise", "give exactly one of --sigma (AWGN), --scale (Poisson) or --noise NAME, got "
+                          + (", ".join(f"--{k}" for k in given) or "none"))
+    if args.noise_option and args.noise is None:
+        raise ConfigError("--noise-option", "goes with --noise NAME")
+    name, kw = {"sigma": ("awgn", {"sigma": args.sigma}), "scale": ("poisson", {"scale": args.scale}),
+                "noise": (args.noise, {k: yaml.safe_load(v) for k, v in _defines(args.noise_option).items()})}[given[0]]
+    try:
+        model = noise.get(name, **kw)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"--{given[0]}", " ".join(str(e).split())) from None
+    fixed = {}
+    for k, v in _defines(args.fix).items():
+        try:
+            fixed[k] = float(v)
+        except ValueError:
+            raise ConfigError("--fix", f"{k}: expected a number, got {v!r}") from None
+    defines = _defines(args.define)
+    options = {"defines": defines} if defines else {}
+    param, at = args.param, args.at
+    if param is None or at is None:  # the scene's only parameter, its default
+        space = scenes.get(args.scene, **options).params
+        if param is None and space.dim != 1:
+            raise ConfigError("--param", f"{args.scene} has parameters {', '.join(space.names)}: name one")
+        param = param or space.names[0]
+        if at is None and param in space.names:
+            at = float(space.default[space.index(param)])
+    budget = None if args.budget is None else int(args.budget)
+    print(api.bound(args.scene, param, at if at is not None else math.nan, model, spp=args.spp,
+                    replicates=args.replicates, fd_step=args.fd_step, max_halvings=args.max_halvings,
+                    test_grid=args.test_grid, precision=args.precision, budget=budget, seed=args.seed, fixed=fixed,
+                    options=options).line())
 
 
 def _render(args) -> None:
@@ -245,6 +326,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"done: {run_dir}/report.md")
             elif args.command == "render":
                 _render(args)
+            elif args.command == "bound":
+                _bound(args)
             elif args.command == "check-scene":
                 from .scenes.check import check_scene, format_report
 
