@@ -228,8 +228,8 @@ class OneBound:
             parts.append(f"lower end {note}; to settle it: --max-halvings {self.max_halvings + 1} (ξ down to "
                          f"{self.fd_step / 2 ** (self.max_halvings + 1):.3g}{u}) or more --spp")
         if hcr.upper is None or not math.isfinite(hcr.upper):
-            parts.append("upper end open (a tested Δ is unresolved); to close it: more --replicates or --spp, or "
-                         "--precision")
+            parts.append("upper end open (F or a tested Δ unresolved at this noise level); to close it: more "
+                         "--replicates or --spp, or --precision")
         pr = self.point.precision
         if pr is not None:
             reached = f"precision ±{pr.target:.3g} {'met' if pr.met else 'not met'} (reached ±{pr.worst:.3g})"

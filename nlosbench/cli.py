@@ -39,6 +39,7 @@ EPILOG = """examples:
   nlosbench run configs/paper_pi_trials.yaml --smoke --out runs/check   # seconds-long dry run
   nlosbench render cornell_ball --theta 0.1 0.3 0.8 --spp 256 --out runs/render
   nlosbench check-scene my_scene.yaml --out runs/check   # does each θ binding move what it claims?
+  nlosbench init-scene room.xml                          # list its keys, write room.yaml (a scene spec)
   nlosbench bound blob2d --param x --at 0.5 --sigma 0.05   # one HCR interval and CRLB, one line
   nlosbench bound blob2d --param x --at 0.5 --sigma 0.05 --precision 0.1   # to ±10 %
   nlosbench list                                         # every kind: scenes, estimators, noise, studies
@@ -100,6 +101,15 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
                    help="scene XML default, e.g. --define resx=64 (repeatable)")
     c.add_argument("--out", default="runs/check-scene", help="output folder (check.png, check.json)")
+    i = sub.add_parser("init-scene", help="list a Mitsuba XML file's mi.traverse keys and write a scene spec "
+                       "skeleton for it (check it with check-scene)")
+    i.add_argument("xml", help="a Mitsuba 3 scene file (.xml)")
+    i.add_argument("--out", help="the spec to write (default: the XML's name with .yaml, beside it)")
+    i.add_argument("--object", action="append", default=[], metavar="ID", help="a shape id to bind (translate x, y, "
+                   "z; radius; its own colour); repeatable (default: the smallest shape that does not emit light)")
+    i.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
+                   help="scene XML default while listing, e.g. --define res=16 (repeatable)")
+    i.add_argument("--force", action="store_true", help="overwrite an existing spec")
     _bound_parser(sub)
     ls = sub.add_parser("list", help="list scenes, estimators, noise models and studies (or one kind of them), "
                         "or the config keys of a study")
@@ -326,6 +336,15 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"done: {run_dir}/report.md")
             elif args.command == "render":
                 _render(args)
+            elif args.command == "init-scene":
+                from .scenes.init import init_scene
+
+                keys, spec = init_scene(args.xml, args.out, args.object, _defines(args.define), args.force)
+                from .scenes import read_spec
+
+                names = ", ".join(q["name"] for q in read_spec(spec)["params"])
+                print(f"{keys.listing()}\nwrote {spec}: θ = ({names}); set Θ's ends to your question, then check "
+                      f"it: nlosbench check-scene {spec}")
             elif args.command == "bound":
                 _bound(args)
             elif args.command == "check-scene":
