@@ -367,3 +367,129 @@ def bound(scene: str, param: str, at: float, noise, *, spp: int = SPP, replicate
     spent = model.stats.since(before)
     return OneBound(model.name, p, float(at), point, spp, replicates, step, max_halvings, spent.renders,
                     spent.samples, time.perf_counter() - t0)
+
+
+#: a table's row keys, in order (a noise model's text is replaced by its index: two σ are one question)
+KEYS = ("noise_index", "noise", "label", "param", "theta", "estimator", "name")
+#: quantities quoted with limits: the point column is log10_<q> (ends in log10) or <q> itself (ends linear)
+LIMITED = ("hcr", "crlb", "zzb", "mse", "bayes_mse")
+
+
+def compare(a: str | Path | Results, b: str | Path | Results, tables: Sequence[str] = ()) -> str:
+    """Two runs of the same question side by side: what their configs differ in, then per table row every
+    quantity with limits (HCR, CRLB, ZZB, MSE) in both runs, their ratio and whether the intervals overlap.
+
+    Parameters
+    ----------
+    a, b : str, Path or Results
+        The two run folders (or their `read` results).
+    tables : sequence of str, optional
+        The tables to compare (keys of `Results.tables`); default: every table both runs have.
+
+    Returns
+    -------
+    str
+        The comparison, one line per (row, quantity).
+
+    Raises
+    ------
+    ConfigError
+        If a folder holds no run, the runs ask about another scene or parameters, share no table, or a table
+        asked for is missing from one.
+    """
+    ra, rb = (r if isinstance(r, Results) else read(r) for r in (a, b))
+    question = [(k, x, y) for k, x, y in ((k, _question(ra.config, k), _question(rb.config, k))
+                                          for k in ("scene", "parameters")) if x != y]
+    if question:
+        k, x, y = question[0]
+        raise ConfigError("RUN_B", f"{rb.dir} asks another question than {ra.dir}: {k} {y} | {x} (compare runs of one "
+                          "scene and parameters, changed in noise, camera, spp, ...)")
+    common = [k for k in ra.tables if k in rb.tables]
+    missing = [t for t in tables if t not in common]
+    if missing:
+        raise ConfigError("--table", f"{missing[0]!r} is not a table of both runs (shared: {', '.join(common)})")
+    if not common:
+        raise ConfigError("RUN_B", f"{rb.dir} shares no table with {ra.dir}: not two runs of the same question")
+    diff = _config_diff(ra.config, rb.config)
+    lines = [f"A: {ra.dir}", f"B: {rb.dir}",
+             "configs differ in: " + ("; ".join(f"{k}: {va} | {vb}" for k, va, vb in diff) if diff else "nothing")]
+    for name in tables or common:
+        lines += _compare_table(name, ra.tables[name], rb.tables[name])
+    return "\n".join(lines)
+
+
+def _question(cfg: dict, what: str) -> str:
+    """The scene's name (a spec by its file name) or the θ components a run asks about."""
+    scene = cfg.get("scene") or {}
+    if what == "scene":
+        return Path(str(scene.get("name"))).stem
+    return ", ".join(scene.get("params") or ["all"])
+
+
+def _config_diff(x, y, path: str = "") -> list[tuple[str, object, object]]:
+    """(key path, value in x, value in y) for every leaf that differs (name and output excepted)."""
+    if isinstance(x, dict) and isinstance(y, dict):
+        return [d for k in dict.fromkeys([*x, *y]) if not (not path and k in ("name", "output"))
+                for d in _config_diff(x.get(k), y.get(k), f"{path}.{k}" if path else str(k))]
+    if isinstance(x, list) and isinstance(y, list) and len(x) == len(y):
+        return [d for i, (u, v) in enumerate(zip(x, y, strict=True)) for d in _config_diff(u, v, f"{path}.{i}")]
+    return [] if x == y else [(path, x, y)]
+
+
+def _compare_table(name: str, ta, tb) -> list[str]:
+    """The lines of one table: a heading, then per matched row each limited quantity of both runs."""
+    import pandas as pd
+
+    qs = [q for q in LIMITED if {f"{q}_lower", f"{q}_upper"} <= set(ta.columns) & set(tb.columns)]
+    if not qs:
+        return []
+    keys = [k for k in (*KEYS, *sorted(c for c in ta.columns if c.startswith("theta_") and c != "theta_index"))
+            if k in ta.columns and k in tb.columns and not (k == "noise" and "noise_index" in ta.columns)]
+    ta, tb = (_noise_as_index(t) for t in (ta, tb))
+    both = pd.merge(ta, tb, on=keys, how="outer", suffixes=("_A", "_B"), indicator=True)
+    lines = [f"{name}: {len(both)} rows ({', '.join(keys)}); A | B, B/A"]
+    for _, row in both.iterrows():
+        where = ", ".join(f"{k} {row[k]:.6g}" if isinstance(row[k], float) else f"{k} {row[k]}" for k in keys)
+        if row["_merge"] != "both":
+            lines.append(f"  {where}: only in {'A' if row['_merge'] == 'left_only' else 'B'}")
+            continue
+        for q in qs:
+            ends = [_ends(row, q, s) for s in ("_A", "_B")]
+            (pa, la, ua), (pb, lb, ub) = ends
+            ratio = pb / pa if pa and math.isfinite(pa) and math.isfinite(pb) else math.nan
+            apart = "B higher, limits apart" if lb > ua else "B lower, limits apart" if ub < la else "limits overlap"
+            lines.append(f"  {where}: {q} {_lin(pa)} [{_lin(la)}, {_lin(ua)}] | {_lin(pb)} [{_lin(lb)}, {_lin(ub)}], "
+                         f"×{ratio:.3g} ({apart})")
+    return lines
+
+
+def _noise_as_index(t):
+    """The table with a `noise` text column (no noise_index) replaced by the model's index, in order of first
+    appearance (the order of the config's `noise:` list)."""
+    if "noise" in t.columns and "noise_index" not in t.columns:
+        order = {n: i for i, n in enumerate(dict.fromkeys(t["noise"]))}
+        t = t.assign(noise=t["noise"].map(order))
+    return t
+
+
+def _ends(row, q: str, side: str) -> tuple[float, float, float]:
+    """(point, lower, upper) of quantity q in linear units (from log10 columns where the table has them)."""
+    log = f"log10_{q}{side}" in row.index
+    vals = [row.get(f"log10_{q}{side}" if log else f"{q}{side}"), row.get(f"{q}_lower{side}"),
+            row.get(f"{q}_upper{side}")]
+    vals = [math.nan if v is None or _isna(v) else float(v) for v in vals]
+    return tuple(_exp10(v) if log else v for v in vals)
+
+
+def _isna(v) -> bool:
+    import pandas as pd
+
+    return bool(pd.isna(v))
+
+
+def _exp10(lg: float) -> float:
+    return lg if math.isnan(lg) else math.inf if lg > 308 else 10.0 ** lg if lg > -400 else 0.0
+
+
+def _lin(v: float) -> str:
+    return "n/a" if math.isnan(v) else "+inf" if v == math.inf else f"{v:.3g}"

@@ -46,6 +46,7 @@ EPILOG = """examples:
   nlosbench list estimators                              # one kind
   nlosbench list keys trials                             # a study's config keys with their help
   nlosbench report runs/try                              # re-make plots and report.md from saved data
+  nlosbench compare runs/sigma05 runs/sigma10            # two runs of one question side by side
   nlosbench bench --reduced
 
 exit codes: 0 done; 2 bad input (config, spec, overrides, run folder: nothing written); 1 environment (disk,
@@ -120,6 +121,12 @@ def build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("report", help="re-make plots and report.md of a finished run from its saved data")
     rep.add_argument("run_dir", metavar="RUN_DIR", help="a run directory written by `nlosbench run` (holds "
                      "results.json)")
+    cmp = sub.add_parser("compare", help="two runs of the same question side by side: config differences, then "
+                         "every bound and MSE with its limits in both, their ratio and whether the limits overlap")
+    cmp.add_argument("run_a", metavar="RUN_A", help="a run directory written by `nlosbench run`")
+    cmp.add_argument("run_b", metavar="RUN_B", help="another run of the same config, changed (e.g. another σ)")
+    cmp.add_argument("--table", action="append", default=[], metavar="NAME", help="a table to compare, e.g. "
+                     "00-bounds/bounds (repeatable; default: every table both runs have)")
     b = sub.add_parser("bench", help="run the benchmarks side by side and print ratios")
     b.add_argument("--reduced", action="store_true", help="tiny sizes (seconds), as in the test suite")
     b.add_argument("names", nargs="*", help="benchmark modules to run (default: all)")
@@ -360,6 +367,10 @@ def main(argv: list[str] | None = None) -> int:
                 if not (Path(args.run_dir) / "results.json").is_file():
                     raise ConfigError("run_dir", f"{args.run_dir} holds no run (no results.json)")
                 print(make_report(args.run_dir))
+            elif args.command == "compare":
+                from .api import compare
+
+                print(compare(args.run_a, args.run_b, args.table))
             elif args.command == "bench":
                 from .benchmarks import run_all
 
