@@ -278,13 +278,13 @@ def _items(what: str) -> list[str]:
     elif what == "noise":
         from . import noise
 
-        def models(cls):  # the registered classes: `register` sets each one's `name`
-            for sub in cls.__subclasses__():
-                yield sub
-                yield from models(sub)
+        def line(name: str) -> str:
+            try:
+                return _first_line(noise.model_class(name).__doc__)
+            except (ImportError, ValueError) as e:  # a plug-in that does not load is listed with the reason
+                return f"(fails to load: {e})"
 
-        docs = {m.__dict__["name"]: m.__doc__ for m in models(noise.NoiseModel) if "name" in m.__dict__}
-        items = [f"{name}: {_first_line(docs.get(name))}" for name in noise.available()]
+        items = [f"{name}: {line(name)}" for name in noise.available()]
     elif what == "studies":
         from . import studies
 
