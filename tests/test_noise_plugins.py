@@ -60,7 +60,8 @@ def test_a_signal_dependent_plugin_runs_from_a_config_with_an_independent_weight
                             "the bounds from replicated renders need a χ² exponent that is a quadratic form in the "
                             "image difference"),
     ("shot-read", {"scale": 100.0}, "noise[0]: noise model 'shot-read': bad parameters ['scale']"),
-    ("shot-reed", {}, "noise[0].model: expected one of awgn, laplace, not-a-model, poisson, shot-read, shot-read-fixed"),
+    ("shot-reed", {}, "noise[0].model: expected one of awgn, laplace, not-a-model, poisson, shot-read, "
+                      "shot-read-fixed"),
 ])
 def test_a_model_the_bounds_cannot_use_is_refused_with_the_reason(plugins, tmp_path, capsys, model, options, message):
     import yaml
