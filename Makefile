@@ -25,9 +25,9 @@ test: setup lint
 # the site into docs/_build/html (offline, its gallery executed), then the docstrings' examples as doctests
 # (`make test` runs those in pytest: tests/test_api_docs.py)
 docs: setup docs-build
-	$(PY) -m pytest -q -p no:cacheprovider --doctest-modules nlosbench/bank.py nlosbench/noise.py \
+	$(PY) -m pytest -q -p no:cacheprovider --doctest-modules nlosbench/api.py nlosbench/bank.py nlosbench/noise.py \
 		nlosbench/params.py nlosbench/forward/model.py nlosbench/forward/gradients.py nlosbench/forward/cache.py \
-		nlosbench/diagnostics/policy.py nlosbench/bounds nlosbench/estimators
+		nlosbench/diagnostics/policy.py nlosbench/scenes/__init__.py nlosbench/bounds nlosbench/estimators
 
 # the API pages are generated afresh: a name taken out of an `__all__` leaves no stale page behind
 docs-build: $(OWN_SCENE)/run/report.md

@@ -78,4 +78,5 @@ sphinx_gallery_conf = {
     "image_scrapers": ("matplotlib",),
     "min_reported_time": 1,
     "write_computation_times": False,  # each page states its own running time
+    "run_stale_examples": True,  # every build runs every page again: its numbers are this build's
 }
