@@ -149,7 +149,35 @@ def smoke_options(name: str) -> dict:
 
 
 def get(name: str, **options) -> ForwardModel:
-    """The forward model for a registered scene name or a path to a `.yaml` scene spec (SpecError otherwise)."""
+    """The forward model of a registered scene or of a scene spec file.
+
+    Parameters
+    ----------
+    name : str
+        A registered name (`available`: the analytic toys blob2d and edge1d, and every spec in scenes/ or
+        NLOSBENCH_SCENE_PATH) or a path to a `.yaml` scene spec.
+    **options
+        Passed to the scene: for a spec, `defines` (XML `<default>` values, e.g. {"res": 16}, merged over the
+        spec's), `variant`, `remove`, `max_pass_samples`, `freeze`, `llvm_target`, `ad_integrator`, `cache`
+        (`load_spec`); for a toy, its constructor's keywords (e.g. size, render_noise).
+
+    Returns
+    -------
+    ForwardModel
+        The model: `params` (its θ components and Θ) and `render(theta, spp, seed)` → an image (H, W, C),
+        float32, radiance units. A Mitsuba scene is loaded once, here.
+
+    Raises
+    ------
+    SpecError
+        For an unknown name (with a close match), a spec that cannot be read or a scene that does not load.
+
+    Examples
+    --------
+    >>> model = nb.scenes.get("blob2d", size=16)
+    >>> model.params.names, model.render([0.5, 0.5], spp=1, seed=0).shape
+    (('x', 'y'), torch.Size([16, 16, 1]))
+    """
     if not isinstance(name, str) or not name:
         raise SpecError("scene", f"expected a scene name or a spec path, got {name!r}")
     if name in _BUILTIN:
