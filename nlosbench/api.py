@@ -218,7 +218,7 @@ class OneBound:
         parts = [f"{self.scene}: {self.param.name} = {self.at:g}{u}, {noise_text(self.point.noise)}",
                  f"HCR {_interval(hcr)}{u and u + '²'} (RMS error ≥ {_rms(hcr.log10)}{u} for an unbiased estimator)",
                  f"CRLB {_fmt(crlb.log10)}{u and u + '²'} [{_fmt(crlb.lower)}, {_fmt(crlb.upper)}]",
-                 f"one-sided {hcr.level:.3g} ends"]
+                 f"one-sided {100 * hcr.level:.3g} % ends"]
         step = re.search(r"FD step converged: (.*)", crlb.reason)
         parts.append(f"{self.spp} spp × {self.replicates} replicate sets, FD step ξ = {self.fd_step:.3g}{u} halved "
                      f"up to {self.max_halvings}× until F settles within {STEP_TOL:.0%}"
