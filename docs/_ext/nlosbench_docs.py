@@ -25,8 +25,9 @@ API = [("nlosbench", "The top level: `import nlosbench as nb`.", None),
 
 
 #: modules whose docstring the public names' pages refer to ("see the module docstring"): shown as written
-NOTES = ["nlosbench.api", "nlosbench.bank", "nlosbench.noise", "nlosbench.bounds.service", "nlosbench.bounds.precision",
-         "nlosbench.bounds.fd_step", "nlosbench.bounds.hcr_interval", "nlosbench.bounds.inexact", "nlosbench.bounds.zzb"]
+NOTES = ["nlosbench.api", "nlosbench.bank", "nlosbench.noise", "nlosbench.bounds.service",
+         "nlosbench.bounds.precision", "nlosbench.bounds.fd_step", "nlosbench.bounds.hcr_interval",
+         "nlosbench.bounds.inexact", "nlosbench.bounds.zzb"]
 
 
 def _cell(text: str) -> str:
