@@ -21,7 +21,7 @@ API = [("nlosbench", "The top level: `import nlosbench as nb`.", None),
        ("nlosbench.estimators", "The estimator contract, the built-in estimators and the plug-in registry.", None),
        ("nlosbench.noise", "Noise models and their registry.", None),
        ("nlosbench.scenes", "The scene registry: toys, scene specs, your own scenes.",
-        ["get", "available", "describe", "register", "load_spec"])]
+        ["get", "available", "describe", "register", "load_spec", "SpecError"])]
 
 
 #: modules whose docstring the public names' pages refer to ("see the module docstring"): shown as written

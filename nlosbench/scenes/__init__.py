@@ -29,7 +29,22 @@ HOW = ("a scene spec is a YAML mapping with `file:` (the Mitsuba XML, relative t
 
 
 class SpecError(ConfigError):
-    """A scene name or spec that cannot be used; `str()` is one line: `name or path: what is wrong`."""
+    """A scene name or spec that cannot be used; `str()` is one line: `name or path: what is wrong`.
+
+    The command line reports it as bad input (exit 2) before anything is rendered or written.
+
+    Parameters
+    ----------
+    path : str
+        The scene name, spec file or spec key the message is about.
+    message : str
+        What is wrong, and how to write it right.
+
+    Examples
+    --------
+    >>> str(nb.scenes.SpecError("room.yaml: params", "expected a non-empty list of bindings"))
+    'room.yaml: params: expected a non-empty list of bindings'
+    """
 
 
 _BUILTIN: dict[str, Callable[..., ForwardModel]] = {"blob2d": Blob2D, "edge1d": Edge1D}
