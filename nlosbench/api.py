@@ -268,7 +268,7 @@ def _rms(lg: float) -> str:
     return f"{10.0 ** (lg / 2):.3g}" if math.isfinite(lg) else _fmt(lg / 2)
 
 
-def bound(scene: str, param: str, at: float, noise, *, spp: int = SPP, replicates: int = REPLICATES,
+def bound(scene: str, param: str | None, at: float | None, noise, *, spp: int = SPP, replicates: int = REPLICATES,
           fd_step: float | None = None, max_halvings: int = MAX_HALVINGS, test_grid: int = TEST_GRID,
           precision: float | None = None, budget: int | None = None, seed: int = 0,
           fixed: Mapping[str, float] | None = None, options: Mapping | None = None) -> OneBound:
@@ -278,10 +278,10 @@ def bound(scene: str, param: str, at: float, noise, *, spp: int = SPP, replicate
     ----------
     scene : str
         A registered scene name or a scene spec .yaml.
-    param : str
-        The parameter bounded (one of the scene's `params.names`).
-    at : float
-        θ*, in the parameter's units, inside Θ.
+    param : str or None
+        The parameter bounded (one of the scene's `params.names`); None: the scene's only one.
+    at : float or None
+        θ*, in the parameter's units, inside Θ; None: the parameter's default.
     noise : NoiseModel
         The observation noise (e.g. `nb.noise.AWGN(sigma=0.05)`).
     spp : int, default 64
@@ -342,6 +342,10 @@ def bound(scene: str, param: str, at: float, noise, *, spp: int = SPP, replicate
         raise ConfigError("--budget", "a budget goes with --precision")
     full = scenes.get(scene, **dict(options or {}))
     names = full.params.names
+    if param is None:
+        if len(names) != 1:
+            raise ConfigError("--param", f"{full.name} has parameters {', '.join(names)}: name one")
+        param = names[0]
     fixed = dict(fixed or {})
     for name in (param, *fixed):
         if name not in names:
@@ -354,6 +358,7 @@ def bound(scene: str, param: str, at: float, noise, *, spp: int = SPP, replicate
     except ValueError as e:
         raise ConfigError("--fix", str(e)) from None
     p = model.params.params[0]
+    at = p.default if at is None else at
     if not (math.isfinite(at) and p.lower <= at <= p.upper):
         raise ConfigError("--at", f"{param} = {at:g} is outside Θ = [{p.lower:g}, {p.upper:g}] {p.units}")
     step = FD_STEP_FRACTION * (p.upper - p.lower) if fd_step is None else float(fd_step)

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import errno
-import math
 import shlex
 import signal
 import sys
@@ -173,7 +172,7 @@ def _bound_parser(sub) -> None:
 def _bound(args) -> None:
     import yaml
 
-    from . import api, noise, scenes
+    from . import api, noise
 
     given = [k for k in ("sigma", "scale", "noise") if getattr(args, k) is not None]
     if len(given) != 1:
@@ -194,20 +193,11 @@ def _bound(args) -> None:
         except ValueError:
             raise ConfigError("--fix", f"{k}: expected a number, got {v!r}") from None
     defines = _defines(args.define)
-    options = {"defines": defines} if defines else {}
-    param, at = args.param, args.at
-    if param is None or at is None:  # the scene's only parameter, its default
-        space = scenes.get(args.scene, **options).params
-        if param is None and space.dim != 1:
-            raise ConfigError("--param", f"{args.scene} has parameters {', '.join(space.names)}: name one")
-        param = param or space.names[0]
-        if at is None and param in space.names:
-            at = float(space.default[space.index(param)])
     budget = None if args.budget is None else int(args.budget)
-    print(api.bound(args.scene, param, at if at is not None else math.nan, model, spp=args.spp,
+    print(api.bound(args.scene, args.param, args.at, model, spp=args.spp,
                     replicates=args.replicates, fd_step=args.fd_step, max_halvings=args.max_halvings,
                     test_grid=args.test_grid, precision=args.precision, budget=budget, seed=args.seed, fixed=fixed,
-                    options=options).line())
+                    options={"defines": defines} if defines else {}).line())
 
 
 def _render(args) -> None:

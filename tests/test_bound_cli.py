@@ -46,6 +46,11 @@ def test_the_others_are_held_where_fix_says():
     assert "Poisson, scale = 100" in nb.bound("edge1d", "edge", 0.5, nb.noise.Poisson(scale=100.0), spp=4).line()
 
 
+def test_a_one_parameter_scene_needs_no_param_and_at_defaults_to_its_default(capsys):
+    assert main(["bound", "edge1d", "--sigma", "0.1", "--spp", "4"]) == 0
+    assert capsys.readouterr().out.startswith("edge1d: edge = 0.5 m, AWGN, σ = 0.1; HCR [")  # Θ = [0.1, 0.9], default 0.5
+
+
 @pytest.mark.parametrize("argv, key", [
     (["blob2d", "--sigma", "0.1"], "--param: blob2d has parameters x, y"),
     (["blob2d", "--param", "z", "--sigma", "0.1"], "--param: 'z' is not a parameter of blob2d"),
