@@ -48,7 +48,7 @@ def test_the_others_are_held_where_fix_says():
 
 def test_a_one_parameter_scene_needs_no_param_and_at_defaults_to_its_default(capsys):
     assert main(["bound", "edge1d", "--sigma", "0.1", "--spp", "4"]) == 0
-    assert capsys.readouterr().out.startswith("edge1d: edge = 0.5 m, AWGN, σ = 0.1; HCR [")  # Θ = [0.1, 0.9], default 0.5
+    assert capsys.readouterr().out.startswith("edge1d: edge = 0.5 m, AWGN, σ = 0.1; HCR [")  # its default: 0.5
 
 
 @pytest.mark.parametrize("argv, key", [
