@@ -50,7 +50,7 @@ numpydoc_xref_param_type = False
 numpydoc_validation_checks = {"GL08", "PR01", "PR02", "RT01"}
 numpydoc_validation_exclude = {
     r"\._[^.]*$",  # private names
-    r"^nlosbench\.(scenes|diagnostics|variant)\.",
+    r"^nlosbench\.(scenes|diagnostics|variant|forward)\.",
     r"\.__init__$",
     # a class attribute whose value is None has no __doc__ for numpydoc to validate; its `#:` comment is what
     # autodoc renders on the class's page

@@ -317,7 +317,29 @@ def _keys(study: str | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command in `argv` (default: sys.argv; then the process's stop signals stay handled to its end)."""
+    """Run one `nlosbench` command, as the console script does; `nb.run` is the call for a run from Python.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The command and its options, without the program name (``["list", "noise"]``). Default: ``sys.argv``;
+        then the process's stop signals stay handled to its end.
+
+    Returns
+    -------
+    int
+        The exit status: 0 when the command did what it was asked; after a one-line message, 1 for the
+        environment (a library, a render, a disk), 2 for bad input, 3 for an internal error, 128 + N for stop
+        signal N.
+
+    Examples
+    --------
+    >>> from nlosbench import cli
+    >>> cli.main(["list", "noise"])  # doctest: +ELLIPSIS
+    awgn: Additive white Gaussian noise ...
+    poisson: Photon counts ...
+    0
+    """
     resume = ""  # how to resume, once a run has started writing its folder
     prepared = None  # the checked run (its folder gets error.log after an internal error)
     try:

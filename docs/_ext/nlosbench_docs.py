@@ -21,7 +21,14 @@ API = [("nlosbench", "The top level: `import nlosbench as nb`.", None),
        ("nlosbench.estimators", "The estimator contract, the built-in estimators and the plug-in registry.", None),
        ("nlosbench.noise", "Noise models and their registry.", None),
        ("nlosbench.scenes", "The scene registry: toys, scene specs, your own scenes.",
-        ["get", "available", "describe", "register", "load_spec", "SpecError"])]
+        ["get", "available", "describe", "register", "load_spec", "SpecError"]),
+       ("nlosbench.diagnostics", "Gradient diagnostics: AD and FD gradient images side by side, their artefacts, "
+                                 "cost and the backend `grad=\"auto\"` chooses.", None),
+       ("nlosbench.forward", "The Mitsuba forward model a scene file loads into.", ["MitsubaModel"]),
+       ("nlosbench.bank", "The render bank's purposes.", ["TRUTH"]),
+       ("nlosbench.variant", "The Mitsuba variant.", ["select"]),
+       ("nlosbench.cli", "The `nlosbench` command from Python.", ["main"]),
+       ("nlosbench.schema", "What a config or scene spec that fails its checks raises.", ["ConfigError"])]
 
 
 #: modules whose docstring the public names' pages refer to ("see the module docstring"): shown as written
