@@ -30,7 +30,8 @@ docs-check: docs-build
 	$(PY) -m pytest -q -p no:cacheprovider --doctest-modules nlosbench/api.py nlosbench/bank.py nlosbench/noise.py \
 		nlosbench/params.py nlosbench/forward/model.py nlosbench/forward/gradients.py nlosbench/forward/cache.py \
 		nlosbench/diagnostics/policy.py nlosbench/scenes/__init__.py nlosbench/bounds nlosbench/estimators \
-		nlosbench/cli.py nlosbench/variant.py nlosbench/schema.py
+		nlosbench/cli.py nlosbench/variant.py nlosbench/schema.py \
+		nlosbench/diagnostics/verdict.py
 
 # the API pages are generated afresh: a name taken out of an `__all__` leaves no stale page behind
 docs-build: $(OWN_SCENE)/run/report.md

@@ -482,6 +482,11 @@ def available() -> list[str]:
     -------
     list of str
         The names, sorted.
+
+    Examples
+    --------
+    >>> {"awgn", "poisson"} <= set(nb.noise.available())
+    True
     """
     return sorted(set(_REGISTRY) | set(_entry_points()))
 

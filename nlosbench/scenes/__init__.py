@@ -65,12 +65,34 @@ def _specs() -> dict[str, Path]:
 
 
 def available() -> list[str]:
-    """Names accepted by `get`."""
+    """Names accepted by `get`.
+
+    Returns
+    -------
+    list of str
+        The names, sorted: the built-in scenes and toys, then the registered specs.
+
+    Examples
+    --------
+    >>> "blob2d" in nb.scenes.available()
+    True
+    """
     return sorted(set(_BUILTIN) | set(_specs()))
 
 
 def describe() -> dict[str, str]:
-    """name → one line: a spec's `description`, else the first sentence of the factory's docstring."""
+    """name → one line: a spec's `description`, else the first sentence of the factory's docstring.
+
+    Returns
+    -------
+    dict of str to str
+        Per available scene, its one-line description.
+
+    Examples
+    --------
+    >>> nb.scenes.describe()["blob2d"]  # doctest: +ELLIPSIS
+    'A Gaussian spot at θ = (x, y) metres on a size×size image plane...'
+    """
     specs = _specs()
     out = {}
     for name in available():
