@@ -386,6 +386,21 @@ class BoundService:
         quadratic models (AWGN, Poisson).
     level : float, optional
         One-sided confidence of every interval end, in (0, 1).
+
+    See Also
+    --------
+    nlosbench.bound : One bound at one θ* from a scene's name, with stated defaults.
+
+    Examples
+    --------
+    >>> bank = nb.RenderBank(nb.scenes.get("edge1d"), seed=0)
+    >>> service = nb.bounds.BoundService(bank, [nb.noise.AWGN(sigma=0.05)])
+    >>> [point] = service.at([0.5], spp=4)
+    >>> sorted(point.bounds)
+    ['crlb', 'hcr', 'hcr_neff']
+    >>> crlb = point.bounds["crlb"]
+    >>> crlb.lower <= crlb.point <= crlb.upper
+    True
     """
 
     def __init__(self, bank: RenderBank, noises: dict[int, NoiseModel] | Sequence[NoiseModel], level: float = 0.95):
