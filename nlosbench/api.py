@@ -1,4 +1,4 @@
-"""Entry points for a Python session and for the one-line `nlosbench bound`: a run's tables as DataFrames,
+"""Entry points for Python (a script, a notebook) and for the one-line `nlosbench bound`: a run's tables as DataFrames,
 one bound without a config file.
 
 `run(config)` runs a config exactly as `nlosbench run` does (the same runner) and returns `Results`: the
