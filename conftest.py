@@ -1,5 +1,5 @@
-"""The docstrings' `>>>` examples, run by `make docs` (`pytest --doctest-modules nlosbench/...`), see the
-package as `nb`, as they are written (tests/test_api_docs.py gives them the same name)."""
+"""The docstrings' `>>>` examples, run by `make docs` and `make test` (`pytest --doctest-modules nlosbench/...`),
+see the package as `nb`, as they are written."""
 import pytest
 
 

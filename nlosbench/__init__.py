@@ -14,10 +14,12 @@ __version__ = "0.1.0"
 #: a public name that is not a submodule → the submodule that defines it
 _FROM = {"render": "diagnostics", "resolve_gradient": "diagnostics", "RenderBank": "bank", "ForwardModel": "forward",
          "GradientSettings": "forward", "RenderCache": "forward", "RenderError": "forward", "Param": "params",
-         "ParamSpace": "params"}
+         "ParamSpace": "params", "run": "api", "read": "api", "bound": "api", "compare": "api",
+         "Results": "api"}
 
 __all__ = ["bounds", "diagnostics", "estimators", "noise", "scenes", "variant", "render", "resolve_gradient",
-           "ForwardModel", "GradientSettings", "RenderBank", "RenderCache", "RenderError", "Param", "ParamSpace"]
+           "ForwardModel", "GradientSettings", "RenderBank", "RenderCache", "RenderError", "Param", "ParamSpace",
+           "run", "read", "compare", "bound", "Results"]
 
 
 def __getattr__(name: str):

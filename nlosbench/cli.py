@@ -38,10 +38,14 @@ EPILOG = """examples:
   nlosbench run configs/paper_pi_trials.yaml --smoke --out runs/check   # seconds-long dry run
   nlosbench render cornell_ball --theta 0.1 0.3 0.8 --spp 256 --out runs/render
   nlosbench check-scene my_scene.yaml --out runs/check   # does each θ binding move what it claims?
+  nlosbench init-scene room.xml                          # list its keys, write room.yaml (a scene spec)
+  nlosbench bound blob2d --param x --at 0.5 --sigma 0.05   # one HCR interval and CRLB, one line
+  nlosbench bound blob2d --param x --at 0.5 --sigma 0.05 --precision 0.1   # to ±10 %
   nlosbench list                                         # every kind: scenes, estimators, noise, studies
   nlosbench list estimators                              # one kind
   nlosbench list keys trials                             # a study's config keys with their help
   nlosbench report runs/try                              # re-make plots and report.md from saved data
+  nlosbench compare runs/sigma05 runs/sigma10            # two runs of one question side by side
   nlosbench bench --reduced
 
 exit codes: 0 done; 2 bad input (config, spec, overrides, run folder: nothing written); 1 environment (disk,
@@ -97,6 +101,16 @@ def build_parser() -> argparse.ArgumentParser:
     c.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
                    help="scene XML default, e.g. --define resx=64 (repeatable)")
     c.add_argument("--out", default="runs/check-scene", help="output folder (check.png, check.json)")
+    i = sub.add_parser("init-scene", help="list a Mitsuba XML file's mi.traverse keys and write a scene spec "
+                       "skeleton for it (check it with check-scene)")
+    i.add_argument("xml", help="a Mitsuba 3 scene file (.xml)")
+    i.add_argument("--out", help="the spec to write (default: the XML's name with .yaml, beside it)")
+    i.add_argument("--object", action="append", default=[], metavar="ID", help="a shape id to bind (translate x, y, "
+                   "z; radius; its own colour); repeatable (default: the smallest shape that does not emit light)")
+    i.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
+                   help="scene XML default while listing, e.g. --define res=16 (repeatable)")
+    i.add_argument("--force", action="store_true", help="overwrite an existing spec")
+    _bound_parser(sub)
     ls = sub.add_parser("list", help="list scenes, estimators, noise models and studies (or one kind of them), "
                         "or the config keys of a study")
     ls.add_argument("what", nargs="?", choices=(*LIST_KINDS, "keys"), help="one kind only (default: every kind, "
@@ -106,10 +120,84 @@ def build_parser() -> argparse.ArgumentParser:
     rep = sub.add_parser("report", help="re-make plots and report.md of a finished run from its saved data")
     rep.add_argument("run_dir", metavar="RUN_DIR", help="a run directory written by `nlosbench run` (holds "
                      "results.json)")
+    cmp = sub.add_parser("compare", help="two runs of the same question side by side: config differences, then "
+                         "every bound and MSE with its limits in both, their ratio and whether the limits overlap")
+    cmp.add_argument("run_a", metavar="RUN_A", help="a run directory written by `nlosbench run`")
+    cmp.add_argument("run_b", metavar="RUN_B", help="another run of the same config, changed (e.g. another σ)")
+    cmp.add_argument("--table", action="append", default=[], metavar="NAME", help="a table to compare, e.g. "
+                     "00-bounds/bounds (repeatable; default: every table both runs have)")
     b = sub.add_parser("bench", help="run the benchmarks side by side and print ratios")
     b.add_argument("--reduced", action="store_true", help="tiny sizes (seconds), as in the test suite")
     b.add_argument("names", nargs="*", help="benchmark modules to run (default: all)")
     return p
+
+
+def _bound_parser(sub) -> None:
+    from .api import FD_STEP_FRACTION, MAX_HALVINGS, REPLICATES, SPP, STEP_TOL, TEST_GRID
+
+    b = sub.add_parser("bound", help="one parameter's HCR interval and CRLB at one θ*, in one line (no config file)",
+                       description="The HCR interval and the CRLB (parameter units²) of one parameter at one θ*, the "
+                       "others held at their defaults (or --fix), from replicate render sets through the bound "
+                       "service, as a bounds study computes them. Exactly one noise: --sigma, --scale or --noise. "
+                       "Where the FD step did not settle, an end is open or a precision target was not met, the "
+                       "line says so and what would settle it.")
+    b.add_argument("scene", help="scene name (see `nlosbench list scenes`) or a scene spec .yaml")
+    b.add_argument("--param", help="the parameter bounded (default: the scene's only one)")
+    b.add_argument("--at", type=float, help="θ*, in the parameter's units (default: its default)")
+    b.add_argument("--sigma", type=float, help="AWGN standard deviation, radiance units")
+    b.add_argument("--scale", type=float, help="Poisson noise: expected photons per unit radiance")
+    b.add_argument("--noise", metavar="NAME", help="a registered noise model (see `nlosbench list noise`), with "
+                   "its parameters as --noise-option")
+    b.add_argument("--noise-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="a parameter of --noise, e.g. --noise-option scale=300 (repeatable)")
+    b.add_argument("--spp", type=int, default=SPP, help=f"samples per pixel of every render (default: {SPP})")
+    b.add_argument("--replicates", type=int, default=REPLICATES, help="independent replicate sets of every render "
+                   f"(default: {REPLICATES}, the fewest that give confidence limits)")
+    b.add_argument("--fd-step", type=float, help=f"first FD step ξ, parameter units (default: {FD_STEP_FRACTION:.0%} "
+                   "of Θ's width)")
+    b.add_argument("--max-halvings", type=int, default=MAX_HALVINGS, help="the most halvings of ξ while F has not "
+                   f"settled within {STEP_TOL:.0%} (default: {MAX_HALVINGS})")
+    b.add_argument("--test-grid", type=int, default=TEST_GRID, help=f"HCR test points over Θ (default: {TEST_GRID}), "
+                   "besides the offsets ±ξ·2^k")
+    b.add_argument("--precision", type=float, help="target relative half-width of both intervals, e.g. 0.1 for ±10 %%: "
+                   "replicate sets are added until it is met (default: one pilot of --replicates sets)")
+    b.add_argument("--budget", type=float, help="with --precision: the most pixel-samples to spend (default: none)")
+    b.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
+                   help="hold another parameter at VALUE (default: its default; repeatable)")
+    b.add_argument("--seed", type=int, default=0, help="the seed every render seed derives from (default: 0)")
+    b.add_argument("--define", action="append", default=[], metavar="KEY=VALUE",
+                   help="scene XML default, e.g. --define res=16 (repeatable)")
+
+
+def _bound(args) -> None:
+    import yaml
+
+    from . import api, noise
+
+    given = [k for k in ("sigma", "scale", "noise") if getattr(args, k) is not None]
+    if len(given) != 1:
+        raise ConfigError("noise", "give exactly one of --sigma (AWGN), --scale (Poisson) or --noise NAME, got "
+                          + (", ".join(f"--{k}" for k in given) or "none"))
+    if args.noise_option and args.noise is None:
+        raise ConfigError("--noise-option", "goes with --noise NAME")
+    name, kw = {"sigma": ("awgn", {"sigma": args.sigma}), "scale": ("poisson", {"scale": args.scale}),
+                "noise": (args.noise, {k: yaml.safe_load(v) for k, v in _defines(args.noise_option).items()})}[given[0]]
+    try:
+        model = noise.get(name, **kw)
+    except (TypeError, ValueError) as e:
+        raise ConfigError(f"--{given[0]}", " ".join(str(e).split())) from None
+    fixed = {}
+    for k, v in _defines(args.fix).items():
+        try:
+            fixed[k] = float(v)
+        except ValueError:
+            raise ConfigError("--fix", f"{k}: expected a number, got {v!r}") from None
+    defines = _defines(args.define)
+    budget = None if args.budget is None else int(args.budget)
+    print(api.bound(args.scene, args.param, args.at, model, spp=args.spp,
+                    replicates=args.replicates, fd_step=args.fd_step, max_halvings=args.max_halvings,
+                    test_grid=args.test_grid, precision=args.precision, budget=budget, seed=args.seed, fixed=fixed,
+                    options={"defines": defines} if defines else {}).line())
 
 
 def _render(args) -> None:
@@ -180,13 +268,13 @@ def _items(what: str) -> list[str]:
     elif what == "noise":
         from . import noise
 
-        def models(cls):  # the registered classes: `register` sets each one's `name`
-            for sub in cls.__subclasses__():
-                yield sub
-                yield from models(sub)
+        def line(name: str) -> str:
+            try:
+                return _first_line(noise.model_class(name).__doc__)
+            except (ImportError, ValueError) as e:  # a plug-in that does not load is listed with the reason
+                return f"(fails to load: {e})"
 
-        docs = {m.__dict__["name"]: m.__doc__ for m in models(noise.NoiseModel) if "name" in m.__dict__}
-        items = [f"{name}: {_first_line(docs.get(name))}" for name in noise.available()]
+        items = [f"{name}: {line(name)}" for name in noise.available()]
     elif what == "studies":
         from . import studies
 
@@ -229,7 +317,29 @@ def _keys(study: str | None) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command in `argv` (default: sys.argv; then the process's stop signals stay handled to its end)."""
+    """Run one `nlosbench` command, as the console script does; `nb.run` is the call for a run from Python.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The command and its options, without the program name (``["list", "noise"]``). Default: ``sys.argv``;
+        then the process's stop signals stay handled to its end.
+
+    Returns
+    -------
+    int
+        The exit status: 0 when the command did what it was asked; after a one-line message, 1 for the
+        environment (a library, a render, a disk), 2 for bad input, 3 for an internal error, 128 + N for stop
+        signal N.
+
+    Examples
+    --------
+    >>> from nlosbench import cli
+    >>> cli.main(["list", "noise"])  # doctest: +ELLIPSIS
+    awgn: Additive white Gaussian noise ...
+    poisson: Photon counts ...
+    0
+    """
     resume = ""  # how to resume, once a run has started writing its folder
     prepared = None  # the checked run (its folder gets error.log after an internal error)
     try:
@@ -245,6 +355,17 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"done: {run_dir}/report.md")
             elif args.command == "render":
                 _render(args)
+            elif args.command == "init-scene":
+                from .scenes.init import init_scene
+
+                keys, spec = init_scene(args.xml, args.out, args.object, _defines(args.define), args.force)
+                from .scenes import read_spec
+
+                names = ", ".join(q["name"] for q in read_spec(spec)["params"])
+                print(f"{keys.listing()}\nwrote {spec}: θ = ({names}); set Θ's ends to your question, then check "
+                      f"it: nlosbench check-scene {spec}")
+            elif args.command == "bound":
+                _bound(args)
             elif args.command == "check-scene":
                 from .scenes.check import check_scene, format_report
 
@@ -258,6 +379,10 @@ def main(argv: list[str] | None = None) -> int:
                 if not (Path(args.run_dir) / "results.json").is_file():
                     raise ConfigError("run_dir", f"{args.run_dir} holds no run (no results.json)")
                 print(make_report(args.run_dir))
+            elif args.command == "compare":
+                from .api import compare
+
+                print(compare(args.run_a, args.run_b, args.table))
             elif args.command == "bench":
                 from .benchmarks import run_all
 

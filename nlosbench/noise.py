@@ -8,10 +8,19 @@ Divergences and information are float64 and use direct differences L1 − L0.
 The two built-in models are *quadratic*: all three quantities are Σ_ω w(L0)·(·)(·) for a per-pixel
 weight w (AWGN: 1/σ², Poisson: scale/L0). A new model (e.g. Poisson + Gaussian read noise)
 subclasses `NoiseModel` (or `QuadraticNoise` when its χ² exponent has that form) and registers
-itself with `@register("name")`; `get(name, **kw)` builds it.
+itself with `@register("name")`, or is installed as a plug-in: an entry point in the group
+`nlosbench.noise` (name → the class), which `get` loads on first use. `get(name, **kw)` builds it; a config
+names it as `noise: [{model: NAME, options: {...}}]`.
+
+The bounds from replicated renders (the bound service) need a quadratic model: `bounds_refusal` says why
+another model is refused. A quadratic model declares `signal_dependent` (default True): whether its weight
+w(L0) depends on the mean image; the bound service then takes w from a render of θ independent of the
+replicates it weights (a weight from the same renders would correlate with the U-statistics).
 """
 from __future__ import annotations
 
+import difflib
+import importlib.metadata
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
@@ -85,6 +94,10 @@ class NoiseModel(ABC):
     name: ClassVar[str] = ""
     #: chi2_exponent(L0, L1) == chi2_exponent(L1, L0) for every pair (pairwise λ then computes half)
     symmetric: ClassVar[bool] = False
+    #: whether a quadratic model's weight w(L0) depends on L0: the bound service then computes w from an
+    #: independent render of each θ (one render more per θ). False only for a weight that is the same for every
+    #: image (AWGN).
+    signal_dependent: ClassVar[bool] = True
 
     def validate(self, L: torch.Tensor, what: str) -> None:
         """Raise ValueError naming `what` if `L` is not a valid mean image (default: finite).
@@ -245,7 +258,8 @@ class NoiseModel(ABC):
 class QuadraticNoise(NoiseModel):
     """Models with λ = Σ_ω w(L0)(L1 − L0)², log E[ℓ_i ℓ_j] = Σ_ω w(L0)(Li − L0)(Lj − L0) and
     per-pixel Fisher information w(L)(∂L/∂θ)². A pixel with infinite weight contributes 0 where the
-    difference (or derivative) is 0 and +inf otherwise — never NaN. Subclasses implement `weight`."""
+    difference (or derivative) is 0 and +inf otherwise — never NaN. Subclasses implement `weight` and
+    declare `signal_dependent`."""
 
     @abstractmethod
     def weight(self, L0: torch.Tensor) -> torch.Tensor:
@@ -359,6 +373,8 @@ def _differences(L0: torch.Tensor, L1: torch.Tensor, what: str) -> tuple[torch.T
 
 
 _REGISTRY: dict[str, type[NoiseModel]] = {}
+ENTRY_POINT_GROUP = "nlosbench.noise"
+"""The entry-point group of noise-model plug-ins: name = "package.module:Class" (a NoiseModel subclass)."""
 
 
 def register(name: str) -> Callable[[type[NoiseModel]], type[NoiseModel]]:
@@ -385,13 +401,55 @@ def register(name: str) -> Callable[[type[NoiseModel]], type[NoiseModel]]:
     return deco
 
 
-def get(name: str, **kw) -> NoiseModel:
-    """Build the registered noise model `name` with keyword parameters, e.g. get("awgn", sigma=0.1).
+def _entry_points() -> dict:
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def model_class(name: str) -> type[NoiseModel]:
+    """The class registered under `name`, loading an installed plug-in (entry-point group `nlosbench.noise`)
+    on first use.
 
     Parameters
     ----------
     name : str
-        A registered name (see `available`).
+        A noise model's name (see `available`).
+
+    Returns
+    -------
+    type
+        The NoiseModel subclass.
+
+    Raises
+    ------
+    ValueError
+        If no model has that name (with a close match), or a plug-in is not a NoiseModel subclass.
+    ImportError
+        If the plug-in fails to import.
+    """
+    if name in _REGISTRY:
+        return _REGISTRY[name]
+    eps = _entry_points()
+    if name not in eps:
+        close = difflib.get_close_matches(name, available(), n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else ""
+        raise ValueError(f"unknown noise model {name!r}{hint} (available: {', '.join(available())})")
+    try:
+        cls = eps[name].load()
+    except Exception as e:  # noqa: BLE001 - any import failure of a plug-in is reported with its source
+        raise ImportError(f"noise plug-in {name!r} ({eps[name].value}, entry-point group {ENTRY_POINT_GROUP!r}) "
+                          f"failed to load: {type(e).__name__}: {e}") from e
+    if not (isinstance(cls, type) and issubclass(cls, NoiseModel)):
+        raise ValueError(f"noise plug-in {name!r} ({eps[name].value}) is {cls!r}, not a NoiseModel subclass")
+    return register(name)(cls)
+
+
+def get(name: str, **kw) -> NoiseModel:
+    """Build the noise model `name` with keyword parameters, e.g. get("awgn", sigma=0.1).
+
+    Parameters
+    ----------
+    name : str
+        A registered name or an installed plug-in (see `available`).
     **kw
         The model's parameters (e.g. sigma for "awgn", scale for "poisson").
 
@@ -403,29 +461,59 @@ def get(name: str, **kw) -> NoiseModel:
     Raises
     ------
     ValueError
-        If no model is registered under `name`.
+        If no model has that name, or its parameters are refused.
 
     Examples
     --------
     >>> nb.noise.get("awgn", sigma=0.1)
     AWGN(sigma=0.1)
     """
+    cls = model_class(name)
     try:
-        cls = _REGISTRY[name]
-    except KeyError:
-        raise ValueError(f"unknown noise model {name!r}; available: {available()}") from None
-    return cls(**kw)
+        return cls(**kw)
+    except TypeError as e:
+        raise ValueError(f"noise model {name!r}: bad parameters {sorted(kw)}: {e}") from None
 
 
 def available() -> list[str]:
-    """Names of the registered noise models.
+    """Names of the registered noise models and the installed plug-ins.
 
     Returns
     -------
     list of str
         The names, sorted.
+
+    Examples
+    --------
+    >>> {"awgn", "poisson"} <= set(nb.noise.available())
+    True
     """
-    return sorted(_REGISTRY)
+    return sorted(set(_REGISTRY) | set(_entry_points()))
+
+
+def bounds_refusal(model: NoiseModel) -> str:
+    """Why the bounds from replicated renders cannot use `model` ("" when they can).
+
+    Parameters
+    ----------
+    model : NoiseModel
+        The noise model.
+
+    Returns
+    -------
+    str
+        The reason, or "" for a QuadraticNoise.
+
+    Examples
+    --------
+    >>> nb.noise.bounds_refusal(nb.noise.AWGN(sigma=0.1))
+    ''
+    """
+    if isinstance(model, QuadraticNoise):
+        return ""
+    return (f"{type(model).__name__} is not a QuadraticNoise: the bounds from replicated renders need a χ² exponent "
+            "that is a quadratic form in the image difference, λ = Σ w(L0)·(L1 − L0)² per pixel (unbiased as a "
+            "U-statistic over replicates); subclass QuadraticNoise and give its weight w, or use awgn / poisson")
 
 
 @register("awgn")
@@ -451,6 +539,7 @@ class AWGN(QuadraticNoise):
 
     sigma: float
     symmetric: ClassVar[bool] = True  # λ = ‖L1 − L0‖² / σ²
+    signal_dependent: ClassVar[bool] = False  # w = 1/σ² for every image
 
     def __post_init__(self):
         if not (math.isfinite(self.sigma) and self.sigma > 0):

@@ -13,7 +13,21 @@ REQUIRED = object()
 
 
 class ConfigError(ValueError):
-    """A config problem; `str()` is one line: `path: message`."""
+    """A config problem; `str()` is one line: `path: message`.
+
+    Parameters
+    ----------
+    path : str
+        The key path of the problem (``studies.0.spp``); empty for the config as a whole.
+    message : str
+        What is wrong, in words.
+
+    Examples
+    --------
+    >>> from nlosbench.schema import ConfigError
+    >>> str(ConfigError("studies.0.spp", "must be a positive integer"))
+    'studies.0.spp: must be a positive integer'
+    """
 
     def __init__(self, path: str, message: str):
         super().__init__(f"{path or '<config>'}: {message}")

@@ -62,6 +62,23 @@ def select(variant: str | None = None) -> str:
     """Activate and return a Mitsuba variant. Order: argument, $NLOSBENCH_VARIANT, cuda_ad_rgb, llvm_ad_rgb.
 
     Calling it again with the same (or no) variant is free; a different variant switches Mitsuba over.
+    Every model load calls it; call it yourself before using Mitsuba directly.
+
+    Parameters
+    ----------
+    variant : str, optional
+        A Mitsuba variant name (``"llvm_ad_rgb"``); default: $NLOSBENCH_VARIANT, else the first of
+        cuda_ad_rgb and llvm_ad_rgb that loads.
+
+    Returns
+    -------
+    str
+        The active variant.
+
+    Examples
+    --------
+    >>> nb.variant.select() in ("cuda_ad_rgb", "llvm_ad_rgb")
+    True
     """
     want = variant or os.environ.get("NLOSBENCH_VARIANT")
     if _selected is not None and want in (None, _selected):

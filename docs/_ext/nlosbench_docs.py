@@ -3,7 +3,8 @@
 - `reference/config.md`: every config key (top level and each study's block) with its kind, default and
   help, from `nlosbench.experiment.config.TOP` and each study module's `SCHEMA` (the strings the config
   validator quotes in its errors; `nlosbench list keys STUDY` prints the same rows).
-- `reference/api.md`: an autosummary of the public names, read from each public module's `__all__`.
+- `reference/api.md`: an autosummary of the public names, read from each public module's `__all__`, then the
+  docstrings of the modules those names' pages refer to (`NOTES`), as written.
 """
 from __future__ import annotations
 
@@ -20,7 +21,21 @@ API = [("nlosbench", "The top level: `import nlosbench as nb`.", None),
        ("nlosbench.estimators", "The estimator contract, the built-in estimators and the plug-in registry.", None),
        ("nlosbench.noise", "Noise models and their registry.", None),
        ("nlosbench.scenes", "The scene registry: toys, scene specs, your own scenes.",
-        ["get", "available", "describe", "register", "load_spec"])]
+        ["get", "available", "describe", "register", "load_spec", "SpecError"]),
+       ("nlosbench.diagnostics", "Gradient diagnostics: AD and FD gradient images side by side, their artefacts, "
+                                 "cost and the backend `grad=\"auto\"` chooses.", None),
+       ("nlosbench.forward.mitsuba_model", "The Mitsuba forward model a scene file loads into.",
+        ["MitsubaModel"]),
+       ("nlosbench.bank", "The render bank's purposes.", ["TRUTH"]),
+       ("nlosbench.variant", "The Mitsuba variant.", ["select"]),
+       ("nlosbench.cli", "The `nlosbench` command from Python.", ["main"]),
+       ("nlosbench.schema", "What a config or scene spec that fails its checks raises.", ["ConfigError"])]
+
+
+#: modules whose docstring the public names' pages refer to ("see the module docstring"): shown as written
+NOTES = ["nlosbench.api", "nlosbench.bank", "nlosbench.noise", "nlosbench.bounds.service",
+         "nlosbench.bounds.precision", "nlosbench.bounds.fd_step", "nlosbench.bounds.hcr_interval",
+         "nlosbench.bounds.inexact", "nlosbench.bounds.zzb"]
 
 
 def _cell(text: str) -> str:
@@ -72,6 +87,12 @@ def api_page() -> str:
         names = names or [n for n in _public(mod) if not inspect.ismodule(getattr(mod, n))]
         lines += [f"## `{module}`", "", text, "", "```{eval-rst}", f".. currentmodule:: {module}", "",
                   ".. autosummary::", "   :toctree: generated", "", *[f"   {n}" for n in names], "```", ""]
+    lines += ["## Module notes", "",
+              "What the pages above call the module docstring: each module's own account of what it computes, how, "
+              "and with which caveats, as `help()` shows it.", ""]
+    for module in NOTES:
+        doc = inspect.getdoc(importlib.import_module(module)) or ""
+        lines += [f"### `{module}`", "", "````text", doc, "````", ""]
     return HEADER + "\n".join(lines)
 
 

@@ -24,15 +24,20 @@ a block of the example's ``main()``.
 # in ``reflectance.value`` / ``radiance.value``.
 import importlib.util
 import os
+import time
 from pathlib import Path
 
 import matplotlib.pyplot as plt
 
 ROOT = next(p for p in [Path.cwd(), *Path.cwd().parents] if (p / "examples" / "own_scene.py").is_file())
-RUN = ROOT / os.environ.get("NLOSBENCH_OWN_SCENE_RUN", "runs/own_scene")  # relative to the repository
+NAME = os.environ.get("NLOSBENCH_OWN_SCENE_RUN", "runs/own_scene")
+RUN = ROOT / NAME  # relative to the repository
 if not (RUN / "run" / "report.md").is_file():
     raise FileNotFoundError(f"no finished run of examples/own_scene.py in {RUN}: run "
                             f"`python examples/own_scene.py {RUN}` first (`make docs` does)")
+made = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime((RUN / "run" / "report.md").stat().st_mtime))
+print(f"the run of examples/own_scene.py shown here was made {made} in {NAME}; the next build makes it again "
+      "once that folder is deleted (make clean)")
 spec = importlib.util.spec_from_file_location("own_scene", ROOT / "examples" / "own_scene.py")
 own_scene = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(own_scene)

@@ -94,5 +94,18 @@ print(f"{bank.renders} renders for both models; CRLB with dark counts / without,
       f"{10 ** (crlb[1] - crlb[0]).min():.3f} to {10 ** (crlb[1] - crlb[0]).max():.3f}")
 
 # %%
-# In Python a registered model is built by name with ``nb.noise.get``; a config's ``noise`` list takes the
-# built-in ``awgn`` and ``poisson``.
+# Using it from a config
+# ----------------------
+# In Python a registered model is built by name with ``nb.noise.get``. For a config, ship the class in a
+# package with an entry point in the group ``nlosbench.noise`` (in its ``pyproject.toml``)::
+#
+#     [project.entry-points."nlosbench.noise"]
+#     poisson-dark = "mypackage.noise:PoissonDark"
+#
+# and name it with its parameters under ``options``:
+# ``noise: [{model: poisson-dark, options: {scale: 1000, dark: 300}}]``. ``nlosbench list noise`` shows it.
+# Its weight depends on the image, so it keeps the default ``signal_dependent = True``: the bound service
+# computes w from a render of each θ independent of the replicates it weights (a model whose weight is the
+# same for every image, like AWGN, declares ``False`` and saves that render). A model whose χ² exponent is no
+# quadratic form in the image difference (Laplace noise, say) is refused by a config with the reason
+# (``nb.noise.bounds_refusal``): the bounds from replicated renders are U-statistics of such a form.

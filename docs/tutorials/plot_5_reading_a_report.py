@@ -14,6 +14,7 @@ bounds over a grid, then an estimator in Monte Carlo trials at two θ*.
 # ----------------------
 import csv
 import json
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -76,3 +77,8 @@ fig, ax = plt.subplots(figsize=(8, 5))
 ax.imshow(plt.imread(run / "00-bounds" / "bounds.png"))
 ax.axis("off")
 fig.tight_layout()
+
+# %%
+# The run folder here was a temporary one, removed now; a run of yours goes to ``runs/NAME`` (or ``--out``)
+# and stays.
+shutil.rmtree(folder)

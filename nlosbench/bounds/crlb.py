@@ -96,6 +96,15 @@ def crlb(F, rcond: float = 1e-12) -> CRLBResult:
     CRLBResult
         Per-component bounds (parameter units²), their trace, F⁻¹ and what is not identifiable.
 
+    See Also
+    --------
+    nlosbench.bounds.hcr : The HCR at θ* from one set of renders (a plug-in: rendering noise biases it low).
+    nlosbench.bounds.hcr_interval : The HCR and CRLB with one-sided confidence ends from replicate render sets.
+    nlosbench.bounds.ziv_zakai : The Ziv–Zakai bound on the Bayesian MSE over a prior on Θ (any estimator).
+    nlosbench.bounds.zzb_interval : The Ziv–Zakai bound with confidence ends from replicate render sets.
+    nlosbench.bounds.pairwise_ustat : Unbiased λ for every pair of grid points from replicate renders.
+    nlosbench.bounds.u_statistic : The unbiased estimate and its jackknife from a replicate Gram array.
+
     Examples
     --------
     >>> r = nb.bounds.crlb([[4.0, 1.0], [1.0, 2.0]])

@@ -218,6 +218,15 @@ def hcr(L0, L_alt, deltas, noise: NoiseModel, lower=None, upper=None) -> HCRResu
     HCRResult
         The bound on the MSE (parameter units²) with its exact log10; see `hcr_from_lambda`.
 
+    See Also
+    --------
+    nlosbench.bounds.crlb : The CRLB, the HCR's Δ → 0 limit, from a Fisher matrix.
+    nlosbench.bounds.hcr_interval : The HCR and CRLB with one-sided confidence ends from replicate render sets.
+    nlosbench.bounds.ziv_zakai : The Ziv–Zakai bound on the Bayesian MSE over a prior on Θ (any estimator).
+    nlosbench.bounds.zzb_interval : The Ziv–Zakai bound with confidence ends from replicate render sets.
+    nlosbench.bounds.pairwise_ustat : Unbiased λ for every pair of grid points from replicate renders.
+    nlosbench.bounds.u_statistic : The unbiased estimate and its jackknife from a replicate Gram array.
+
     Examples
     --------
     L(θ) = θ·g under AWGN with σ = 3 and ‖g‖² = 9: F = ‖g‖²/σ² = 1 per unit θ².

@@ -155,6 +155,15 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat | StepFisher, level: float = 
     HCRInterval
         log10 point estimate and ends of the HCR (parameter units²), with the terms that set them.
 
+    See Also
+    --------
+    nlosbench.bounds.hcr : The HCR at θ* from one set of renders (a plug-in: rendering noise biases it low).
+    nlosbench.bounds.crlb : The CRLB, the HCR's Δ → 0 limit, from a Fisher matrix.
+    nlosbench.bounds.ziv_zakai : The Ziv–Zakai bound on the Bayesian MSE over a prior on Θ (any estimator).
+    nlosbench.bounds.zzb_interval : The Ziv–Zakai bound with confidence ends from replicate render sets.
+    nlosbench.bounds.pairwise_ustat : Unbiased λ for every pair of grid points from replicate renders.
+    nlosbench.bounds.u_statistic : The unbiased estimate and its jackknife from a replicate Gram array.
+
     Examples
     --------
     λ(Δ) = F·Δ² with F = 1 (CRLB = 1), estimated from R = 10 replicates: the Δ → 0 term sets every end.

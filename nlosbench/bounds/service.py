@@ -64,7 +64,7 @@ from nlosbench.bounds.precision import Precision, Raw, SetCost, check_precision,
 from nlosbench.bounds.unbiased_fisher import unbiased_fisher
 from nlosbench.bounds.ustat import UStat, pairwise_ustat, pixel_ustat
 from nlosbench.bounds.zzb import bhattacharyya_ustat, uniform_spacing, zzb_interval
-from nlosbench.noise import AWGN, NoiseModel, Poisson, QuadraticNoise, to_float64
+from nlosbench.noise import AWGN, NoiseModel, Poisson, QuadraticNoise, bounds_refusal, to_float64
 from nlosbench.seeds import derive
 
 SEEDS = ("independent", "common")
@@ -392,6 +392,21 @@ class BoundService:
         quadratic models (AWGN, Poisson).
     level : float, optional
         One-sided confidence of every interval end, in (0, 1).
+
+    See Also
+    --------
+    nlosbench.bound : One bound at one θ* from a scene's name, with stated defaults.
+
+    Examples
+    --------
+    >>> bank = nb.RenderBank(nb.scenes.get("edge1d"), seed=0)
+    >>> service = nb.bounds.BoundService(bank, [nb.noise.AWGN(sigma=0.05)])
+    >>> [point] = service.at([0.5], spp=4)
+    >>> sorted(point.bounds)
+    ['crlb', 'hcr', 'hcr_neff']
+    >>> crlb = point.bounds["crlb"]
+    >>> crlb.lower <= crlb.point <= crlb.upper
+    True
     """
 
     def __init__(self, bank: RenderBank, noises: dict[int, NoiseModel] | Sequence[NoiseModel], level: float = 0.95):
@@ -540,19 +555,20 @@ class BoundService:
 
     def _weights(self, thetas: np.ndarray, spp: int, mean_images: torch.Tensor, noises) -> dict:
         """{noise index: [(weight (N,) float64 or a scalar, flags) per θ]}: AWGN 1/σ²; Poisson scale/Y under the
-        zero-pixel policy, Y an independent render of θ (purpose "bounds-weight", spp) — never the replicates
+        zero-pixel policy (any model whose weight is `signal_dependent`: w(Y)), Y an independent render of θ
+        (purpose "bounds-weight", spp) — never the replicates
         the U-statistics use, so the weight is independent of them (E[1/Y] ≥ 1/L: the weight errs high, by
         about Var(Y)/L², which raises λ̂ and F̂ and so lowers the bounds' ends). mean_images (T, *S): the
         images AWGN weights are taken at (any: the weight is constant)."""
         sel = self._select(noises)
         Y = None
-        if any(isinstance(n, Poisson) for n in sel.values()):
-            Y = self.bank.at(thetas, spp, PURPOSE + "-weight", desc="Poisson weight renders").double()
+        if any(n.signal_dependent for n in sel.values()):
+            Y = self.bank.at(thetas, spp, PURPOSE + "-weight", desc="weight renders").double()
         out = {}
         for j, noise in sel.items():
             rows = []
             for i in range(len(thetas)):
-                w, flags = self._weight(noise, Y[i] if isinstance(noise, Poisson) else mean_images[i])
+                w, flags = self._weight(noise, Y[i] if noise.signal_dependent else mean_images[i])
                 shape = mean_images.shape[1:]
                 rows.append((to_float64(w).expand(shape).reshape(-1).numpy(), flags))
             out[j] = rows
@@ -566,8 +582,7 @@ class BoundService:
             return noise.weight(L), ((f"zero-pixels={n}",) if n else ())
         if isinstance(noise, QuadraticNoise):
             return noise.weight(to_float64(image)), ()
-        raise TypeError(f"bounds from replicated renders need a quadratic noise model (AWGN, Poisson), got "
-                        f"{type(noise).__name__}")
+        raise TypeError(bounds_refusal(noise))
 
     # -- curves ------------------------------------------------------------------------------------------
     def curve(self, thetas, spp: int, seeds: str = "common", replicates: int = 3, crlb: bool = True,
@@ -728,6 +743,10 @@ class BoundService:
 
     def _zzb(self, Xd: torch.Tensor, T: np.ndarray, noise: NoiseModel, Wflat: np.ndarray, prior, spp: int) -> Bound:
         R = Xd.shape[0]
+        if not isinstance(noise, (AWGN, Poisson)):  # P_e from λ is Gaussian noise's: no bound for another model
+            return Bound("zzb", -math.inf, flags=("no-bound",), reason=f"the Ziv–Zakai bound is implemented for AWGN "
+                         f"and Poisson noise, not {type(noise).__name__}", lower=-math.inf, upper=math.inf,
+                         point=math.nan, extra={"prior_variance": math.nan, "halved": math.nan})
         if isinstance(noise, Poisson):
             Y = torch.stack([self.bank.at(T, spp, PURPOSE + "-weight", replicate=r,
                                           desc=f"Poisson weight renders (replicate {r})") for r in range(R)]).double()

@@ -88,6 +88,15 @@ def u_statistic(G: np.ndarray) -> UStat:
     UStat
         est (*T), se (*T) (NaN for R = 2), loo (R, *T) (empty for R = 2), replicates R.
 
+    See Also
+    --------
+    nlosbench.bounds.hcr : The HCR at θ* from one set of renders (a plug-in: rendering noise biases it low).
+    nlosbench.bounds.crlb : The CRLB, the HCR's Δ → 0 limit, from a Fisher matrix.
+    nlosbench.bounds.hcr_interval : The HCR and CRLB with one-sided confidence ends from replicate render sets.
+    nlosbench.bounds.ziv_zakai : The Ziv–Zakai bound on the Bayesian MSE over a prior on Θ (any estimator).
+    nlosbench.bounds.zzb_interval : The Ziv–Zakai bound with confidence ends from replicate render sets.
+    nlosbench.bounds.pairwise_ustat : Unbiased λ for every pair of grid points from replicate renders.
+
     Examples
     --------
     Four replicates of a scalar D_r with mean 1: est is unbiased for d² = 1, the plug-in D̄² carries
@@ -226,6 +235,15 @@ def pairwise_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -
     -------
     UStat
         est, se, df (G, G) and loo (R, G, G) (empty for R = 2): for weights 1/σ², λ[i, j] with θ* = θ_i.
+
+    See Also
+    --------
+    nlosbench.bounds.hcr : The HCR at θ* from one set of renders (a plug-in: rendering noise biases it low).
+    nlosbench.bounds.crlb : The CRLB, the HCR's Δ → 0 limit, from a Fisher matrix.
+    nlosbench.bounds.hcr_interval : The HCR and CRLB with one-sided confidence ends from replicate render sets.
+    nlosbench.bounds.ziv_zakai : The Ziv–Zakai bound on the Bayesian MSE over a prior on Θ (any estimator).
+    nlosbench.bounds.zzb_interval : The Ziv–Zakai bound with confidence ends from replicate render sets.
+    nlosbench.bounds.u_statistic : The unbiased estimate and its jackknife from a replicate Gram array.
 
     Examples
     --------

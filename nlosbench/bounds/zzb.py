@@ -262,6 +262,15 @@ def ziv_zakai(renders, thetas, noise: NoiseModel, prior=None, lower=None, upper=
     ZZBResult
         The bound (parameter units²), its exact log10, A(h), the prior variance and the grid check.
 
+    See Also
+    --------
+    nlosbench.bounds.hcr : The HCR at θ* from one set of renders (a plug-in: rendering noise biases it low).
+    nlosbench.bounds.crlb : The CRLB, the HCR's Δ → 0 limit, from a Fisher matrix.
+    nlosbench.bounds.hcr_interval : The HCR and CRLB with one-sided confidence ends from replicate render sets.
+    nlosbench.bounds.zzb_interval : The Ziv–Zakai bound with confidence ends from replicate render sets.
+    nlosbench.bounds.pairwise_ustat : Unbiased λ for every pair of grid points from replicate renders.
+    nlosbench.bounds.u_statistic : The unbiased estimate and its jackknife from a replicate Gram array.
+
     Examples
     --------
     L(θ) = θ·g under AWGN with F = 1 (CRLB = 1), θ uniform on [0, 2] (prior variance ≈ 1/3): the ZZB
@@ -357,6 +366,15 @@ def zzb_interval(stat: UStat, thetas, kind: str, prior=None, level: float = 0.95
     -------
     ZZBInterval
         log10 point and ends of the ZZB (parameter units²).
+
+    See Also
+    --------
+    nlosbench.bounds.hcr : The HCR at θ* from one set of renders (a plug-in: rendering noise biases it low).
+    nlosbench.bounds.crlb : The CRLB, the HCR's Δ → 0 limit, from a Fisher matrix.
+    nlosbench.bounds.hcr_interval : The HCR and CRLB with one-sided confidence ends from replicate render sets.
+    nlosbench.bounds.ziv_zakai : The Ziv–Zakai bound on the Bayesian MSE over a prior on Θ (any estimator).
+    nlosbench.bounds.pairwise_ustat : Unbiased λ for every pair of grid points from replicate renders.
+    nlosbench.bounds.u_statistic : The unbiased estimate and its jackknife from a replicate Gram array.
 
     Examples
     --------

@@ -163,7 +163,16 @@ def choose_backend(model: ForwardModel, verdicts: Mapping[str, Verdict] | str | 
     is "ad", "fd", or "mixed" (AD for some parameters, FD for the rest); `.chosen` says per parameter
     what was picked and why. base: the "auto" settings being resolved: its FD step / rounds / crn and
     spp are kept, its `ad` options override the chosen integrator's. Without `base`, FD uses the
-    settings of the first verdict that recommends FD (else the defaults)."""
+    settings of the first verdict that recommends FD (else the defaults).
+
+    Examples
+    --------
+    An exact toy without a verdict takes AD for every parameter:
+
+    >>> s = nb.diagnostics.choose_backend(nb.scenes.get("blob2d"))
+    >>> s.method, s.chosen
+    ('ad', 'x → ad:auto (prior: exact model); y → ad:auto (prior: exact model)')
+    """
     found = _as_verdicts(verdicts)
     names = list(model.params.names)
     if found and not set(found) & set(names):  # verdicts for other parameters (e.g. of a restriction) are ignored

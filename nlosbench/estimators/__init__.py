@@ -60,6 +60,11 @@ def available() -> list[str]:
     -------
     list of str
         The names, sorted.
+
+    Examples
+    --------
+    >>> "mle-adam" in nb.estimators.available()
+    True
     """
     return sorted(set(_BUILTIN) | set(_REGISTERED) | set(_entry_points()))
 
@@ -142,6 +147,11 @@ def describe() -> dict[str, str]:
     -------
     dict of str to str
         Per available estimator, the first line of its docstring and its `valid_when`.
+
+    Examples
+    --------
+    >>> nb.estimators.describe()["gauss-newton"]  # doctest: +ELLIPSIS
+    'Fisher scoring / Gauss–Newton with Levenberg–Marquardt damping...'
     """
     out = {}
     for name in available():

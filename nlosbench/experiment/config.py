@@ -13,12 +13,14 @@ from pathlib import Path
 
 import yaml
 
-from .. import scenes, studies
+from .. import noise, scenes, studies
 from ..schema import ConfigError, Field, folder_name, integer_in, path_string, positive_number, validate_block
+from ..studies.context import noise_options
 
-NOISE = {"model": Field(str, help="noise model name", choices=("awgn", "poisson")),
+NOISE = {"model": Field(str, help="noise model name: awgn, poisson or a plug-in (nlosbench list noise)"),
          "sigma": Field(float, None, "AWGN standard deviation (radiance units)", nullable=True),
-         "scale": Field(float, None, "Poisson: expected photons per unit radiance", nullable=True)}
+         "scale": Field(float, None, "Poisson: expected photons per unit radiance", nullable=True),
+         "options": Field(dict, {}, "a plug-in noise model's parameters, e.g. {scale: 1000, dark: 300}")}
 
 STUDY = {"id": Field(folder_name, None, "folder name of the study in the run directory (default: NN-type); one name, "
                                         "never a path out of the run folder", nullable=True)}
@@ -150,9 +152,19 @@ def resolve(raw: dict) -> dict:
     except ConfigError as e:
         raise ConfigError("scene.name", str(e)) from None
     for i, n in enumerate(cfg["noise"]):
-        need = {"awgn": "sigma", "poisson": "scale"}[n["model"]]
-        if n[need] is None or n[need] <= 0:
+        need = {"awgn": "sigma", "poisson": "scale"}.get(n["model"])
+        if need is not None and (n[need] is None or n[need] <= 0):
             raise ConfigError(f"noise[{i}].{need}", f"{n['model']} needs {need} > 0, got {n[need]!r}")
+        if n["model"] not in noise.available():
+            raise ConfigError(f"noise[{i}].model", f"expected one of {', '.join(noise.available())} (a plug-in once "
+                              f"installed; nlosbench list noise), got {n['model']!r}")
+        try:
+            model = noise.get(n["model"], **noise_options(n))
+        except ValueError as e:  # its parameters (a plug-in that does not import: ImportError, an environment error)
+            raise ConfigError(f"noise[{i}]", str(e)) from None
+        refusal = noise.bounds_refusal(model)
+        if refusal:
+            raise ConfigError(f"noise[{i}].model", f"{n['model']} cannot be used by the bounds: {refusal}")
     out = []
     for i, block in enumerate(cfg["studies"]):
         path = f"studies[{i}]"

@@ -8,6 +8,7 @@ import yaml
 
 from .. import studies
 from ..io import write_text
+from ..studies.context import noise_options
 from . import outputs
 from .rundir import RunFolderError
 
@@ -23,10 +24,8 @@ def make_report(run_dir: str | Path) -> Path:
             raise RunFolderError(str(path), f"{what}: a report from it would be wrong; resume the run (nlosbench run "
                                             f"<its config> --out {run_dir} --resume) to rebuild it")
     sc = cfg["scene"]
-    noises = ", ".join(
-        f"{n['model']} ({'σ = ' + str(n['sigma']) if n['model'] == 'awgn' else 'scale = ' + str(n['scale'])})"
-        for n in cfg["noise"]
-    )
+    noises = ", ".join(f"{n['model']} ({', '.join(f'{k} = {v}' for k, v in noise_options(n).items())})".replace(
+        "sigma =", "σ =") for n in cfg["noise"])
     total = sum(s.get("seconds", 0) for s in results["studies"].values())
     renders = sum(
         max(int(s["results"].get("renders") or 0), s.get("renders_in_process", 0)) for s in results["studies"].values()

@@ -29,7 +29,22 @@ HOW = ("a scene spec is a YAML mapping with `file:` (the Mitsuba XML, relative t
 
 
 class SpecError(ConfigError):
-    """A scene name or spec that cannot be used; `str()` is one line: `name or path: what is wrong`."""
+    """A scene name or spec that cannot be used; `str()` is one line: `name or path: what is wrong`.
+
+    The command line reports it as bad input (exit 2) before anything is rendered or written.
+
+    Parameters
+    ----------
+    path : str
+        The scene name, spec file or spec key the message is about.
+    message : str
+        What is wrong, and how to write it right.
+
+    Examples
+    --------
+    >>> str(nb.scenes.SpecError("room.yaml: params", "expected a non-empty list of bindings"))
+    'room.yaml: params: expected a non-empty list of bindings'
+    """
 
 
 _BUILTIN: dict[str, Callable[..., ForwardModel]] = {"blob2d": Blob2D, "edge1d": Edge1D, "spot_rgb": SpotRGB}
@@ -50,12 +65,34 @@ def _specs() -> dict[str, Path]:
 
 
 def available() -> list[str]:
-    """Names accepted by `get`."""
+    """Names accepted by `get`.
+
+    Returns
+    -------
+    list of str
+        The names, sorted: the built-in scenes and toys, then the registered specs.
+
+    Examples
+    --------
+    >>> "blob2d" in nb.scenes.available()
+    True
+    """
     return sorted(set(_BUILTIN) | set(_specs()))
 
 
 def describe() -> dict[str, str]:
-    """name → one line: a spec's `description`, else the first sentence of the factory's docstring."""
+    """name → one line: a spec's `description`, else the first sentence of the factory's docstring.
+
+    Returns
+    -------
+    dict of str to str
+        Per available scene, its one-line description.
+
+    Examples
+    --------
+    >>> nb.scenes.describe()["blob2d"]  # doctest: +ELLIPSIS
+    'A Gaussian spot at θ = (x, y) metres on a size×size image plane...'
+    """
     specs = _specs()
     out = {}
     for name in available():
@@ -149,7 +186,35 @@ def smoke_options(name: str) -> dict:
 
 
 def get(name: str, **options) -> ForwardModel:
-    """The forward model for a registered scene name or a path to a `.yaml` scene spec (SpecError otherwise)."""
+    """The forward model of a registered scene or of a scene spec file.
+
+    Parameters
+    ----------
+    name : str
+        A registered name (`available`: the analytic toys blob2d and edge1d, and every spec in scenes/ or
+        NLOSBENCH_SCENE_PATH) or a path to a `.yaml` scene spec.
+    **options
+        Passed to the scene: for a spec, `defines` (XML `<default>` values, e.g. {"res": 16}, merged over the
+        spec's), `variant`, `remove`, `max_pass_samples`, `freeze`, `llvm_target`, `ad_integrator`, `cache`
+        (`load_spec`); for a toy, its constructor's keywords (e.g. size, render_noise).
+
+    Returns
+    -------
+    ForwardModel
+        The model: `params` (its θ components and Θ) and `render(theta, spp, seed)` → an image (H, W, C),
+        float32, radiance units. A Mitsuba scene is loaded once, here.
+
+    Raises
+    ------
+    SpecError
+        For an unknown name (with a close match), a spec that cannot be read or a scene that does not load.
+
+    Examples
+    --------
+    >>> model = nb.scenes.get("blob2d", size=16)
+    >>> model.params.names, model.render([0.5, 0.5], spp=1, seed=0).shape
+    (('x', 'y'), torch.Size([16, 16, 1]))
+    """
     if not isinstance(name, str) or not name:
         raise SpecError("scene", f"expected a scene name or a spec path, got {name!r}")
     if name in _BUILTIN:

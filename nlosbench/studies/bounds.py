@@ -21,7 +21,6 @@ import numpy as np
 from ..bounds import BoundService
 from ..bounds.service import quote_test_grid
 from ..io import read_csv, write_csv, write_exr
-from ..noise import Poisson
 from ..schema import GRID, MAX_HALVINGS, STEP_TOL, ConfigError, Field, grid_values, smoke_grid
 from . import precise
 from .context import RunContext
@@ -118,15 +117,16 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     """R·G grid renders; with an `fd_step`, 4R·G FD stencil renders more (at ξ and at ξ/2, the step check);
-    with a Poisson noise model, G weight renders more; with `precision_at`, the pilot there and at most the
+    with a noise model whose weight is signal-dependent (Poisson), G weight renders more; with `precision_at`, the
+    pilot there and at most the
     `precision_budget` (`precise.estimate`)."""
-    poisson = any(isinstance(n, Poisson) for n in ctx.noises)
-    renders = p.replicates * len(p.thetas) * (1 + (4 if p.fd_step is not None else 0)) + poisson * len(p.thetas)
+    weight = any(n.signal_dependent for n in ctx.noises)
+    renders = p.replicates * len(p.thetas) * (1 + (4 if p.fd_step is not None else 0)) + weight * len(p.thetas)
     samples = renders * p.spp * pixels(ctx.model)
     if len(p.precision_at):  # the pilot at the quoted θ (θ*, 4 offsets and 2 FD stages per side; a test grid that
         # is not the curve's)
         Q = len(p.precision_at)
-        pilot = p.replicates * (Q * (1 + 8 + 4) + (0 if p.test_grid == len(p.thetas) else p.test_grid)) + poisson * Q
+        pilot = p.replicates * (Q * (1 + 8 + 4) + (0 if p.test_grid == len(p.thetas) else p.test_grid)) + weight * Q
         renders += pilot
         samples += pilot * p.spp * pixels(ctx.model)
     return precise.estimate(renders, samples, cfg, p.spp, pixels(ctx.model))

@@ -73,8 +73,7 @@ class RunContext:
         noises = []
         for i, n in enumerate(cfg["noise"]):
             try:
-                options = {k: v for k, v in n.items() if k != "model" and v is not None}
-                noises.append(noise_models.get(n["model"], **options))
+                noises.append(noise_models.get(n["model"], **noise_options(n)))
             except (KeyError, TypeError, ValueError) as e:
                 raise ConfigError(f"noise[{i}]", e.args[0] if isinstance(e, KeyError) and e.args else str(e)) from None
         model = base = load_model(spec)
@@ -137,3 +136,9 @@ class RunContext:
         self.bars.close()
         if not self.quiet:
             print(msg, file=sys.stderr, flush=True)
+
+
+def noise_options(block: dict) -> dict:
+    """A config's `noise:` entry as the parameters of `noise.get`: sigma / scale where given, and `options`."""
+    return {**{k: v for k, v in block.items() if k not in ("model", "options") and v is not None},
+            **(block.get("options") or {})}
