@@ -12,7 +12,9 @@ bounds over a grid, then an estimator in Monte Carlo trials at two θ*.
 # %%
 # The config and the run
 # ----------------------
+import contextlib
 import csv
+import io
 import json
 import shutil
 import tempfile
@@ -39,7 +41,8 @@ studies:
 """
 folder = Path(tempfile.mkdtemp())
 (folder / "edge.yaml").write_text(CONFIG)
-code = cli.main(["run", str(folder / "edge.yaml"), "--out", str(folder / "run"), "--quiet"])
+with contextlib.redirect_stdout(io.StringIO()):  # its last line names the temporary folder
+    code = cli.main(["run", str(folder / "edge.yaml"), "--out", str(folder / "run"), "--quiet"])
 run = folder / "run"
 files = sorted(p.relative_to(run).as_posix() for p in run.rglob("*") if p.is_file())
 print("exit code", code)
