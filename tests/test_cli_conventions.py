@@ -51,6 +51,23 @@ def test_every_argument_has_help_text():
     assert not missing, f"arguments without help: {missing}"
 
 
+def _parsers(parser: argparse.ArgumentParser, where: str = "nlosbench"):
+    """(where, parser) for the parser and each of its sub-commands."""
+    yield where, parser
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _parsers(sub, f"{where} {name}")
+
+
+def test_every_command_prints_its_help():
+    """argparse expands %-formats in help text only when it prints it: a bare % in a help string breaks --help."""
+    parsers = list(_parsers(cli.build_parser()))
+    assert len(parsers) > 5
+    for where, parser in parsers:
+        assert parser.format_help().startswith("usage:"), where
+
+
 @pytest.mark.parametrize("study", studies.available())
 def test_list_keys_prints_every_key_of_a_study_with_its_help(study, capsys):
     assert cli.main(["list", "keys", study]) == 0
