@@ -153,8 +153,8 @@ def _bound_parser(sub) -> None:
     b.add_argument("--spp", type=int, default=SPP, help=f"samples per pixel of every render (default: {SPP})")
     b.add_argument("--replicates", type=int, default=REPLICATES, help="independent replicate sets of every render "
                    f"(default: {REPLICATES}, the fewest that give confidence limits)")
-    b.add_argument("--fd-step", type=float, help=f"first FD step ξ, parameter units (default: {FD_STEP_FRACTION * 100:.0f} %% "
-                   "of Θ's width)")
+    b.add_argument("--fd-step", type=float, help="first FD step ξ, parameter units (default: "
+                   f"{FD_STEP_FRACTION * 100:.0f} %% of Θ's width)")
     b.add_argument("--max-halvings", type=int, default=MAX_HALVINGS, help="the most halvings of ξ while F has not "
                    f"settled within {STEP_TOL * 100:.0f} %% (default: {MAX_HALVINGS})")
     b.add_argument("--test-grid", type=int, default=TEST_GRID, help=f"HCR test points over Θ (default: {TEST_GRID}), "

@@ -5,6 +5,7 @@ Mitsuba variant, package versions, what decided the renders' bits as the run rec
 command that made it).
 
     python scripts/publish_result.py runs/demo quick --config configs/quick.yaml
+    python scripts/publish_result.py runs/x x --config configs/x.yaml --command "nlosbench run … --set seed=1 …"
 
 The run must be finished (results.json present, every study "done"); an existing results/<name>/ is
 replaced only after the new copy is complete (written beside it, then renamed).
@@ -78,7 +79,8 @@ def machine(run: dict) -> dict:
     }
 
 
-def publish(run_dir: Path, name: str, config: str | None, dest_root: Path = ROOT / "results") -> Path:
+def publish(run_dir: Path, name: str, config: str | None, dest_root: Path = ROOT / "results",
+            command: str | None = None) -> Path:
     results = run_dir / "results.json"
     if not results.is_file():
         raise SystemExit(f"{run_dir}: no results.json (is the run finished?)")
@@ -94,7 +96,8 @@ def publish(run_dir: Path, name: str, config: str | None, dest_root: Path = ROOT
             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(src, tmp / rel)
     info = machine(run) | {"render": render_identity(run_dir),
-                           "command": f"nlosbench run {config} --out runs/{Path(config).stem}" if config else None}
+                           "command": command or (f"nlosbench run {config} --out runs/{Path(config).stem}"
+                                                  if config else None)}
     (tmp / "machine.json").write_text(json.dumps(info, indent=2) + "\n")
     dest = dest_root / name
     if dest.exists():
@@ -113,9 +116,13 @@ def main(argv=None) -> None:
     p.add_argument("run_dir", type=Path, help="a finished run folder (with results.json)")
     p.add_argument("name", help="folder name under results/")
     p.add_argument("--config", default=None, help="the config the run came from (recorded in machine.json)")
+    p.add_argument("--command", default=None, help="the command that made the run, as recorded in machine.json "
+                   "(default: `nlosbench run CONFIG --out runs/STEM`)")
+    p.add_argument("--into", type=Path, default=ROOT / "results", help="the folder that receives NAME (default: "
+                   "results/; a run made on another machine is published there and copied back)")
     a = p.parse_args(argv)
     sys.path.insert(0, str(ROOT))
-    print(publish(a.run_dir, a.name, a.config))
+    print(publish(a.run_dir, a.name, a.config, a.into, a.command))
 
 
 if __name__ == "__main__":

@@ -139,6 +139,52 @@ def test_a_met_target_adds_no_renders_and_an_unmet_one_adds_fresh_sets():
     assert (b1.bounds["hcr"].lower, b1.precision.fresh_sets) == (b.bounds["hcr"].lower, b.precision.fresh_sets)
 
 
+def test_each_theta_is_held_to_its_own_target():
+    """The same two θ* as above (pilot reached 0.116 at 0.35 and 0.145 at 0.75) with a target each, [0.1, 0.2]:
+    0.75 meets its 0.2 at the pilot and gets no fresh set, 0.35 misses its 0.1 and gets fresh sets; each record
+    carries its own target, and each θ*'s bounds and record are those of a call for it alone with its target as a
+    scalar (the sets of one θ* do not depend on the other's)."""
+    m, R0 = _blob(2.0), 3
+    svc = lambda bank: BoundService(bank, [nb.noise.AWGN(0.3)])  # noqa: E731
+    a, b = svc(RenderBank(m, seed=5)).at([[0.35], [0.75]], 16, replicates=R0, precision=[0.1, 0.2], **BLOB)
+    assert (a.precision.target, b.precision.target) == (0.1, 0.2)
+    assert b.precision.met and b.precision.looks == 1 and b.precision.fresh_sets == 0
+    assert a.precision.looks > 1 and a.precision.fresh_sets >= 3
+    for pt, theta, p in ((a, 0.35, 0.1), (b, 0.75, 0.2)):
+        (alone,) = svc(RenderBank(m, seed=5)).at([[theta]], 16, replicates=R0, precision=p, **BLOB)
+        assert [(k, v.lower, v.point, v.upper) for k, v in pt.bounds.items()] == [
+            (k, v.lower, v.point, v.upper) for k, v in alone.bounds.items()]
+        assert (pt.precision.met, pt.precision.fresh_sets, pt.precision.reached) == (
+            alone.precision.met, alone.precision.fresh_sets, alone.precision.reached)
+
+
+@pytest.mark.parametrize("precision, match", [([0.1, 0.2, 0.3], "one target or one per θ"),
+                                              ([0.1, -0.2], "precision must be a finite number > 0")])
+def test_targets_per_theta_are_checked_before_any_render(precision, match):
+    bank = RenderBank(_blob(2.0))
+    with pytest.raises(ValueError, match=match):
+        BoundService(bank, [nb.noise.AWGN(0.3)]).at([[0.35], [0.75]], 16, precision=precision, **BLOB)
+    assert bank.renders == 0
+
+
+def test_a_curve_without_offsets_tests_its_own_grid_and_starts_its_quoted_step_where_asked():
+    """curve(quote=[0.5], offsets=0, quote_step=0.04) on the 5-point grid: the quoted HCR tests exactly the grid's
+    other 4 points (and Δ → 0), and its first FD stage is at ξ = 0.04 (the reason names the finest step, a halving
+    of it), with no offset render: the renders are those of the same call with offsets=2 less 3 sets × 2 (θ ± 2ξ;
+    θ ± ξ are the first FD stencil's renders anyway)."""
+    grid = np.linspace(0.2, 0.8, 5)
+    kw = dict(seeds="common", replicates=3, zzb=False, max_halvings=1, precision=0.5, quote=[0.5], quote_step=0.04)
+    counts = {}
+    for offsets in (0, 2):
+        bank = RenderBank(_blob(2.0), seed=5)
+        got = BoundService(bank, [nb.noise.AWGN(0.3)]).curve(grid, 16, offsets=offsets, **kw)
+        counts[offsets] = bank.renders
+        reason = got.precise[0].bounds["hcr"].reason
+        assert f"over {4 + 2 * offsets} tested Δ" in reason, reason
+        assert any(f"ξ = {xi}" in got.precise[0].bounds["crlb"].reason for xi in (0.04, 0.02))
+    assert counts[2] - counts[0] == 3 * 2
+
+
 def test_the_budget_caps_the_pixel_samples_and_the_report_says_what_more_would_cost():
     """blob2d's x (24 × 24 px, 16 spp), precision 0.1, seed 1: unlimited, it adds fresh sets; with a budget just
     above the pilot's cost no fresh look fits, the pixel-samples spent stay within the budget, the target is

@@ -79,6 +79,16 @@ def test_a_bounds_target_without_precision_at_quotes_every_grid_theta(tmp_path):
     assert len(read_csv(out / "b" / "precise.csv")) == 3
 
 
+def test_a_looser_target_beyond_a_theta_reaches_the_quoted_bounds_beyond_it(tmp_path):
+    """`precision_beyond: [0.6, 0.5]` with `precision: 0.15`: the records at 0.2 and 0.5 carry 0.15, the one at 0.8
+    carries 0.5."""
+    rc, out = _run(tmp_path, [{**BOUNDS, "precision": 0.15, "precision_beyond": [0.6, 0.5], "hcr_offsets": 0,
+                               "precision_fd_step": 0.02}])
+    assert rc == 0
+    recs = json.loads((out / "results.json").read_text())["studies"]["b"]["results"]["precision"]
+    assert sorted((round(r["theta"]["x"], 6), r["target"]) for r in recs) == [(0.2, 0.15), (0.5, 0.15), (0.8, 0.5)]
+
+
 def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     rc, out = _run(tmp_path, [TRIALS, BOUNDS])
     assert rc == 0
@@ -102,6 +112,10 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     ({**BOUNDS, "precision_budget": 10**6, "precision": None}, "b.precision_budget: a budget needs a precision"),
     ({**BOUNDS, "precision_at": [0.5]}, "b.precision_at: quoting bounds at θ needs a `precision` target"),
     ({**BOUNDS, "precision": 0.2, "precision_at": [0.5, 0.95]}, "b.precision_at[1]: θ out of range"),
+    ({**BOUNDS, "precision_beyond": [0.6, 0.5]}, "b.precision_beyond: needs a `precision` target"),
+    ({**BOUNDS, "precision": 0.2, "precision_beyond": [0.6]}, "b.precision_beyond: expected [θ₀, p₀] with p₀ > 0"),
+    ({**BOUNDS, "precision": 0.2, "precision_fd_step": -0.01}, "b.precision_fd_step: expected a step > 0"),
+    ({**BOUNDS, "precision": 0.2, "hcr_offsets": -1}, "b.hcr_offsets: expected an integer >= 0"),
 ])
 def test_bad_precision_keys_stop_the_run_at_config_time(tmp_path, capsys, study, message):
     """Schema errors name studies[0].<key> (the config is resolved), the rest <id>.<key> (the study's plan, with the

@@ -80,7 +80,8 @@ EXPLORE = 4
 
 
 def check_precision(precision, budget, looks, want: Sequence[str], replicates: int) -> None:
-    """ValueError (one line) unless precision is None or a finite number > 0 (relative half-width), budget
+    """ValueError (one line) unless precision is None or a finite number > 0 (relative half-width; or a sequence of
+    them, one per θ), budget
     None or a positive integer (pixel-samples, only with a precision), looks an integer ≥ 2, and, with a
     precision, an interval bound (hcr, crlb) is asked for from ≥ 3 replicates."""
     if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1):
@@ -91,9 +92,11 @@ def check_precision(precision, budget, looks, want: Sequence[str], replicates: i
         if budget is not None:
             raise ValueError("a budget needs a precision target (precision=...)")
         return
-    if isinstance(precision, bool) or not isinstance(precision, (int, float)) or not (
-            math.isfinite(precision) and precision > 0):
-        raise ValueError(f"precision must be a finite number > 0 (relative half-width, e.g. 0.25), got {precision!r}")
+    values = np.asarray(precision, dtype=object).reshape(-1)
+    if values.size == 0 or any(isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) or
+                               not (math.isfinite(v) and v > 0) for v in values):
+        raise ValueError(f"precision must be a finite number > 0 (relative half-width, e.g. 0.25) or one per θ, "
+                         f"got {precision!r}")
     if not set(KINDS) & set(want):
         raise ValueError(f"a precision target needs an interval bound (one of {list(KINDS)}) in want, got {list(want)}")
     if replicates < 3:
@@ -492,21 +495,22 @@ class _State:
     notes: dict = field(default_factory=dict)
 
 
-def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float, budget: int | None, K: int,
+def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budget: int | None, K: int,
            alpha: float, cost: SetCost, spp: int, bank) -> list:
-    """The stopping rule of the module docstring over T θ*. look(index array, R, first, level, keep, window,
-    tested) gives the BoundPoints (noise-major) of those θ* from replicate sets first … first + R − 1 at `level`,
-    their FD stages those of `window` (None: the service's own) and their tested Δ those of `tested` ({position:
-    mask over the pilot's Δ}; None: all), filling keep {(noise, position): Raw}. The call is charged by request
-    (`bank.ledger()`); `spp` turns SetCost's renders into pixel-samples. Returns the BoundPoints (noise-major), each
+    """The stopping rule of the module docstring over T θ*, each with its target (one float, or (T,)).
+    look(index array, R, first, level, keep, window, tested) gives the BoundPoints (noise-major) of those θ* from
+    replicate sets first … first + R − 1 at `level`, their FD stages those of `window` (None: the service's own)
+    and their tested Δ those of `tested` ({position: mask over the pilot's Δ}; None: all), filling keep {(noise,
+    position): Raw}. The call is charged by request (`bank.ledger()`); `spp` turns SetCost's renders into pixel-samples. Returns the BoundPoints (noise-major), each
     with its `precision` record."""
     with bank.ledger() as spend:
         return _refine(look, T, noises, R0, target, budget, K, alpha, cost, spp, spend)
 
 
-def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: float, budget: int | None, K: int,
+def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budget: int | None, K: int,
             alpha: float, cost: SetCost, spp: int, spend) -> list:
     level = 1.0 - alpha / K
+    goal = np.broadcast_to(np.asarray(target, dtype=np.float64).reshape(-1), (T,))
     st = _State()
 
     def run(idx: np.ndarray, R: int, first: int, k: int, window: Window | None = None,
@@ -532,7 +536,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: floa
         # fewer tested Δ only where no Barankin or HCR-hat is asked for (they keep the whole grid); the paper's
         # hcr_neff, which comes with "hcr", is a sup like the HCR's and lives where it does
         subset = set(st.points[noises[0], i].bounds) <= {*KINDS, "hcr_neff"}
-        return plan([st.raws[j, i] for j in noises], kinds(i), target, level, MAX_PREDICT, above,
+        return plan([st.raws[j, i] for j in noises], kinds(i), goal[i], level, MAX_PREDICT, above,
                     lambda stages, tested: cost.one(i, stages, tested), subset)
 
     def n_tested(pl: Plan) -> int | None:
@@ -545,7 +549,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: floa
     def spent() -> int:
         return spend.pixel_samples
 
-    active = [i for i in range(T) if worst(i) > target]
+    active = [i for i in range(T) if worst(i) > goal[i]]
     for i in range(T):
         st.notes[i] = "met at the pilot" if i not in active else ""
     # plan from the pilot alone; the budget caps the first look's sets (each θ* with its planned window and Δ)
@@ -570,7 +574,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: floa
             star[i] = (min(pl.sets, r_max), pl)
     grid_done = 0
     for k in range(1, K):
-        todo = [i for i in star if worst(i) > target]
+        todo = [i for i in star if worst(i) > goal[i]]
         if not todo:
             break
         now = {i: star[i][0] * 2 ** (k - 1) for i in todo}
@@ -589,13 +593,13 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: floa
             run(idx, R, R0, k, win, {int(i): star[int(i)][1].tested for i in idx})
         grid_done = max(grid_done, max(now.values()))
         for i in todo:
-            st.notes[i] = (f"met at look {k}" if worst(i) <= target else f"not met after look {k}") + (
+            st.notes[i] = (f"met at look {k}" if worst(i) <= goal[i] else f"not met after look {k}") + (
                 " (exploratory)" if "exploratory" in st.notes[i] else "")
     total = spent()
     extra, extra_px = {}, {}
     for i in range(T):  # where unmet: predicted from the reported look's own data, fresh sets beyond those it used
         extra[i] = extra_px[i] = 0.0
-        if worst(i) > target:  # (a fresh look's tested Δ may be a subset already: the plan's mask is over them)
+        if worst(i) > goal[i]:  # (a fresh look's tested Δ may be a subset already: the plan's mask is over them)
             pl = planned(i, st.fresh[i])
             extra[i] = math.inf if pl.sets is None else float(pl.sets - st.fresh[i])
             stages = pl.window.halvings + 1 if pl.window else st.stages[i]
@@ -605,7 +609,8 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target: floa
         for i in range(T):
             pt = st.points[j, i]
             pt.precision = Precision(
-                float(target), {k: reached(pt.bounds[k]) for k in kinds(i)}, worst(i) <= target, st.looks[i], R0,
-                st.fresh[i], level, int(total), extra[i], extra_px[i], st.notes[i], int(spend.rendered))
+                float(goal[i]), {k: reached(pt.bounds[k]) for k in kinds(i)}, bool(worst(i) <= goal[i]),
+                st.looks[i], R0, st.fresh[i], level, int(total), extra[i], extra_px[i], st.notes[i],
+                int(spend.rendered))
             out.append(pt)
     return out

@@ -588,8 +588,8 @@ class BoundService:
     def curve(self, thetas, spp: int, seeds: str = "common", replicates: int = 3, crlb: bool = True,
               barankin: bool = False, zzb: bool = True, prior=None, noises=None, fd_step: float | None = None,
               gradient: str = "fd", ad: dict | None = None, check_step: bool = True, step_tol: float = 0.1,
-              precision: float | None = None, budget: int | None = None, looks: int = 3, quote=None,
-              max_halvings: int = 3) -> Curve:
+              precision=None, budget: int | None = None, looks: int = 3, quote=None,
+              max_halvings: int = 3, offsets: int = 4, quote_step: float | None = None) -> Curve:
         """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders; with a precision target, the
         interval bounds at the θ it quotes to that target.
 
@@ -607,7 +607,8 @@ class BoundService:
         seeds and replicates (so its pilot reuses the curve's renders wherever its points coincide: a θ on the
         grid, and every test point when the test grid is the curve's), the kinds hcr (with its hcr_neff) and crlb
         (hcr only when `crlb` is off), its test grid the curve's when the grid is `params.grid(G)`
-        (`quote_test_grid`), `at`'s default axis offsets, its FD step `fd_step` or the grid's smallest spacing,
+        (`quote_test_grid`), `offsets` axis offsets, its first FD step `quote_step`, else `fd_step`, else the grid's
+        smallest spacing,
         halved at most `max_halvings` times, and fresh replicate sets where an interval is wider than ±p
         (`bounds.precision`), in `Curve.precise`.
 
@@ -642,9 +643,9 @@ class BoundService:
             With explicit FD stencils, also render at ξ/2 to check the step.
         step_tol : float, optional
             Relative tolerance of the step check (0.1: F within 10 %).
-        precision : float, optional
-            The target p > 0 of the quoted bounds (relative half-width, linear units; as in `at`); None: no
-            quoted bounds.
+        precision : float or array_like of shape (Q,), optional
+            The target p > 0 of the quoted bounds (relative half-width, linear units; as in `at`), one for every
+            quoted θ or one each; None: no quoted bounds.
         budget : int, optional
             A cap on the pixel-samples (spp × H × W × renders) the quoted bounds may spend beyond the curve's
             renders; None: unlimited (with a precision target only).
@@ -655,6 +656,13 @@ class BoundService:
             target only).
         max_halvings : int, optional
             The most halvings of the quoted bounds' FD step, in [0, 12].
+        offsets : int, optional
+            The quoted bounds' axis offsets ±ξ·2^k (k < offsets) per side as extra HCR test points (`at`); 0: the
+            curve's grid Δ and Δ → 0 only.
+        quote_step : float, optional
+            The quoted bounds' first FD step ξ (halved per θ until F settles); None: `fd_step`, else the grid's
+            smallest spacing. Where L(θ) is smooth over centimetres a large start costs the fewest renders; where an
+            edge crosses pixels the halvings reach the step it needs.
 
         Returns
         -------
@@ -669,6 +677,9 @@ class BoundService:
             raise ValueError("a bound curve needs at least 3 increasing grid points")
         R = _need_replicates(replicates)
         _check_step(fd_step or 1.0, step_tol, max_halvings)
+        _check_step(quote_step or 1.0, step_tol, max_halvings)
+        if isinstance(offsets, bool) or not isinstance(offsets, (int, np.integer)) or offsets < 0:
+            raise ValueError(f"offsets must be an integer >= 0, got {offsets!r}")
         kinds = ("hcr", "crlb") if crlb else ("hcr",)
         check_precision(precision, budget, looks, kinds, R)
         if quote is not None and precision is None:
@@ -677,6 +688,8 @@ class BoundService:
             [self.params.validate([t])[0] for t in np.asarray(quote, dtype=np.float64).reshape(-1)])
         if quoted.size == 0:
             raise ValueError("quote must hold at least one θ (None: every grid θ)")
+        if precision is not None and np.size(precision) not in (1, quoted.size):
+            raise ValueError(f"precision: one target or one per quoted θ ({quoted.size}), got {np.size(precision)}")
         Xd = self.replicates(T, spp, seeds, R, "bound-curve renders").double()  # (R, G, *S)
         G = len(T)
         stages = self._curve_stages(T, Xd, spp, seeds, R, fd_step, gradient, ad, check_step)
@@ -710,9 +723,9 @@ class BoundService:
                 points.append(BoundPoint(j, str(noise), np.array([t]), b))
             zzbs[j] = self._zzb(Xd, T, noise, Wflat, prior, spp) if zzb and not zzb_reason else None
         precise = [] if precision is None else self.at(
-            quoted[:, None], spp, kinds, seeds, R, quote_test_grid(self.params, T),
-            fd_step=fd_step or float(np.diff(T).min()), noises=noises, step_tol=step_tol, max_halvings=max_halvings,
-            precision=precision, budget=budget, looks=looks)
+            quoted[:, None], spp, kinds, seeds, R, quote_test_grid(self.params, T), offsets,
+            fd_step=quote_step or fd_step or float(np.diff(T).min()), noises=noises, step_tol=step_tol,
+            max_halvings=max_halvings, precision=precision, budget=budget, looks=looks)
         return Curve(points, zzbs, zzb_reason, precise)
 
     def _curve_stages(self, T: np.ndarray, Xd: torch.Tensor, spp: int, seeds: str, R: int, fd_step, gradient: str,
@@ -770,7 +783,7 @@ class BoundService:
     def at(self, thetas, spp: int, want: Sequence[str] = ("hcr", "crlb"), seeds: str = "common",
            replicates: int = 3, test_grid: int = 21, offsets: int = 4, fd_step: float = 0.01,
            levels: Sequence[int] = (1024, 2048), noises=None, step_tol: float = 0.1,
-           max_halvings: int = 3, precision: float | None = None, budget: int | None = None,
+           max_halvings: int = 3, precision=None, budget: int | None = None,
            looks: int = 3) -> list[BoundPoint]:
         """Every bound in `want` (hcr, crlb, hcr_neff, barankin, hcr_hat) at each θ* (T, P).
 
@@ -811,10 +824,10 @@ class BoundService:
             Relative tolerance of the step check (0.1: F within 10 %).
         max_halvings : int, optional
             The most halvings of ξ, in [0, 12].
-        precision : float, optional
-            The target p > 0: every interval bound asked for (hcr, crlb) has upper/point ≤ 1 + p and
-            point/lower ≤ 1 + p (an open end or one that is not a confidence limit does not meet it). None:
-            one fixed set of `replicates` (today's behaviour).
+        precision : float or array_like of shape (T,), optional
+            The target p > 0 (one for every θ*, or one each): every interval bound asked for (hcr, crlb) has
+            upper/point ≤ 1 + p and point/lower ≤ 1 + p (an open end or one that is not a confidence limit does
+            not meet it). None: one fixed set of `replicates` (today's behaviour).
         budget : int, optional
             A cap on the pixel-samples (spp × H × W × renders) this call may spend; None: unlimited (with a
             precision target only).
@@ -836,6 +849,8 @@ class BoundService:
         _check_step(fd_step, step_tol, max_halvings)
         check_precision(precision, budget, looks, want, R)
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, p.dim)
+        if precision is not None and np.size(precision) not in (1, len(thetas)):
+            raise ValueError(f"precision: one target or one per θ* ({len(thetas)}), got {np.size(precision)}")
         args = (spp, want, seeds, test_grid, offsets, fd_step, levels, noises, step_tol, max_halvings)
         if precision is None:
             return self._at(thetas, R, 0, *args)

@@ -48,6 +48,14 @@ SCHEMA = {
                                     "the `precision` target (needs `precision`); empty with a `precision`: every "
                                     "grid θ", items=float),
     **precise.KEYS,
+    "precision_beyond": Field(list, [], "[θ₀, p₀]: beyond θ₀ the quoted bounds' target is p₀ instead of `precision` "
+                              "(where the information is small a looser target decides as much; needs `precision`)",
+                              items=float),
+    "precision_fd_step": Field(float, None, "the quoted bounds' first FD step ξ, halved per θ until F settles (at most "
+                               "`max_halvings` times): large where L(θ) is smooth, the halvings reach an edge's step; "
+                               "null: `fd_step`, else the grid spacing", nullable=True),
+    "hcr_offsets": Field(int, 4, "the quoted bounds' extra HCR test points ±ξ·2^k (k < hcr_offsets) around each θ, "
+                         "besides the grid's Δ and Δ → 0; 0: none"),
     "barankin": Field(bool, False, "also compute the multi-point Barankin bound at each grid point (plug-in)"),
     "zzb": Field(bool, True, "the Ziv–Zakai bound on the Bayesian MSE over a uniform prior on the grid's range "
                              "(needs a uniform grid)"),
@@ -100,6 +108,15 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.level", f"expected a confidence level in (0, 1), got {cfg['level']}")
     if cfg["precision_at"] and cfg["precision"] is None:
         raise ConfigError(f"{sid}.precision_at", "quoting bounds at θ needs a `precision` target")
+    for key in ("precision_beyond", "precision_fd_step"):
+        if cfg[key] not in (None, []) and cfg["precision"] is None:
+            raise ConfigError(f"{sid}.{key}", "needs a `precision` target")
+    if cfg["precision_beyond"] and (len(cfg["precision_beyond"]) != 2 or not cfg["precision_beyond"][1] > 0):
+        raise ConfigError(f"{sid}.precision_beyond", f"expected [θ₀, p₀] with p₀ > 0, got {cfg['precision_beyond']}")
+    if cfg["precision_fd_step"] is not None and not cfg["precision_fd_step"] > 0:
+        raise ConfigError(f"{sid}.precision_fd_step", f"expected a step > 0 or null, got {cfg['precision_fd_step']}")
+    if cfg["hcr_offsets"] < 0:
+        raise ConfigError(f"{sid}.hcr_offsets", f"expected an integer >= 0, got {cfg['hcr_offsets']}")
     precise.check(cfg, sid, ("hcr", "crlb") if cfg["crlb"] else ("hcr",))
     for i, t in enumerate(cfg["precision_at"]):
         try:
@@ -137,9 +154,14 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     before = ctx.bank.renders
     svc = BoundService(ctx.bank, ctx.noises, p.level)
     # with a target, the quoted θ (None: every grid θ) to it, the curve's sets their pilot
+    kw = precise.at_kwargs(cfg)
+    if cfg["precision_beyond"]:  # a target per quoted θ
+        (edge, looser), base = cfg["precision_beyond"], kw["precision"]
+        kw["precision"] = np.where(p.precision_at > edge, looser, base)
     curve = svc.curve(p.thetas, p.spp, p.seeds, p.replicates, crlb=p.crlb, barankin=p.barankin, zzb=p.zzb,
                       fd_step=p.fd_step, step_tol=p.step_tol, quote=cfg["precision_at"] or None,
-                      max_halvings=cfg["max_halvings"], **precise.at_kwargs(cfg))
+                      max_halvings=cfg["max_halvings"], offsets=cfg["hcr_offsets"],
+                      quote_step=cfg["precision_fd_step"], **kw)
     names = ctx.model.params.names
     write_csv(out / "bounds.csv", [pt.row(names) for pt in curve.points])
     precision = []

@@ -1,0 +1,40 @@
+"""Committed runs that estimate the same CRLB by independent routes agree: a two-sided 5 % test on the log scale,
+each side's standard error read from its one-sided confidence ends at their stated level (the half-width over the
+normal quantile, the wider side). The routes: the decisive curve's quoted CRLB at 1.3 m (the bound service's `at`,
+the curve's sets as pilot, common seeds) against the reference FD rounds of curve_references and fisher_maps_nlos
+(independent rounds, a seed per stencil)."""
+import csv
+import math
+from pathlib import Path
+
+import pytest
+from scipy.stats import norm
+
+RESULTS = Path(__file__).resolve().parents[1] / "results"
+
+
+def _crlb(path: Path, theta: float, noise: str, theta_key: str, level_key: str | None) -> tuple[float, float]:
+    """(log10 CRLB point, its SE) from a committed CSV row at θ for the noise model named `noise`."""
+    for r in csv.DictReader(path.open()):
+        if r["noise"].startswith(noise) and abs(float(r[theta_key].strip("[]")) - theta) < 1e-9:
+            point = float(r.get("crlb_point") or r["log10_crlb"])
+            level = float(r[level_key]) if level_key else 0.95
+            half = max(float(r["crlb_upper"]) - point, point - float(r["crlb_lower"]))
+            return point, half / norm.ppf(level)
+    raise LookupError(f"{path}: no row at θ = {theta} for {noise}")
+
+
+def _agree(a: tuple[float, float], b: tuple[float, float]) -> float:
+    """The two-sided p-value of a − b on the log scale."""
+    z = (a[0] - b[0]) / math.hypot(a[1], b[1])
+    return 2 * norm.sf(abs(z))
+
+
+@pytest.mark.parametrize("noise, reference", [
+    ("AWGN", "curve_references/nlos/fisher.csv"), ("Poisson", "curve_references/nlos/fisher.csv"),
+    ("AWGN", "fisher_maps_nlos/00-fisher-maps/fisher.csv")])
+def test_the_decisive_curve_agrees_with_the_reference_crlb_beyond_the_corner(noise, reference):
+    curve = _crlb(RESULTS / "decisive_curve/00-bounds/precise.csv", 1.3, noise, "theta_object_position",
+                  "crlb_level")
+    ref = _crlb(RESULTS / reference, 1.3, noise, "theta", None)
+    assert _agree(curve, ref) > 0.05, (curve, ref)
