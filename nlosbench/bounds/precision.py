@@ -501,8 +501,8 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budge
     look(index array, R, first, level, keep, window, tested) gives the BoundPoints (noise-major) of those θ* from
     replicate sets first … first + R − 1 at `level`, their FD stages those of `window` (None: the service's own)
     and their tested Δ those of `tested` ({position: mask over the pilot's Δ}; None: all), filling keep {(noise,
-    position): Raw}. The call is charged by request (`bank.ledger()`); `spp` turns SetCost's renders into pixel-samples. Returns the BoundPoints (noise-major), each
-    with its `precision` record."""
+    position): Raw}. The call is charged by request (`bank.ledger()`); `spp` turns SetCost's renders into
+    pixel-samples. Returns the BoundPoints (noise-major), each with its `precision` record."""
     with bank.ledger() as spend:
         return _refine(look, T, noises, R0, target, budget, K, alpha, cost, spp, spend)
 
