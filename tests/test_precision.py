@@ -158,6 +158,42 @@ def test_each_theta_is_held_to_its_own_target():
             alone.precision.met, alone.precision.fresh_sets, alone.precision.reached)
 
 
+def test_a_dear_theta_over_the_budget_does_not_stop_the_looks_of_a_cheap_one():
+    """The θ* above with targets ±10 % (0.35) and ±3 % (0.75, many more sets): over budgets between the pilot's
+    cost and what both spend unbounded, the call never spends more than its budget, and at some budget 0.35 meets
+    its target at a second look while 0.75's second look is left out with a note saying its worst case would exceed
+    the budget (measured: 0.87e6 pixel-samples; the rule before let one look too dear for the budget stop every
+    θ*'s looks, and 0.35 went unmet there)."""
+    m, R0 = _blob(2.0), 3
+    run = lambda budget: BoundService(RenderBank(m, seed=5), [nb.noise.AWGN(0.3)]).at(  # noqa: E731
+        [[0.35], [0.75]], 16, replicates=R0, precision=[0.1, 0.03], budget=budget, **BLOB)
+    pilot = run(1)[0].precision.pixel_samples
+    full = run(None)[0].precision.pixel_samples
+    split = []
+    for budget in np.geomspace(pilot * 1.2, full, 8)[:-1].astype(int):
+        a, b = run(int(budget))
+        assert a.precision.pixel_samples <= budget
+        if a.precision.met and a.precision.looks == 3 and "would exceed the budget" in b.precision.note:
+            split.append(budget)
+            assert not b.precision.met
+    assert split, "no budget admitted the cheap θ*'s look without the dear one's"
+
+
+def test_a_look_halves_its_step_beyond_the_pilots_where_its_own_check_fails():
+    """edge1d 1 mm from a pixel boundary (rendering noise 1, seed 1, AWGN σ = 0.05), ξ = 16 mm, at most 5 halvings,
+    ±20 %: the pilot's check passes at its first halving (F(8 mm)/F(16 mm) not shown above 1.1 from 3 sets), its
+    fresh look's does not (1.1 ± 0.001) and that look halves on to 4 mm, where it passes, so the CRLB's lower end is
+    a confidence limit. Before, a look rendered only the pilot's steps and its lower end stayed labelled."""
+    bank = RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=1)
+    kw = dict(replicates=3, test_grid=5, offsets=0, fd_step=0.016, max_halvings=5)
+    (pilot,) = BoundService(bank, [nb.noise.AWGN(0.05)]).at([[0.501]], 16, **kw)
+    assert pilot.bounds["crlb"].reason.count("F(ξ/2)/F(ξ)") == 1 and not pilot.bounds["crlb"].lower_note
+    (pt,) = BoundService(RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=1), [nb.noise.AWGN(0.05)]).at(
+        [[0.501]], 16, precision=0.2, **kw)
+    crlb = pt.bounds["crlb"]
+    assert pt.precision.fresh_sets > 0 and crlb.reason.count("F(ξ/2)/F(ξ)") == 2 and not crlb.lower_note, crlb.reason
+
+
 @pytest.mark.parametrize("precision, match", [([0.1, 0.2, 0.3], "one target or one per θ"),
                                               ([0.1, -0.2], "precision must be a finite number > 0")])
 def test_targets_per_theta_are_checked_before_any_render(precision, match):

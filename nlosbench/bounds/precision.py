@@ -20,7 +20,8 @@ The stopping rule (`refine`). Let α = 1 − level and K = `looks`. Every interv
       (the pilot's estimates, held fixed, say more sets never suffice: FD stages or λ̂ that disagree by
       noise alone look like that at a small pilot), an exploratory R* = EXPLORE·R0 within the budget;
   looks k = 1 … K − 1: the fresh sets R0 … R0 + R*·2^(k−1) − 1 only (never the pilot's); stop at the first
-      look that meets p, or before a look whose worst-case cost would exceed the budget.
+      look that meets p; a θ* whose look would take the call's worst-case cost over the budget (the θ* of a look
+      admitted cheapest first) gets no more looks.
 The reported interval is that of the last look made.
 
 Proof that P(reported interval misses the true value) ≤ α whatever the stopping. Let E_k be the event that
@@ -55,8 +56,10 @@ n·(width/target)² (SE ∝ R^−½): where the noise × noise part b dominates,
 Budget: the call is charged by request (the bank's `Ledger`): every distinct render or Jacobian its looks ask for
 costs its spp × H × W per render (an FD Jacobian 2 renders per parameter and round) whether it is rendered, read
 from the store or served from a cache, so its decisions are the same cold, warm, resumed or after another study.
-The pilot is always made; a fresh look is made only if the pixel-samples charged so far plus its worst-case cost
-(every FD halving taken) stay within the budget. What this process rendered is reported beside it, never used.
+The pilot is always made; a θ*'s fresh look is made only if the pixel-samples charged so far plus the worst-case
+cost (every FD halving taken) of the look's θ* admitted with it stay within the budget: one dear θ* no longer stops
+the looks of the others. (Which θ* a look admits depends on the others' data; each θ*'s look k is still a fixed
+procedure on its fixed sets, and the proof above bounds every look, made or not.) What this process rendered is reported beside it, never used.
 """
 from __future__ import annotations
 
@@ -305,12 +308,16 @@ class Fit:
         return cls(raw, lam, [{name: variance_terms(J, raw.w, raw.group) for name, J in stage.rounds.items()}
                               for stage in raw.stages])
 
-    def windows(self) -> list[Window]:
+    def windows(self, most: int | None = None) -> list[Window]:
         """The windows a look may use: starting at any stage from the first the pilot did not show biased low
-        (`settled_from`), with at least one halving among the pilot's stages (one stage alone has no step
-        check, so its lower end would not be a confidence limit)."""
+        (`settled_from`), halving as far as the pilot did or, given, up to the service's `most` halvings of its
+        first step (at least once: one stage alone has no step check, so its lower end would not be a confidence
+        limit). A look stops halving where its own check passes, so the finer stages cost only where needed; a
+        window cut short would fail for good where the pilot could not tell a slowly rising F (an edge in line of
+        sight: F(ξ/2)/F(ξ) ≈ 1.05 per halving) from a settled one."""
         n, first = len(self.raw.stages), settled_from(self.raw.sf)
-        return [Window(s, h) for s in range(first, n - 1) for h in range(1, n - s)]
+        last = n - 1 if most is None else max(n - 1, most)
+        return [Window(s, last - s) for s in range(first, n - 1)]
 
     def step_fisher(self, R: int, level: float, window: Window) -> StepFisher:
         """The StepFisher a look at R fresh sets is predicted to give over `window`: each stage's F with its SE
@@ -337,9 +344,10 @@ class Fit:
             return out
 
         stats, halvings = [], []
-        for k in range(window.start, window.start + window.halvings + 1):
+        stop = min(window.start + window.halvings, len(sf.stats) - 1)  # no prediction beyond the pilot's stages
+        for k in range(window.start, stop + 1):
             stats.append(stage(k))
-            if k == window.start + window.halvings:
+            if k == stop:
                 break
             h = sf.halvings[k]  # the pilot's comparison of stages k and k + 1
             ratio = {name: _se_ratio(ab, R0, R) for name, ab in self.stages[k + 1].items()}
@@ -455,17 +463,18 @@ def tested_deltas(raws: Sequence[Raw], target: float, level: float) -> np.ndarra
 
 
 def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float, cap: int, above: int = 0,
-         set_cost: Callable[[int, int | None], int] | None = None, subset: bool = False) -> Plan:
+         set_cost: Callable[[int, int | None], int] | None = None, subset: bool = False,
+         most: int | None = None) -> Plan:
     """The cheapest (ladder count in (above, cap], FD window) predicted to meet `target`: per window the smallest
     count that meets it, then the least renders, count × set_cost(stages in the window, Δ tested) (None: the
     count alone). Coarser windows have less FD noise but may not be shown converged; with `subset`, the look tests
-    only the Δ `tested_deltas` keeps. Window and Δ are functions of the pilot alone (the coverage proof in the
-    module docstring needs nothing more)."""
+    only the Δ `tested_deltas` keeps; a window may halve up to `most` times (`Fit.windows`). Window and Δ are
+    functions of the pilot alone (the coverage proof in the module docstring needs nothing more)."""
     tested = tested_deltas(raws, target, level) if subset and "hcr" in kinds else None
     fits = [Fit.of(r if tested is None else r.subset(tested)) for r in raws]
     n_tested = None if tested is None else int(tested.sum())
     steps = ladder(cap, above)
-    windows = fits[0].windows() or [None]
+    windows = fits[0].windows(most) or [None]
     best, fallback = None, Plan(None, windows[-1], math.inf, tested)
     for win in windows:
         top = predicted_reached(fits, kinds, steps[-1], level, win) if steps else math.inf
@@ -537,7 +546,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         # hcr_neff, which comes with "hcr", is a sup like the HCR's and lives where it does
         subset = set(st.points[noises[0], i].bounds) <= {*KINDS, "hcr_neff"}
         return plan([st.raws[j, i] for j in noises], kinds(i), goal[i], level, MAX_PREDICT, above,
-                    lambda stages, tested: cost.one(i, stages, tested), subset)
+                    lambda stages, tested: cost.one(i, stages, tested), subset, cost.stages - 1)
 
     def n_tested(pl: Plan) -> int | None:
         return None if pl.tested is None else int(pl.tested.sum())
@@ -581,12 +590,17 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         stages = {i: star[i][1].window.halvings + 1 if star[i][1].window else cost.stages for i in todo}
         new = {i: (star[i][0] * 2 ** (k - 2) if k > 1 else 0, now[i], st.stages[i] if k > 1 else 0, stages[i],
                    n_tested(star[i][1])) for i in todo}
-        grid_new = max(0, max(now.values()) - grid_done)
-        c = cost.look(new, grid_new) * per_sample
-        if budget is not None and spent() + c > budget:
-            for i in todo:
-                st.notes[i] = (f"not met: look {k} (worst case {c} pixel-samples) would exceed the budget "
-                               f"({budget - spent()} left)")
+        def worst_case(ids: list[int]) -> int:
+            return cost.look({i: new[i] for i in ids}, max(0, max(now[i] for i in ids) - grid_done)) * per_sample
+
+        # within the budget: the θ* whose look costs least first, the dearest left out (for good) until it fits
+        todo.sort(key=lambda i: (worst_case([i]), i))
+        while todo and budget is not None and spent() + worst_case(todo) > budget:
+            i = todo.pop()
+            st.notes[i] = (f"not met: its look {k} (worst case {worst_case([i])} pixel-samples) would exceed the "
+                           f"budget ({budget - spent()} left)")
+            del star[i]
+        if not todo:
             break
         for R, win in sorted({(now[i], star[i][1].window) for i in todo}, key=lambda g: (g[0], repr(g[1]))):
             idx = np.array([i for i in todo if (now[i], star[i][1].window) == (R, win)])
