@@ -57,9 +57,10 @@ Budget: the call is charged by request (the bank's `Ledger`): every distinct ren
 costs its spp × H × W per render (an FD Jacobian 2 renders per parameter and round) whether it is rendered, read
 from the store or served from a cache, so its decisions are the same cold, warm, resumed or after another study.
 The pilot is always made; a θ*'s fresh look is made only if the pixel-samples charged so far plus the worst-case
-cost (every FD halving taken) of the look's θ* admitted with it stay within the budget: one dear θ* no longer stops
+cost (every FD halving taken) of the look's θ* admitted with it stay within the budget: one dear θ* does not stop
 the looks of the others. (Which θ* a look admits depends on the others' data; each θ*'s look k is still a fixed
-procedure on its fixed sets, and the proof above bounds every look, made or not.) What this process rendered is reported beside it, never used.
+procedure on its fixed sets, and the proof above bounds every look, made or not.) What this process rendered is
+reported beside it, never used.
 """
 from __future__ import annotations
 
@@ -494,6 +495,11 @@ def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float,
 
 
 # -- the looks --------------------------------------------------------------------------------------------
+def _worst_case(cost: SetCost, new: dict, now: dict, ids: list[int], grid_done: int) -> int:
+    """Worst-case renders of a look made by the θ* `ids` alone (`SetCost.look` over their entries of `new`)."""
+    return cost.look({i: new[i] for i in ids}, max(0, max(now[i] for i in ids) - grid_done))
+
+
 @dataclass
 class _State:
     points: dict = field(default_factory=dict)  # (noise, θ index) → BoundPoint
@@ -590,15 +596,14 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         stages = {i: star[i][1].window.halvings + 1 if star[i][1].window else cost.stages for i in todo}
         new = {i: (star[i][0] * 2 ** (k - 2) if k > 1 else 0, now[i], st.stages[i] if k > 1 else 0, stages[i],
                    n_tested(star[i][1])) for i in todo}
-        def worst_case(ids: list[int]) -> int:
-            return cost.look({i: new[i] for i in ids}, max(0, max(now[i] for i in ids) - grid_done)) * per_sample
-
         # within the budget: the θ* whose look costs least first, the dearest left out (for good) until it fits
-        todo.sort(key=lambda i: (worst_case([i]), i))
-        while todo and budget is not None and spent() + worst_case(todo) > budget:
+        todo.sort(key=lambda i: (_worst_case(cost, new, now, [i], grid_done) * per_sample, i))
+        while todo and budget is not None and spent() + _worst_case(cost, new, now, todo, grid_done) * per_sample > (
+                budget):
             i = todo.pop()
-            st.notes[i] = (f"not met: its look {k} (worst case {worst_case([i])} pixel-samples) would exceed the "
-                           f"budget ({budget - spent()} left)")
+            c = _worst_case(cost, new, now, [i], grid_done) * per_sample
+            st.notes[i] = f"not met: its look {k} (worst case {c} pixel-samples) would exceed the budget " \
+                          f"({budget - spent()} left)"
             del star[i]
         if not todo:
             break
