@@ -179,19 +179,22 @@ def test_a_dear_theta_over_the_budget_does_not_stop_the_looks_of_a_cheap_one():
     assert split, "no budget admitted the cheap θ*'s look without the dear one's"
 
 
-def test_a_look_halves_its_step_beyond_the_pilots_where_its_own_check_fails():
-    """edge1d 1 mm from a pixel boundary (rendering noise 1, seed 1, AWGN σ = 0.05), ξ = 16 mm, at most 5 halvings,
-    ±20 %: the pilot's check passes at its first halving (F(8 mm)/F(16 mm) not shown above 1.1 from 3 sets), its
-    fresh look's does not (1.1 ± 0.001) and that look halves on to 4 mm, where it passes, so the CRLB's lower end is
-    a confidence limit. Before, a look rendered only the pilot's steps and its lower end stayed labelled."""
-    bank = RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=1)
-    kw = dict(replicates=3, test_grid=5, offsets=0, fd_step=0.016, max_halvings=5)
-    (pilot,) = BoundService(bank, [nb.noise.AWGN(0.05)]).at([[0.501]], 16, **kw)
-    assert pilot.bounds["crlb"].reason.count("F(ξ/2)/F(ξ)") == 1 and not pilot.bounds["crlb"].lower_note
-    (pt,) = BoundService(RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=1), [nb.noise.AWGN(0.05)]).at(
-        [[0.501]], 16, precision=0.2, **kw)
+def test_a_look_halves_its_step_beyond_the_pilots_where_the_pilot_saw_an_edge():
+    """edge1d 1 mm from a pixel boundary (rendering noise 1, seed 1, AWGN σ = 0.05), ξ = 32 mm, at most 6 halvings,
+    ±20 %: the pilot sees F rise from 32 to 16 mm (the edge) and stops at 8 mm, its check passing there from 3 sets;
+    the fresh look starts at 16 mm, finds F still rising to 8 mm (F(ξ/2)/F(ξ) = 1.1 ± 0.001) and halves on to
+    4 mm, past the pilot's finest step, where its check passes: the CRLB's lower end is a confidence limit. A look
+    limited to the pilot's steps ends at 8 mm with that end labelled "not a confidence limit"."""
+    kw = dict(replicates=3, test_grid=5, offsets=0, fd_step=0.032, max_halvings=6)
+
+    def service():
+        return BoundService(RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=1), [nb.noise.AWGN(0.05)])
+
+    (pilot,) = service().at([[0.501]], 16, **kw)
+    assert pilot.bounds["crlb"].reason.endswith("at ξ = 0.016")  # its last check: 16 → 8 mm
+    (pt,) = service().at([[0.501]], 16, precision=0.2, **kw)
     crlb = pt.bounds["crlb"]
-    assert pt.precision.fresh_sets > 0 and crlb.reason.count("F(ξ/2)/F(ξ)") == 2 and not crlb.lower_note, crlb.reason
+    assert pt.precision.fresh_sets > 0 and crlb.reason.endswith("at ξ = 0.008") and not crlb.lower_note, crlb.reason
 
 
 @pytest.mark.parametrize("precision, match", [([0.1, 0.2, 0.3], "one target or one per θ"),
