@@ -19,7 +19,12 @@
     a 12-point test grid, p = 0.5 (the demo's 34-point grid at 96 spp and p = 0.25 would take hours on 2 cores:
     its NLOS points alone need thousands of 96-spp sets by the service's own prediction); reduced: the Π hallway
     blob2d's x with synthetic rendering noise over 4 θ at p = 0.1 (nearly the same information at every θ: it
-    keeps the code running; the gain is measured in full mode).
+    keeps the code running; the gain is measured in full mode);
+(e) `curve_allocation`: the same comparison for a decisive curve (`curve(precision=…)` quoting every grid θ, a target
+    per θ, the grid's own points as the HCR's test points, FD from a large step halved per θ; `configs/
+    decisive_curve.yaml`'s settings) against a uniform plan with the same settings: every θ gets R sets, R raised
+    until every θ meets its target. Full mode: the Π hallway at 40 × 30, 6 θ beyond the corner (1.09–1.69 m) at
+    512 spp, ±25 % up to 1.5 m and ±50 % beyond; reduced: blob2d's x on a 5-point grid (±5 % at three θ, ±30 % at two: measured 1.76× fewer pixel-samples).
 
 Run: `python -m nlosbench.benchmarks.bounds [--reduced]` (a table, then one JSON line per row).
 """
@@ -109,6 +114,49 @@ def precision_allocation(spec: dict, label: str, thetas, sigma: float, spp: int,
                 ratio=uniform / adaptive, ratio_is_lower_bound=not met)
 
 
+def curve_allocation(spec: dict, label: str, grid, sigma: float, spp: int, targets, pilot: int = 3,
+                     quote_step: float = 0.06, max_halvings: int = 2, step_tol: float = 0.1, max_sets: int = 256,
+                     seed: int = 0) -> dict:
+    """A decisive curve against the uniform plan (module docstring, (e)): `curve(precision=targets)` quoting every
+    grid θ with the grid as its HCR test points, no axis offsets and FD from `quote_step`, against `at` on the same
+    grid with the same settings and R sets at every θ, R raised over the ladder until every θ meets its target.
+    Pixel-samples are the distinct renders each route's bank asked for (grid, stencils, weights) × spp × pixels."""
+    from nlosbench.bounds.precision import ladder, reached
+    from nlosbench.bounds.service import quote_test_grid
+    from nlosbench.forward.cache import RenderCache
+    from nlosbench.studies.estimate import pixels as image_pixels
+
+    model = build(spec)
+    grid = np.asarray(grid, dtype=np.float64)
+    goal = np.broadcast_to(np.asarray(targets, dtype=np.float64), grid.shape)
+    pixels = image_pixels(model)
+    kw = dict(offsets=0, max_halvings=max_halvings, step_tol=step_tol)
+    with tempfile.TemporaryDirectory() as root:
+        store = RenderCache(root)
+        t0 = time.perf_counter()
+        bank = RenderBank(model, seed=seed, store=store)
+        got = BoundService(bank, [AWGN(sigma)]).curve(grid, spp, "common", pilot, zzb=False, precision=goal,
+                                                      quote_step=quote_step, **kw).precise
+        adaptive_s = time.perf_counter() - t0
+        adaptive = bank.renders * spp * pixels
+        adaptive_met = sum(p.precision.met for p in got)
+        uniform = uniform_sets = None
+        uniform_met = 0
+        for R in ladder(max_sets, pilot - 1):
+            b = RenderBank(model, seed=seed, store=store)
+            res = BoundService(b, [AWGN(sigma)]).at(grid[:, None], spp, ("hcr", "crlb"), "common", R,
+                                                    quote_test_grid(model.params, grid), fd_step=quote_step, **kw)
+            uniform_met = sum(max(reached(p.bounds[k]) for k in ("hcr", "crlb")) <= g for p, g in zip(res, goal, strict=True))
+            uniform, uniform_sets = b.renders * spp * pixels, R
+            if uniform_met == len(grid):
+                break
+    return dict(bench="curve_allocation", scene=label, thetas=len(grid), spp=spp, targets=sorted(set(goal.tolist())),
+                pilot_sets=pilot, adaptive_pixel_samples=int(adaptive), adaptive_met=int(adaptive_met),
+                adaptive_seconds=adaptive_s, uniform_pixel_samples=int(uniform), uniform_sets=uniform_sets,
+                uniform_met=int(uniform_met), ratio=uniform / adaptive,
+                ratio_is_lower_bound=uniform_met < len(grid) or adaptive_met < len(grid))
+
+
 def run(reduced: bool = False) -> list[dict]:
     """Run the benchmarks; returns one dict per result row."""
     G, shape = (48, (32, 64, 3)) if reduced else (160, (64, 128, 3))
@@ -145,6 +193,12 @@ def run(reduced: bool = False) -> list[dict]:
         precision_allocation({"name": "pi_hallway", "options": {"defines": {"width": 40, "height": 30}}},
                              "pi_hallway 40×30, NLOS 1.0/1.3/1.6 m", np.array([1.0, 1.3, 1.6]), 0.025, 512, 0.5,
                              pilot=4, test_grid=12, fd_step=0.06, max_halvings=1),
+        curve_allocation({"name": "blob2d", "options": {"width": 0.15, "render_noise": 2.0}, "params": ["x"]},
+                         "blob2d x (render_noise 2), 5-point grid", np.linspace(0.2, 0.8, 5), 0.3, 16,
+                         [0.05, 0.05, 0.05, 0.3, 0.3], quote_step=0.02, max_halvings=1, max_sets=64) if reduced else
+        curve_allocation({"name": "pi_hallway", "options": {"defines": {"width": 40, "height": 30}}},
+                         "pi_hallway 40×30, 6 θ over 1.09–1.69 m", np.linspace(1.09, 1.69, 6), 0.025, 512,
+                         [0.25, 0.25, 0.25, 0.25, 0.5, 0.5], quote_step=0.06, max_halvings=2),
     ]
 
 
