@@ -24,7 +24,8 @@
     per θ, the grid's own points as the HCR's test points, FD from a large step halved per θ; `configs/
     decisive_curve.yaml`'s settings) against a uniform plan with the same settings: every θ gets R sets, R raised
     until every θ meets its target. Full mode: the Π hallway at 40 × 30, 6 θ beyond the corner (1.09–1.69 m) at
-    512 spp, ±25 % up to 1.5 m and ±50 % beyond; reduced: blob2d's x on a 5-point grid (±5 % at three θ, ±30 % at two: measured 1.76× fewer pixel-samples).
+    512 spp, ±25 % up to 1.5 m and ±50 % beyond; reduced: blob2d's x on a 5-point grid (±5 % at three θ, ±30 %
+    at two: measured 1.76× fewer pixel-samples).
 
 Run: `python -m nlosbench.benchmarks.bounds [--reduced]` (a table, then one JSON line per row).
 """
