@@ -147,7 +147,8 @@ def curve_allocation(spec: dict, label: str, grid, sigma: float, spp: int, targe
             b = RenderBank(model, seed=seed, store=store)
             res = BoundService(b, [AWGN(sigma)]).at(grid[:, None], spp, ("hcr", "crlb"), "common", R,
                                                     quote_test_grid(model.params, grid), fd_step=quote_step, **kw)
-            uniform_met = sum(max(reached(p.bounds[k]) for k in ("hcr", "crlb")) <= g for p, g in zip(res, goal, strict=True))
+            uniform_met = sum(max(reached(p.bounds[k]) for k in ("hcr", "crlb")) <= g
+                              for p, g in zip(res, goal, strict=True))
             uniform, uniform_sets = b.renders * spp * pixels, R
             if uniform_met == len(grid):
                 break
