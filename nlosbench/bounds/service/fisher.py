@@ -1,0 +1,143 @@
+"""Unbiased per-pixel Fisher information maps and the CRLB per parameter (`BoundService.fisher`)."""
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import torch
+
+from nlosbench.bounds.fd_step import Stage, converge
+from nlosbench.bounds.precision import Raw, SetCost, check_precision, refine
+from nlosbench.bounds.service.points import (
+    BoundPoint,
+    FisherPoint,
+    crlb_bound,
+)
+from nlosbench.bounds.service.renders import (
+    RenderSets,
+    _check_step,
+)
+from nlosbench.bounds.unbiased_fisher import unbiased_fisher
+from nlosbench.noise import to_float64
+
+
+class FisherInformation(RenderSets):
+    """`fisher` (the service's module docstring)."""
+
+    def fisher(self, thetas, spp: int, fd_step: float = 0.01, rounds: int = 3, reduce: str = "sum",
+               noises=None, step_tol: float = 0.1, max_halvings: int = 3, precision: float | None = None,
+               budget: int | None = None, looks: int = 3) -> list[FisherPoint]:
+        """Unbiased per-pixel Fisher information maps and the CRLB per parameter at each θ (T, P).
+
+        Per θ: a render (purpose "fisher", the Poisson weight image) and `rounds` independent FD rounds at step ξ:
+        round r renders θ ± ξ e_j and θ itself under one seed (purpose "fisher-stencil", replicate r; common
+        random numbers inside the stencil), so the step check has the one-sided differences as well as the
+        central one (θ's render is left out with `max_halvings` 0: no check); ξ is halved with the same seeds until
+        F has stopped rising within 1 + `step_tol` (at most `max_halvings` times); maps (from the central
+        differences) and bounds from the finest step.
+        With a `precision` target p: the CRLB of θ (tr F̂⁻¹; for a scalar θ its only CRLB) to ±p by the
+        stopping rule of `bounds.precision` — the given rounds are the pilot, fresh rounds (replicates
+        `rounds`, `rounds` + 1, …) are added only at the θ whose CRLB interval is wider than asked, within
+        `budget` pixel-samples, in at most `looks` looks with ends at level 1 − (1 − level)/looks; the maps,
+        the per-parameter CRLBs and the rounds are then the reported look's (the pilot's where it met the
+        target), and `precise` carries the CRLB of θ with its `precision` record.
+
+        Parameters
+        ----------
+        thetas : array_like of shape (T, P) or (T,)
+            The parameter points, parameter units.
+        spp : int
+            Samples per pixel of each render.
+        fd_step : float, optional
+            The first FD step ξ, parameter units.
+        rounds : int, optional
+            R ≥ 2 independent FD rounds (≥ 3 for confidence limits and for a precision target).
+        reduce : {"sum", "mean"}, optional
+            How each map combines the channels (sum: the map sums to F_jj).
+        noises : iterable of int, optional
+            The noise indices (keys of the service's `noises`) to compute maps for; None: every model.
+        step_tol : float, optional
+            Relative tolerance of the step check (0.1: F within 10 %).
+        max_halvings : int, optional
+            The most halvings of ξ, in [0, 12].
+        precision : float, optional
+            The target p > 0 on the CRLB of θ: upper/point ≤ 1 + p and point/lower ≤ 1 + p (an open end or
+            one that is not a confidence limit does not meet it). None: the `rounds` given (no fresh round).
+        budget : int, optional
+            A cap on the pixel-samples (spp × H × W × renders) this call may spend; None: unlimited (with a
+            precision target only).
+        looks : int, optional
+            K ≥ 2: the pilot and at most K − 1 looks at fresh rounds, each at level 1 − (1 − level)/K.
+
+        Returns
+        -------
+        list of FisherPoint
+            One per θ: the render, the mean Jacobian, and per noise index the maps and CRLBs.
+        """
+        if rounds < 2:
+            raise ValueError(f"an unbiased Fisher information needs >= 2 independent FD rounds, got {rounds}")
+        if reduce not in ("sum", "mean"):
+            raise ValueError(f"reduce must be 'sum' or 'mean', got {reduce!r}")
+        _check_step(fd_step, step_tol, max_halvings)
+        check_precision(precision, budget, looks, ("crlb",), rounds)
+        thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, self.params.dim)
+        args = (spp, reduce, noises, step_tol)
+        if precision is None:
+            return self._fisher(thetas, rounds, 0, *args, fd_step, max_halvings)[0]
+        found: dict[int, FisherPoint] = {}
+
+        def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict, window, tested) -> list[BoundPoint]:
+            sub = copy.copy(self)
+            sub.level = level
+            start, halvings = (fd_step, max_halvings) if window is None else (fd_step / 2**window.start,
+                                                                              window.halvings)
+            fps, pts = sub._fisher(thetas[idx], reps, first, *args, start, halvings, keep)
+            found.update({int(i): fp for i, fp in zip(idx, fps, strict=True)})
+            return pts
+
+        cost = SetCost(0, np.zeros(len(thetas), dtype=np.int64), 2 * self.params.dim, max_halvings + 1)
+        pts = refine(look, len(thetas), list(self._select(noises)), rounds, precision, budget, looks,
+                     1 - self.level, cost, spp, self.bank)
+        for n, pt in enumerate(pts):
+            found[n % len(thetas)].precise[pt.noise_index] = pt
+        return [found[i] for i in range(len(thetas))]
+
+    def _fisher(self, thetas: np.ndarray, rounds: int, first: int, spp: int, reduce: str, noises, step_tol: float,
+                fd_step: float, max_halvings: int, keep: dict | None = None) -> tuple[list[FisherPoint], list]:
+        """`fisher` from FD rounds first … first + rounds − 1 at the service's level: the FisherPoints and the
+        CRLB of θ (tr F̂⁻¹) as BoundPoints (noise-major); `keep`, when given, is filled with {(noise index, θ
+        index): the raw data a precision plan needs (`precision.Raw`)}."""
+        P = self.params.dim
+        Ls = self.bank.at(thetas, spp, "fisher", desc="Fisher-map renders")
+        sel = self._select(noises)
+        weights = {j: [self._weight(noise, L) for L in Ls] for j, noise in sel.items()}
+        wflat = {j: [to_float64(w).expand(Ls.shape[1:]).reshape(-1).numpy() for w, _ in rows]
+                 for j, rows in weights.items()}
+
+        def stage_fn(idx, xi):  # independent rounds, θ rendered under each stencil's seed: one-sided variants too
+            return self._stages(thetas[idx], None, spp, "independent", rounds, xi, first, purpose="fisher",
+                                sided=max_halvings > 0)
+
+        stages = self._refine(thetas, stage_fn, wflat, fd_step, step_tol, max_halvings)
+        out, rows = [], {}
+        for i, (t, L) in enumerate(zip(thetas, Ls, strict=True)):
+            Jf = torch.from_numpy(stages[i][-1].rounds["central"]).reshape(rounds, P, *L.shape)
+            maps, bounds, ws = {}, {}, {}
+            for j, noise in sel.items():
+                w, flags = weights[j][i]
+                ws[j] = to_float64(w).expand(L.shape)
+                m = unbiased_fisher(Jf, ws[j]).pixel_map  # (P, H, W, C)
+                maps[j] = m.sum(axis=-1) if reduce == "sum" else m.mean(axis=-1)
+                sf = converge(stages[i], wflat[j][i], self.level, step_tol, spp)
+                joint = crlb_bound(sf, self.level, flags)  # the CRLB of θ, tr F̂⁻¹: for a scalar θ its only one
+                bounds[j] = [joint] if P == 1 else [
+                    crlb_bound(converge([Stage(s.step, {"central": s.rounds["central"][:, k:k + 1]}, s.group)
+                                         for s in stages[i]], wflat[j][i], self.level, step_tol, spp),
+                               self.level, flags) for k in range(P)]
+                rows[j, i] = BoundPoint(j, str(noise), t.copy(), {"crlb": joint})
+                if keep is not None:
+                    keep[j, i] = Raw(None, None, sf, stages[i], wflat[j][i], np.empty((0, P)), self.params.lower - t,
+                                     self.params.upper - t, int(np.prod(L.shape[:2])), self.group)
+            out.append(FisherPoint(t, L, Jf.mean(dim=0), maps, bounds, Jf, stages[i][-1].step, ws))
+        return out, [rows[j, i] for j in sel for i in range(len(thetas))]
+
