@@ -66,8 +66,8 @@ PROCESS_WORDS = re.compile(r"\bsession|\bscratch\b|earlier the same day|only one
 
 def test_no_words_about_how_the_work_was_organised():
     """User-facing text names machines and commands, not sessions, issue numbers or who had a GPU: the pages,
-    configs, Makefile, and what a committed run's files say (report.md, and machine.json's command, which
-    scripts/publish_result.py writes as `--out runs/CONFIG`)."""
+    configs, Makefile, and what a committed run's files say (report.md, and machine.json's command, which the run
+    writes as it was called: a published run is made with `--out runs/NAME`)."""
     pages = [ROOT / "README.md", ROOT / "CHANGELOG.md", ROOT / "results" / "README.md", ROOT / "examples" / "README.md",
              ROOT / "Makefile", *sorted((ROOT / "docs").rglob("*.md")),
              *sorted((ROOT / "docs" / "tutorials").glob("*.py")), *sorted((ROOT / "configs").glob("*.yaml")),

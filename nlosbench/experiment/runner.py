@@ -10,7 +10,8 @@ folder that holds one, or a resume whose fingerprint differs, is refused). Any p
 `Run.execute` then holds the folder's lock (`rundir.RunLock`), writes fingerprint.json and config.yaml
 (resolved), runs each study (a resumed run skips finished studies whose outputs are all there and parse, as
 results.json lists them, and rebuilds the others with a warning; studies resume their own partial work from
-their record logs and the render store), writes results.json after every study and report.md.
+their record logs and the render store), writes results.json after every study, then machine.json (`machine`: the
+machine, its load, the command) and report.md.
 On Ctrl-C or an error the executor's workers are stopped at once (`abort`). An error that is not a
 ConfigError after the checks is not the input's fault: the CLI reports it as an internal error (exit 3,
 traceback in RUN/error.log)."""
@@ -30,7 +31,7 @@ from ..schema import ConfigError
 from ..studies import estimate
 from ..studies.context import RunContext
 from . import config as config_mod
-from . import outputs, rundir
+from . import machine, outputs, rundir
 from .report import make_report
 
 #: an estimated time above this (seconds) needs `yes` (the CLI's --yes)
@@ -57,11 +58,13 @@ class Run:
     resume: bool = False
     notes: list = field(default_factory=list)
     anyway: bool = False  # resume across a code change (--resume-anyway)
+    command: str = ""  # the `nlosbench run` line that makes this run (machine.json)
 
     def execute(self) -> Path:
         """Run every study into the folder (see the module docstring); returns the folder."""
         cfg, ctx, run_dir = self.cfg, self.ctx, self.dir
         results_path = run_dir / "results.json"
+        loads = {"start": machine.load()}
         with rundir.RunLock(run_dir):
             change = rundir.check(run_dir, self.fingerprint, self.resume, self.anyway)  # again, now no one else writes
             try:
@@ -104,6 +107,7 @@ class Run:
                                                "renders_in_process": spent.renders,
                                                "render_seconds_in_process": spent.seconds,
                                                "outputs": outputs.manifest(run_dir / sid)}
+                    loads[sid] = machine.load()
                     write_json(results_path, results)
             except BaseException:
                 ctx.abort()
@@ -111,6 +115,7 @@ class Run:
             ctx.close()
             results["seconds_total"] = sum(s.get("seconds", 0) for s in results["studies"].values())
             write_json(results_path, results)
+            write_json(run_dir / "machine.json", machine.describe(results, self.fingerprint, self.command, loads))
             make_report(run_dir)
         return run_dir
 
@@ -169,7 +174,8 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
                                    f"at {rate.seconds_per_sample * 1e9:.3g} ns each and {renders} renders at "
                                    f"{rate.seconds_per_render * 1e3:.3g} ms each), above "
                                    f"{estimate.describe(CONFIRM_ABOVE)}: pass --yes to run it, or try --smoke first")
-    return Run(cfg, run_dir, ctx, plans, estimates, total, fp, resume, lines, anyway)
+    return Run(cfg, run_dir, ctx, plans, estimates, total, fp, resume, lines, anyway,
+               machine.command(config_path, overrides, out if out else run_dir, smoke))
 
 
 def _cost(e: estimate.Estimate, rate: estimate.Rate) -> str:
