@@ -332,10 +332,14 @@ class Fit:
         Estimates the pilot cannot tell apart are predicted equal (scalar θ): a stage or variant whose F is within
         the pilot's t·SE of the window's first central F (the least noisy) is predicted at that F, and a halving not
         shown to change F is predicted at ratio 1 — otherwise noise held fixed (a one-sided F 2× the central one
-        at a small pilot) would predict that no number of sets suffices. Plans only choose R and the window; the
+        at a small pilot) would predict that no number of sets suffices — or, where the pilot saw F rise at an
+        earlier halving (an edge), at the pilot's own ratio clipped to [1, 1 + tol/2]: past an edge F creeps up by a
+        few per cent per halving (Π hallway in line of sight: 1.03–1.06), and a plan at ratio 1 asks for too few
+        sets to show it below 1 + tol. Plans only choose R and the window; the
         looks' limits do not depend on them."""
         sf, R0 = self.raw.sf, self.raw.sf.final.replicates
         t0 = one_sided_t(level, R0 - 1.0, 1.0)
+        edge = settled_from(sf) > 0  # the pilot saw F rise at some halving
         ref = sf.stats[window.start].get("central")
         scalar = ref is not None and ref.est.shape == (1, 1)
 
@@ -359,8 +363,10 @@ class Fit:
             converged, rising = True, False
             tol = sf.step_tol
             for (name, j), (est, se, df, fa) in h.contrasts.items():
-                if abs(est + tol * fa) <= t0 * se:  # F(ξ/2) − F(ξ) within the noise: predicted equal
-                    est = -tol * fa
+                if abs(est + tol * fa) <= t0 * se:  # F(ξ/2) − F(ξ) within the noise: predicted equal or, past an
+                    # edge, at the pilot's ratio within [1, 1 + tol/2] (F creeps up per halving there)
+                    r = min(max(est / fa + 1.0 + tol, 1.0), 1.0 + tol / 2) if edge and fa > 0 else 1.0
+                    est = (r - 1.0 - tol) * fa
                 se_r = se * float(ratio[name][j]) if name in ratio else se
                 t = one_sided_t(level, df * (R - 1.0) / (R0 - 1.0), se_r)
                 converged &= bool(est + t * se_r <= 0) and fa > 0
