@@ -211,6 +211,7 @@ class OneBound:
     def line(self) -> str:
         """The result in one line: the HCR interval and CRLB with their RMS, the settings, and what would
         settle an FD step that did not converge, an open end or an unmet precision target."""
+        from .bounds.precision import CEILING
         from .studies.plotstyle import noise_text
 
         hcr, crlb = self.point.bounds["hcr"], self.point.bounds["crlb"]
@@ -233,6 +234,9 @@ class OneBound:
         pr = self.point.precision
         if pr is not None:
             reached = f"precision ±{pr.target:.3g} {'met' if pr.met else 'not met'} (reached ±{pr.worst:.3g})"
+            if not pr.met:
+                reached += (f" after {pr.pixel_samples:.3g} of the {pr.budget:.3g} pixel-samples allowed (--budget; "
+                            f"without it {CEILING} × the pilot's)")
             if pr.met:
                 parts.append(reached)
             elif math.isfinite(pr.extra_pixel_samples):
@@ -298,7 +302,8 @@ def bound(scene: str, param: str | None, at: float | None, noise, *, spp: int = 
         A target relative half-width of both intervals (e.g. 0.1 for ±10 %): replicate sets are added until
         it is met or `budget` is spent.
     budget : int, optional
-        The most pixel-samples (spp × pixels × renders) to spend with a precision target.
+        The most pixel-samples (spp × pixels × renders) to spend with a precision target, the pilot included; None:
+        the default ceiling, `bounds.precision.CEILING` × what the pilot costs.
     seed : int, default 0
         The seed every render seed derives from.
     fixed : mapping of str to float, optional

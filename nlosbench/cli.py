@@ -134,6 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _bound_parser(sub) -> None:
     from .api import FD_STEP_FRACTION, MAX_HALVINGS, REPLICATES, SPP, STEP_TOL, TEST_GRID
+    from .bounds.precision import CEILING
 
     b = sub.add_parser("bound", help="one parameter's HCR interval and CRLB at one θ*, in one line (no config file)",
                        description="The HCR interval and the CRLB (parameter units²) of one parameter at one θ*, the "
@@ -161,7 +162,8 @@ def _bound_parser(sub) -> None:
                    "besides the offsets ±ξ·2^k")
     b.add_argument("--precision", type=float, help="target relative half-width of both intervals, e.g. 0.1 for ±10 %%: "
                    "replicate sets are added until it is met (default: one pilot of --replicates sets)")
-    b.add_argument("--budget", type=float, help="with --precision: the most pixel-samples to spend (default: none)")
+    b.add_argument("--budget", type=float, help="with --precision: the most pixel-samples to spend, the pilot included "
+                   f"(default: {CEILING} × what the pilot costs)")
     b.add_argument("--fix", action="append", default=[], metavar="NAME=VALUE",
                    help="hold another parameter at VALUE (default: its default; repeatable)")
     b.add_argument("--seed", type=int, default=0, help="the seed every render seed derives from (default: 0)")

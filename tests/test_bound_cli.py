@@ -1,5 +1,6 @@
 """`nlosbench bound` and `nb.bound`: one HCR interval and CRLB at one θ*, in one line, on the analytic toys."""
 import math
+import re
 
 import pytest
 
@@ -38,6 +39,23 @@ def test_an_unsettled_step_says_what_would_settle_it():
 def test_a_precision_target_reports_what_it_reached():
     b = nb.bound("blob2d", "x", 0.5, nb.noise.AWGN(sigma=0.05), spp=4, precision=0.1)
     assert b.point.precision.met and "precision ±0.1 met" in b.line()
+
+
+def test_a_target_without_a_budget_is_capped_at_the_default_ceiling_and_says_what_more_would_cost(capsys):
+    """`nlosbench bound --precision` without `--budget`, a target not met at 4 spp (±0.1 %): the line says it was not
+    met, having spent more than the pilot and at most the pixel-samples allowed, CEILING × the pilot's (the pilot
+    measured alone with --budget 1), and what finishing would take."""
+    from nlosbench.bounds.precision import CEILING
+
+    argv = ["bound", "blob2d", "--param", "x", "--at", "0.5", "--sigma", "0.05", "--spp", "4", "--precision", "0.001"]
+    assert main([*argv, "--budget", "1"]) == 0
+    pilot = float(re.search(r"after (\S+) of the 1 pixel-samples", capsys.readouterr().out).group(1))
+    assert main(argv) == 0
+    line = capsys.readouterr().out
+    spent, allowed = (float(v) for v in re.search(r"not met \(reached ±\S+\) after (\S+) of the (\S+) "
+                                                  r"pixel-samples allowed", line).groups())
+    assert pilot < spent <= allowed == pytest.approx(CEILING * pilot, rel=1e-2)  # 3 digits printed
+    assert "more pixel-samples (--budget)" in line or "no number of further replicate sets" in line
 
 
 def test_the_others_are_held_where_fix_says():

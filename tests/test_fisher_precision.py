@@ -132,11 +132,13 @@ def test_the_study_reports_the_precision_and_names_the_key_of_a_bad_one(tmp_path
 
 
 def test_the_estimate_before_a_run_gives_the_range_a_precision_budget_allows(tmp_path):
-    """With `precision` and `precision_budget`, the plan line says the least (pilot: a render and 3 rounds × 2
-    stencils × 2 steps at each of 2 θ, 26 renders of 16 spp × 24 × 24 px) and the most (that plus the budget) it may
-    spend, before anything renders; without a budget the line is a single count, as before."""
+    """With `precision` and `precision_budget`, the plan line says the least (pilot: at each of 2 θ a render and 3
+    rounds of θ and 2 stencils × 2 steps, 32 renders of 16 spp × 24 × 24 px, what the pilot is charged) and the most
+    (the budget, which caps the call, pilot included) it may spend, before anything renders; without a budget the
+    most is the default ceiling, CEILING pilots, and the line says so."""
     import yaml
 
+    from nlosbench.bounds.precision import CEILING
     from nlosbench.experiment.runner import prepare
 
     block = {"type": "fisher-maps", "at": [0.35, 0.75], "spp": 16, "fd_rounds": 3, "max_halvings": 1,
@@ -147,11 +149,13 @@ def test_the_estimate_before_a_run_gives_the_range_a_precision_budget_allows(tmp
     cfg.write_text(yaml.safe_dump(raw))
     run = prepare(cfg, out=tmp_path / "run", quiet=True)
     (e,) = run.estimates.values()
-    pilot = 2 * (1 + 3 * 2 * 2) * 16 * 24 * 24
-    assert (e.floor, e.samples) == (pilot, pilot + 10**6)
-    assert f"{pilot:.3g} to {pilot + 10**6:.3g} pixel-samples" in run.notes[0], run.notes
+    pilot = 2 * (1 + 3 * (1 + 2 * 2)) * 16 * 24 * 24
+    assert (e.floor, e.samples) == (pilot, 10**6)
+    assert f"{pilot:.3g} to {10**6:.3g} pixel-samples" in run.notes[0], run.notes
     assert run.ctx.bank.renders == 0
     block.pop("precision_budget")
     cfg.write_text(yaml.safe_dump(raw))
-    (e,) = prepare(cfg, out=tmp_path / "run2", quiet=True).estimates.values()
-    assert e.floor == e.samples == pilot
+    run = prepare(cfg, out=tmp_path / "run2", quiet=True)
+    (e,) = run.estimates.values()
+    assert (e.floor, e.samples) == (pilot, CEILING * pilot)
+    assert f"default ceiling of {CEILING * pilot:.3g} pixel-samples" in run.notes[0], run.notes

@@ -268,6 +268,40 @@ def test_the_budget_is_never_exceeded_and_a_smaller_one_plans_fewer_sets():
     assert fresh == sorted(fresh) and fresh[0] < fresh[-1] and not met[0] and met[-1]
 
 
+@pytest.mark.parametrize("call", ["at", "fisher", "curve"])
+def test_a_target_without_a_budget_stops_at_the_default_ceiling(call):
+    """blob2d's x (rendering noise 2, AWGN σ = 0.3, 16 spp, seed 3) at θ* = 0.45 with a target no number of sets
+    meets at this spp (±0.2 %), looks enough (8) and no budget, through each caller (`at`, `fisher`, the bounds
+    `curve` quotes): a ledger around the call charges the target at most CEILING × the pilot's pixel-samples (the
+    pilot measured alone, with a budget of 1; the curve's grid is the quote's test grid, so its renders are the
+    pilot's), it went beyond the pilot (a fresh look fits) and stopped where a budget of 4 ceilings goes on; the record
+    says "not met", names the default ceiling, carries it as its budget and predicts a cost to finish (> 0, finite or
+    infinite)."""
+    from nlosbench.bounds.precision import CEILING
+
+    def ask(**kw):
+        bank = RenderBank(_blob(2.0), seed=3)
+        svc = BoundService(bank, [nb.noise.AWGN(0.3)])
+        with bank.ledger() as book:
+            if call == "at":
+                (pt,) = svc.at([[0.45]], 16, precision=0.002, looks=8, **BLOB, **kw)
+            elif call == "fisher":
+                (fp,) = svc.fisher([[0.45]], 16, 0.01, 3, max_halvings=1, precision=0.002, looks=8, **kw)
+                pt = fp.precise[0]
+            else:
+                (pt,) = svc.curve(np.linspace(0.2, 0.8, 5), 16, zzb=False, max_halvings=1, precision=0.002,
+                                  looks=8, quote=[0.45], **kw).precise
+        return pt.precision, book.pixel_samples
+
+    pilot, charged = ask(budget=1)
+    assert pilot.looks == 1 and charged == pilot.pixel_samples > 0
+    rec, spent = ask()
+    assert spent == rec.pixel_samples and pilot.pixel_samples < spent <= CEILING * pilot.pixel_samples == rec.budget
+    assert not rec.met and rec.looks >= 2 and "default ceiling" in rec.note and rec.extra_pixel_samples > 0
+    more, _ = ask(budget=4 * CEILING * pilot.pixel_samples)
+    assert more.pixel_samples > rec.budget
+
+
 def test_independent_seeds_use_fresh_fd_rounds_at_every_look():
     """blob2d's x with independent seeds, CRLB only, precision 0.05, seed 0: the FD stencils rendered are exactly
     those of the pilot's rounds 0 … R0 − 1 and of the reported look's fresh rounds R0 … R0 + R − 1, each round's θ*

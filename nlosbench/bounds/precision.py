@@ -61,6 +61,10 @@ cost (every FD halving taken) of the look's θ* admitted with it stay within the
 the looks of the others. (Which θ* a look admits depends on the others' data; each θ*'s look k is still a fixed
 procedure on its fixed sets, and the proof above bounds every look, made or not.) What this process rendered is
 reported beside it, never used.
+A target without a budget never runs unbounded: its budget is the default ceiling, CEILING × the pixel-samples
+charged to its pilot (the pilot included: the whole call costs at most CEILING pilots), whichever caller asks
+(`BoundService.at`, `fisher`, the bounds `curve` quotes, `nlosbench bound --precision`). What it could not meet
+within the ceiling the record says (`note`) with the predicted cost to finish (`extra_pixel_samples`).
 """
 from __future__ import annotations
 
@@ -77,8 +81,10 @@ from nlosbench.bounds.ustat import UStat, check_group, t_quantile
 
 #: interval bound kinds a precision target applies to
 KINDS = ("hcr", "crlb")
-#: the most fresh sets a plan considers when no budget is given, and when predicting what more would cost
+#: the most fresh sets a first look considers, and the most a prediction of what more would cost considers
 MAX_SETS, MAX_PREDICT = 1024, 2**20
+#: without a budget, a precision target spends at most CEILING × its pilot's pixel-samples (the pilot included)
+CEILING = 16
 #: fresh sets of an exploratory first look, in pilots, where the pilot predicts that no number of sets suffices
 EXPLORE = 4
 
@@ -105,6 +111,12 @@ def check_precision(precision, budget, looks, want: Sequence[str], replicates: i
         raise ValueError(f"a precision target needs an interval bound (one of {list(KINDS)}) in want, got {list(want)}")
     if replicates < 3:
         raise ValueError(f"a precision target needs replicates >= 3 (confidence limits), got {replicates}")
+
+
+def ceiling(pilot: int) -> int:
+    """The budget of a precision target given none (pixel-samples): CEILING × `pilot`, the pixel-samples charged to
+    its pilot, so the whole call, pilot included, costs at most CEILING pilots."""
+    return CEILING * int(pilot)
 
 
 def reached(b) -> float:
@@ -181,7 +193,8 @@ class Precision:
     the whole call (every θ*; spp × H × W per render requested, however served: what the budget decides on);
     rendered: the pixel-samples of those renders this process made (0 when all were cached); extra_sets /
     extra_pixel_samples: predicted fresh sets and pixel-samples still needed to meet it (0 when met, +inf when no
-    number of sets is predicted to); note: why it stopped."""
+    number of sets is predicted to); note: why it stopped; budget: the pixel-samples the call was capped at (the
+    budget given, else the default ceiling `ceiling`)."""
 
     target: float
     reached: dict[str, float]
@@ -194,6 +207,7 @@ class Precision:
     extra_sets: float = 0.0
     extra_pixel_samples: float = 0.0
     note: str = ""
+    budget: int = 0
     #: what this process happened to render: not part of the result (records that decide alike compare equal)
     rendered: int = field(default=0, compare=False)
 
@@ -527,7 +541,8 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budge
     replicate sets first … first + R − 1 at `level`, their FD stages those of `window` (None: the service's own)
     and their tested Δ those of `tested` ({position: mask over the pilot's Δ}; None: all), filling keep {(noise,
     position): Raw}. The call is charged by request (`bank.ledger()`); `spp` turns SetCost's renders into
-    pixel-samples. Returns the BoundPoints (noise-major), each with its `precision` record."""
+    pixel-samples; `budget` None: the default ceiling (`ceiling` of the pilot's pixel-samples). Returns the
+    BoundPoints (noise-major), each with its `precision` record."""
     with bank.ledger() as spend:
         return _refine(look, T, noises, R0, target, budget, K, alpha, cost, spp, spend)
 
@@ -574,17 +589,18 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
     def spent() -> int:
         return spend.pixel_samples
 
+    cap = ceiling(spent()) if budget is None else budget
+    cap_text = "the budget" if budget is not None else (
+        f"the default ceiling of {cap:.3g} pixel-samples, {CEILING} × the pilot's (a budget raises it)")
     active = [i for i in range(T) if worst(i) > goal[i]]
     for i in range(T):
         st.notes[i] = "met at the pilot" if i not in active else ""
     # plan from the pilot alone; the budget caps the first look's sets (each θ* with its planned window and Δ)
     plans = {i: planned(i) for i in active}
-    r_max = MAX_SETS
-    if budget is not None and active:
-        affordable = [R for R in ladder(MAX_SETS) if spent() + cost.look(
-            {i: (0, R, 0, plans[i].window.halvings + 1 if plans[i].window else cost.stages, n_tested(plans[i]))
-             for i in active}, R) * per_sample <= budget]
-        r_max = max(affordable, default=0)
+    affordable = [R for R in ladder(MAX_SETS) if active and spent() + cost.look(
+        {i: (0, R, 0, plans[i].window.halvings + 1 if plans[i].window else cost.stages, n_tested(plans[i]))
+         for i in active}, R) * per_sample <= cap]
+    r_max = max(affordable, default=0)
     star: dict[int, tuple[int, Plan]] = {}
     for i in active:
         pl = plans[i]
@@ -594,7 +610,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
                            f"{MAX_PREDICT} sets, holding its estimates fixed): an exploratory look at {star[i][0]} "
                            "fresh sets")
         elif pl.sets is None or r_max < 3:
-            st.notes[i] = "not met: the budget allows no fresh look"
+            st.notes[i] = f"not met: {cap_text} allows no fresh look"
         else:
             star[i] = (min(pl.sets, r_max), pl)
     grid_done = 0
@@ -606,14 +622,13 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         stages = {i: star[i][1].window.halvings + 1 if star[i][1].window else cost.stages for i in todo}
         new = {i: (star[i][0] * 2 ** (k - 2) if k > 1 else 0, now[i], st.stages[i] if k > 1 else 0, stages[i],
                    n_tested(star[i][1])) for i in todo}
-        # within the budget: the θ* whose look costs least first, the dearest left out (for good) until it fits
+        # within the cap: the θ* whose look costs least first, the dearest left out (for good) until it fits
         todo.sort(key=lambda i: (_worst_case(cost, new, now, [i], grid_done) * per_sample, i))
-        while todo and budget is not None and spent() + _worst_case(cost, new, now, todo, grid_done) * per_sample > (
-                budget):
+        while todo and spent() + _worst_case(cost, new, now, todo, grid_done) * per_sample > cap:
             i = todo.pop()
             c = _worst_case(cost, new, now, [i], grid_done) * per_sample
-            st.notes[i] = f"not met: its look {k} (worst case {c} pixel-samples) would exceed the budget " \
-                          f"({budget - spent()} left)"
+            st.notes[i] = (f"not met: its look {k} (worst case {c} pixel-samples, {cap - spent()} left) would "
+                           f"exceed {cap_text}")
             del star[i]
         if not todo:
             break
@@ -640,6 +655,6 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
             pt.precision = Precision(
                 float(goal[i]), {k: reached(pt.bounds[k]) for k in kinds(i)}, bool(worst(i) <= goal[i]),
                 st.looks[i], R0, st.fresh[i], level, int(total), extra[i], extra_px[i], st.notes[i],
-                int(spend.rendered))
+                budget=int(cap), rendered=int(spend.rendered))
             out.append(pt)
     return out

@@ -134,19 +134,21 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     """R·G grid renders; with an `fd_step`, 4R·G FD stencil renders more (at ξ and at ξ/2, the step check);
-    with a noise model whose weight is signal-dependent (Poisson), G weight renders more; with `precision_at`, the
-    pilot there and at most the
-    `precision_budget` (`precise.estimate`)."""
+    with a noise model whose weight is signal-dependent (Poisson), G weight renders more; with a `precision` target,
+    the pilot at the quoted θ (per set θ*, its 8 axis offsets, of which ±ξ is the first FD stencil, 2 stencils per
+    halving, and the test grid, which is the curve's own renders when it is the curve's grid: charged to the pilot,
+    not rendered again) and what its fresh looks may spend (`precise.estimate`)."""
     weight = any(n.signal_dependent for n in ctx.noises)
+    px = pixels(ctx.model)
     renders = p.replicates * len(p.thetas) * (1 + (4 if p.fd_step is not None else 0)) + weight * len(p.thetas)
-    samples = renders * p.spp * pixels(ctx.model)
-    if len(p.precision_at):  # the pilot at the quoted θ (θ*, 4 offsets and 2 FD stages per side; a test grid that
-        # is not the curve's)
+    samples, pilot = renders * p.spp * px, 0
+    if len(p.precision_at):
         Q = len(p.precision_at)
-        pilot = p.replicates * (Q * (1 + 8 + 4) + (0 if p.test_grid == len(p.thetas) else p.test_grid)) + weight * Q
-        renders += pilot
-        samples += pilot * p.spp * pixels(ctx.model)
-    return precise.estimate(renders, samples, cfg, p.spp, pixels(ctx.model))
+        own = p.replicates * Q * (1 + 8 + 2 * cfg["max_halvings"]) + weight * Q
+        renders += own + (0 if p.test_grid == len(p.thetas) else p.replicates * p.test_grid)
+        samples = renders * p.spp * px
+        pilot = (own + p.replicates * p.test_grid) * p.spp * px
+    return precise.estimate(renders, samples, cfg, p.spp, px, pilot)
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:

@@ -94,11 +94,14 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
-    """Per θ: a render and `fd_rounds` central-FD Jacobians (2 renders per parameter and round) at ξ and ξ/2;
-    at most `max_halvings` − 1 more halvings where the step has not converged (counted: the most it can cost);
-    with a `precision` target, at most its `precision_budget` more (`precise.estimate`)."""
-    renders = len(p.thetas) * (1 + 2 * ctx.model.params.dim * p.fd_rounds * (1 + max(p.max_halvings, 0)))
-    return precise.estimate(renders, renders * p.spp * pixels(ctx.model), cfg, p.spp, pixels(ctx.model))
+    """Per θ: a render and `fd_rounds` central-FD Jacobians (2 renders per parameter and round) at ξ and ξ/2, with
+    θ rendered under each round's seed (the step check's one-sided differences); at most `max_halvings` − 1 more
+    halvings where the step has not converged (counted: the most it can cost); with a `precision` target, these are
+    its pilot and the fresh rounds spend at most its `precision_budget` or the default ceiling (`precise.estimate`)."""
+    per_round = 2 * ctx.model.params.dim * (1 + max(p.max_halvings, 0)) + (p.max_halvings > 0)
+    renders = len(p.thetas) * (1 + p.fd_rounds * per_round)
+    samples = renders * p.spp * pixels(ctx.model)
+    return precise.estimate(renders, samples, cfg, p.spp, pixels(ctx.model), pilot=samples)
 
 
 def pooled_rows(label: str, noise: str, name: str, m: PooledFisherMap) -> list[dict]:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from ..bounds.precision import KINDS
+from ..bounds.precision import CEILING, KINDS, ceiling
 from ..schema import ConfigError, Field, integer_in, positive_integer, positive_number
 from .estimate import Estimate, describe
 from .tables import fmt, fmt_end
@@ -19,7 +19,8 @@ PRECISION = Field(positive_number, None, "target relative half-width p of every 
                   "1 ± p (ends at level 1 − α/looks, so coverage survives the stopping); null: one fixed set of "
                   "`replicates`", nullable=True)
 PRECISION_BUDGET = Field(positive_integer, None, "cap on the pixel-samples (spp × H × W × renders) the precise bounds "
-                         "may spend (needs `precision`); null: unlimited", nullable=True)
+                         f"may spend (needs `precision`); null: the default ceiling, {CEILING} × what their pilot "
+                         "costs (the pilot included)", nullable=True)
 LOOKS = Field(integer_in(2, 64), 3, "with `precision`: the pilot and at most looks − 1 looks at fresh replicate "
               "sets, each interval end at level 1 − (1 − level)/looks")
 #: the schema keys, as a study's SCHEMA takes them
@@ -49,17 +50,21 @@ def at_kwargs(cfg: dict) -> dict:
     return {"precision": cfg["precision"], "budget": cfg["precision_budget"], "looks": cfg["looks"]}
 
 
-def estimate(renders: int, samples: int, cfg: dict, spp: int, pixels: int, note: str = "") -> Estimate:
-    """A study's Estimate from what it counts (renders, pixel-samples) and its precision target: with a
-    `precision_budget` the fresh looks may add at most the budget (renders of `spp` × `pixels`), so `samples` is a
-    maximum and `least` what is spent without them; with a target but no budget they are not counted (the note
-    says so)."""
-    budget = cfg["precision_budget"] if cfg.get("precision") is not None else None
-    if cfg.get("precision") is not None and budget is None:
-        note = "; ".join(n for n in (note, "precision: the fresh looks not counted (no precision_budget)") if n)
-    if not budget:
+def estimate(renders: int, samples: int, cfg: dict, spp: int, pixels: int, pilot: int, note: str = "") -> Estimate:
+    """A study's Estimate from what it counts (renders, pixel-samples) and its precision target. The target's call is
+    capped, its pilot included, at the `precision_budget` or without one at the default ceiling
+    (`bounds.precision.ceiling`) of `pilot`, the pixel-samples the study counts for that pilot (every request it
+    charges, rendered or shared); so its fresh looks add at most budget − pilot in renders of `spp` × `pixels`:
+    `samples` is then a maximum and `least` what is spent without them. The note names a default ceiling."""
+    if cfg.get("precision") is None:
         return Estimate(renders, samples, note)
-    return Estimate(renders + budget // (spp * pixels), samples + budget, note, samples)
+    budget = cfg["precision_budget"]
+    if budget is None:
+        budget = ceiling(pilot)
+        note = "; ".join(n for n in (note, f"precision: no precision_budget, so at most the default ceiling of "
+                                           f"{budget:.3g} pixel-samples, {CEILING} × the pilot's {pilot:.3g}") if n)
+    fresh = max(budget - pilot, 0)
+    return Estimate(renders + fresh // (spp * pixels), samples + fresh, note, samples)
 
 
 def smoke(block: dict) -> dict:

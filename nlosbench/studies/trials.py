@@ -309,12 +309,14 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
     """Renders and pixel-samples: counted for the clean images and the bound renders (the bank grid, θ*, FD
     stencils at ξ and ξ/2 — further halvings, up to max_halvings, where the step has not converged, are not
     counted —, the axis offsets, the spp levels of hcr_hat, Poisson weight renders, and with a precision target
-    its `precision_budget`, the most its fresh looks may spend; for a predicted variance the settings' Jacobians and
-    the response's FD stages down to ξ/2^max_halvings, all counted though the bound may have made some), estimated
-    for the fits (`_fit_cost`: each setting's planned iterations × spp)."""
+    the most its fresh looks may spend, within its `precision_budget` or the default ceiling (`precise.estimate`);
+    for a predicted variance the settings' Jacobians and the response's FD stages down to ξ/2^max_halvings, all
+    counted though the bound may have made some), estimated for the fits (`_fit_cost`: each setting's planned
+    iterations × spp)."""
     P, R, bspp, px = ctx.model.params.dim, p.replicates, p.bound_spp, pixels(ctx.model)
     G, T = cfg["hcr_grid"] ** P, len(p.thetas)
     renders, samples = R * G, R * G * bspp  # the bank grid (the bayesian ZZB curve uses the same renders)
+    pilot = 0
     if p.mode == "bayesian":
         renders, samples = renders + p.n, samples + p.n * p.n_eff
         fits = len(p.noises) * p.n
@@ -325,6 +327,7 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
             extra = T * R * (1 + (4 * P if want & {"hcr", "crlb"} else 0)
                              + (2 * P * cfg["hcr_offsets"] if want - {"crlb"} else 0))
             renders, samples = renders + extra, samples + extra * bspp
+            pilot = (R * G + extra) * bspp * px  # a precision target's pilot: the bound renders, the grid's too
         if "hcr_hat" in want:
             pts = T * (G + 2 * P * cfg["hcr_offsets"])
             renders, samples = renders + pts * len(cfg["levels"]), samples + pts * sum(cfg["levels"])
@@ -346,7 +349,7 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
         renders, samples = renders + round(fits * r), samples + round(fits * spp)
     note = ("fits estimated from each estimator's planned iterations × spp (its cap, an upper bound where fits stop "
             "early; mle-adam with lr auto: what its stopping rule typically takes)")
-    return precise.estimate(renders, samples * px, cfg, bspp, px, note)
+    return precise.estimate(renders, samples * px, cfg, bspp, px, pilot, note)
 
 
 def _predicts(est) -> bool:
