@@ -48,50 +48,100 @@ def test_the_legend_names_every_drawn_element_and_nothing_else(rows):
     assert len(labels) == len(set(labels))
     assert set(labels) == {a.get_label() for a in drawn(ax)}
     assert all(not a.get_label().startswith("_") for a in drawn(ax))
-    assert f"HCR interval (lower to upper end), {NOISE}" in labels  # the band has its entry
+    assert f"HCR: point, bars to its one-sided 95% ends, {NOISE}" in labels  # each interval has its entry
+    assert f"CRLB: point, bars to its one-sided 95% ends, {NOISE}" in labels
     noted = any(note(r, "hcr", e) for r in rs for e in ("lower", "upper"))  # the service's own notes (FD step)
     assert any(NOT_LIMIT in t for t in labels) == noted
-    assert any(OPEN in t for t in labels) == any(math.isinf(r["hcr_upper"]) for r in rs)
+    assert any(OPEN in t for t in labels) == any(math.isinf(r[f"{k}_upper"]) for r in rs for k in ("hcr", "crlb"))
     legend = ax.get_legend().get_window_extent(fig.canvas.get_renderer())
     assert legend.y1 < ax.get_window_extent(fig.canvas.get_renderer()).y0  # below the data, not over it
     _plt().close(fig)
 
 
-def test_an_open_upper_end_is_a_marker_and_no_band_reaches_the_frame(rows):
-    rs = [dict(r) for r in rows[0]]
-    rs[6]["hcr_upper"] = math.inf
-    fig = bounds_figure(rs, parameter="edge", units="m")
+def _row(noise: str, theta: float, hcr: tuple, crlb: tuple, notes: dict | None = None) -> dict:
+    """A bounds.csv row (as read back: text cells) with the HCR's and CRLB's (point, lower, upper) log10 and notes
+    {column: text}."""
+    row = {"noise": noise, "theta_x": str(theta)}
+    for kind, (point, lower, upper) in (("hcr", hcr), ("crlb", crlb)):
+        row |= {f"log10_{kind}": str(lower), f"{kind}_point": str(point), f"{kind}_lower": str(lower),
+                f"{kind}_upper": str(upper), f"{kind}_level": "0.95", f"{kind}_lower_note": "",
+                f"{kind}_upper_note": ""}
+    return row | (notes or {})
+
+
+A, B = "AWGN(sigma=0.05)", "Poisson(scale=300.0)"
+FD = "not a confidence limit: FD step not converged (F ×1.5 from ξ to ξ/2)"
+SYNTHETIC = [  # θ 0.1 resolved; 0.2: A's HCR upper end open; 0.3: A's lower ends not limits; B's CRLB open at 0.2
+    _row(A, 0.1, (-4.0, -4.2, -3.8), (-4.1, -4.3, -3.9)),
+    _row(A, 0.2, (-3.5, -3.7, math.inf), (-3.6, -3.8, -3.4)),
+    _row(A, 0.3, (-3.0, -3.3, -2.8), (-3.1, -3.3, -2.9), {"hcr_lower_note": FD, "crlb_lower_note": FD}),
+    _row(A, 0.4, (-2.5, -2.7, -2.3), (-2.6, -2.8, -2.4)),
+    _row(B, 0.1, (-4.5, -4.7, -4.3), (-4.6, -4.8, -4.4)),
+    _row(B, 0.2, (-4.0, -4.2, -3.8), (-4.1, -4.3, math.inf)),
+    _row(B, 0.3, (-3.5, -3.7, -3.3), (-3.6, -3.8, -3.4)),
+    _row(B, 0.4, (-3.0, -3.2, -2.8), (-3.1, -3.3, -2.9)),
+]
+
+
+def test_each_interval_is_its_own_bar_open_ends_are_arrows_and_non_limits_hollow():
+    """A synthetic curve (2 noise models × 4 θ): every interval is an error bar from its own lower to its own upper
+    end around its own point (the HCR and the CRLB side by side, never at one x), filled markers exactly at the
+    points whose ends are both confidence limits, hollow ones exactly where an end carries a note (A's HCR and CRLB at
+    0.3), and an arrow from the point to the top frame for each open upper end (A's HCR and B's CRLB at 0.2)."""
+    from nlosbench.studies.plotstyle import interval
+
+    fig = bounds_figure(SYNTHETIC, parameter="x", units="m")
     ax = fig.axes[0]
-    opened = [a for a in ax.lines if OPEN in a.get_label()]
-    assert len(opened) == 1 and list(opened[0].get_xdata()) == [pytest.approx(rs[6]["theta_edge"])]
-    assert opened[0].get_ydata()[0] == pytest.approx(rs[6]["log10_hcr"])
-    finite = max(r["hcr_upper"] for r in rs if math.isfinite(r["hcr_upper"]))
-    for band in (c for c in ax.collections if "interval" in c.get_label()):
-        assert np.nanmax(_ydata(band)) <= finite + 1e-9 < ax.get_ylim()[1]
-    assert OPEN in {t.get_text().split(", ")[0].removeprefix("HCR ") for t in ax.get_legend().get_texts()}
+    bottom, top = ax.get_ylim()
+    xs = {}
+    for box in ax.containers:
+        name, noise = box.get_label().split(": point")[0], box.get_label().rsplit(", ", 1)[1]
+        rs = [r for r in SYNTHETIC if r["noise"] == noise]
+        line = box.lines[0]
+        x = line.get_xdata()
+        xs[name, noise] = x
+        assert np.allclose(x - [float(r["theta_x"]) for r in rs], x[0] - 0.1) and abs(x[0] - 0.1) < 0.05
+        ends = [interval(r, name.lower()) for r in rs]
+        assert np.allclose(line.get_ydata(), [e[0] for e in ends])
+        for seg, (point, lower, upper) in zip(box.lines[2][0].get_segments(), ends, strict=True):
+            assert np.allclose(seg[:, 1], [lower, upper if math.isfinite(upper) else point])
+        filled = [k for k, r in enumerate(rs) if not r[f"{name.lower()}_lower_note"]]
+        assert line.get_markevery() == filled
+    assert len(xs) == 4 and len({round(v[0], 9) for v in xs.values()}) == 4  # four bars apart at each θ
+    hollow = {a.get_label(): a.get_xdata() for a in ax.lines if a.get_markerfacecolor() == "none"}
+    assert set(hollow) == {f"HCR: an end {NOT_LIMIT} (hollow), {A}", f"CRLB: an end {NOT_LIMIT} (hollow), {A}"}
+    assert all(len(x) == 1 for x in hollow.values())
+    arrows = {a.get_label(): a for a in ax.lines if "arrow to the frame" in a.get_label()}
+    assert set(arrows) == {f"HCR: {OPEN}, arrow to the frame, {A}", f"CRLB: {OPEN}, arrow to the frame, {B}"}
+    for label, a in arrows.items():
+        y = a.get_ydata()
+        assert len(y) == 3 and np.isnan(y[2]) and top - 0.02 * (top - bottom) < y[1] < top  # one arrow, to the frame
+        assert y[0] == pytest.approx(-3.5 if label.startswith("HCR") else -4.1)  # from the point
     _plt().close(fig)
 
 
-def test_an_end_that_is_not_a_confidence_limit_is_drawn_apart_and_old_tables_read_as_valid(rows):
-    rs = [{k: v for k, v in r.items() if not k.endswith("_note")} for r in rows[0]]  # a table without notes: valid
-    fig = bounds_figure(rs, parameter="edge", units="m")
-    assert not any(NOT_LIMIT in a.get_label() for a in fig.axes[0].lines)
-    _plt().close(fig)
-    rs[2]["hcr_lower_note"] = "not a confidence limit: FD step not converged (F ×1.46 from ξ to ξ/2)"
-    rs[3]["hcr_lower_note"] = ""
-    fig = bounds_figure(rs, parameter="edge", units="m")
-    marked = [a for a in fig.axes[0].lines if NOT_LIMIT in a.get_label()]
-    assert len(marked) == 1 and "lower end" in marked[0].get_label()
-    assert list(marked[0].get_xdata()) == [pytest.approx(rs[2]["theta_edge"])]
-    assert marked[0].get_markerfacecolor() == "none"  # hollow: set apart from the valid ends
-    _plt().close(fig)
-    level = rs[0]["log10_hcr"] + 0.3
-    for notes, expect in (({NOISE: "not a confidence limit: upper limit of the distance not resolved"}, 1), ({}, 0)):
-        fig = bounds_figure(rs, parameter="edge", units="m", zzb={NOISE: level}, zzb_notes=notes)
-        zzb = [a for a in fig.axes[0].lines if a.get_label().startswith("ZZB")]
-        assert len(zzb) == 1 and zzb[0].get_ydata()[0] == pytest.approx(level)
-        assert zzb[0].get_label().endswith(NOT_LIMIT) == bool(expect)
-        _plt().close(fig)
+def test_the_caption_counts_the_resolved_points_and_what_the_rest_would_cost():
+    """The report's lines under the synthetic curve: 2 of 4 resolved for A, 3 of 4 for B; without a precision target
+    the rest get no cost but the way to have one predicted; with records at the quoted θ (A's 0.2 unmet, 1e8 extra
+    pixel-samples, 0.3 met; B's 0.2 predicted never to meet it) the line sums the extra, times it at the measured
+    rate (10 ns per pixel-sample: 1e8 → 1 s) and names what no number of sets meets."""
+    from nlosbench.studies.bounds import resolution
+
+    lines = resolution(SYNTHETIC, "x", [], None, 0.95)
+    assert "about 5% of the ends may miss" in lines[0]
+    assert lines[1].startswith("- AWGN, σ = 0.05: 2 of 4 points resolved; the other 2: no cost predicted")
+    assert lines[2].startswith("- Poisson, scale = 300: 3 of 4 points resolved; the other 1: no cost predicted")
+
+    def rec(noise, theta, met, extra):
+        return {"noise": noise, "theta": {"x": theta}, "target": 0.25, "met": met, "extra_pixel_samples": extra}
+
+    recs = [rec(A, 0.1, True, 0.0), rec(A, 0.2, False, 1e8), rec(A, 0.3, True, 0.0), rec(B, 0.2, False, math.inf)]
+    lines = resolution(SYNTHETIC, "x", recs, 1e-8, 0.95)
+    assert lines[1] == ("- AWGN, σ = 0.05: 2 of 4 points resolved; of the other 2, 1 met ±25 % at the quoted θ, 1 "
+                        "would need ≈ 1e+08 more pixel-samples (each θ's prediction, summed, ≈ 1 s on this machine "
+                        "at its measured 10 ns per pixel-sample).")
+    assert lines[2].startswith("- Poisson, scale = 300: 3 of 4 points resolved; of the other 1, 1 are predicted to "
+                               "need more than any number of replicate sets")
 
 
 def test_values_decades_away_are_marked_off_scale_and_do_not_stretch_the_axis(rows):

@@ -13,6 +13,7 @@ Report: from those and results.json only.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,10 +25,10 @@ from ..io import read_csv, write_csv, write_exr
 from ..schema import GRID, MAX_HALVINGS, STEP_TOL, ConfigError, Field, grid_values, smoke_grid
 from . import precise
 from .context import RunContext
-from .estimate import Estimate, pixels
+from .estimate import Estimate, describe, pixels
 from .plots import bound_curves_plot
-from .plotstyle import note
-from .tables import fmt_end, fmt_log10
+from .plotstyle import noise_text, note, resolved
+from .tables import fmt, fmt_end, fmt_log10
 
 NAME = "bounds"
 SCHEMA = {
@@ -188,7 +189,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
 
 def summarize(rows: list[dict], zrows: list[dict]) -> dict:
     """Per noise model: the range of the HCR's lower end, where the Δ → 0 term sets it, θ with an open upper
-    end, θ whose Δ → 0 lower end is not a confidence limit (FD step not converged), and the ZZB with its ends."""
+    end, θ whose Δ → 0 lower end is not a confidence limit (FD step not converged), θ resolved (`plotstyle.resolved`:
+    both ends of the HCR and the CRLB confidence limits), and the ZZB with its ends."""
     out = {}
     for noise in dict.fromkeys(r["noise"] for r in rows):
         rs = [r for r in rows if r["noise"] == noise]
@@ -201,10 +203,55 @@ def summarize(rows: list[dict], zrows: list[dict]) -> dict:
                       "upper_unbounded": sum("upper-unbounded" in r["hcr_flags"] for r in rs),
                       "step_not_converged": sum("fd-step-not-converged" in r["hcr_flags"] for r in rs),
                       "not_limits": sum(bool(r.get("hcr_lower_note")) for r in rs),
+                      "resolved": sum(resolved(r) for r in rs),
                       "zzb": None if z is None else {k: float(z[k]) for k in ("log10_zzb", "zzb_upper", "zzb_point",
                                                                                "prior_variance", "halved")} |
                       {"flags": z["zzb_flags"]}}
     return out
+
+
+def resolution(rows: list[dict], parameter: str, records: list[dict], seconds_per_sample: float | None,
+               level: float) -> list[str]:
+    """The caption's lines under the curve: per noise model how many θ of `rows` (bounds.csv) are resolved
+    (`plotstyle.resolved`), and for the others what the precision `records` (`precise.records`, at the quoted θ;
+    [] without a target) say: met there, the predicted extra pixel-samples summed over θ with their time at
+    `seconds_per_sample` (the run's measured rate; None: no time), none predicted to suffice, or not quoted; without
+    records, how to have the cost predicted. Each end is a pointwise one-sided limit at `level`."""
+    lines = [f"Resolved: both ends of the HCR and of the CRLB are one-sided {level:.0%} confidence limits (no open "
+             f"end, none labelled not a confidence limit); each end holds pointwise, so about {1 - level:.0%} of the "
+             "ends may miss."]
+    for noise in dict.fromkeys(r["noise"] for r in rows):
+        rs = [r for r in rows if r["noise"] == noise]
+        rest = [float(r[f"theta_{parameter}"]) for r in rs if not resolved(r)]
+        text = f"- {noise_text(noise)}: {len(rs) - len(rest)} of {len(rs)} points resolved"
+        if not rest:
+            lines.append(text + ".")
+            continue
+        mine = [r for r in records if r["noise"] == noise]
+        if not mine:
+            lines.append(text + f"; the other {len(rest)}: no cost predicted without a precision target (set "
+                         "`precision`, e.g. 0.25, and the bound service predicts at each θ what more replicate sets "
+                         "would cost; `precision_budget: 1` keeps it to the pilot and the prediction).")
+            continue
+        quoted = [r for r in mine if any(math.isclose(next(iter(r["theta"].values())), t, rel_tol=1e-9, abs_tol=1e-12)
+                                         for t in rest)]
+        met = sum(r["met"] for r in quoted)
+        extra = [r["extra_pixel_samples"] for r in quoted if not r["met"]]
+        finite = [x for x in extra if math.isfinite(x)]
+        parts = [f"{met} met ±{fmt(100 * mine[0]['target'], 3)} % at the quoted θ"] if met else []
+        if finite:
+            total = sum(finite)
+            when = (f", ≈ {describe(total * seconds_per_sample)} on this machine at its measured "
+                    f"{seconds_per_sample * 1e9:.3g} ns per pixel-sample" if seconds_per_sample else "")
+            parts.append(f"{len(finite)} would need ≈ {total:.3g} more pixel-samples (each θ's prediction, summed"
+                         f"{when})")
+        if len(extra) > len(finite):
+            parts.append(f"{len(extra) - len(finite)} are predicted to need more than any number of replicate sets "
+                         "at this spp (more spp, a settled FD step or a wider target)")
+        if len(rest) > len(quoted):
+            parts.append(f"{len(rest) - len(quoted)} were not quoted (no prediction)")
+        lines.append(text + f"; of the other {len(rest)}, " + ", ".join(parts) + ".")
+    return lines
 
 
 def smoke(block: dict) -> dict:
@@ -242,6 +289,8 @@ def report(study_dir: Path, results: dict) -> str:
              "- **ZZB**: the Ziv–Zakai bound on the Bayesian MSE over a uniform prior on the grid's range: it holds "
              "for every estimator, biased or not (one number per noise model).", "",
              f"![bounds]({study_dir.name}/bounds.png)", "",
+             *resolution(rows, results.get("parameter", "θ"), results.get("precision", []),
+                         results.get("seconds_per_sample"), results["level"]), "",
              "| noise | log10 HCR lower end, min – max | θ where Δ → 0 sets it | θ with open upper end | "
              f"θ whose lower end is not a confidence limit | ZZB point [{lvl} ends] |", "|---|---|---|---|---|---|"]
     for noise, s in results["noise"].items():

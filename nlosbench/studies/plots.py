@@ -13,6 +13,7 @@ from ..tradeoff import pareto_front
 from .plotstyle import (
     NOT_LIMIT,
     OPEN,
+    interval,
     legend_below,
     noise_text,
     note,
@@ -50,55 +51,59 @@ def bounds_figure(rows: list[dict], los_until: float | None = None, parameter: s
     draw_bound_curves(ax, rows, los_until, parameter, units, zzb, zzb_notes, quoted)
     rms_axis(ax, units, log10_axis=True)
     ax.grid(alpha=0.3)
-    legend_below(ax)
+    noises = list(dict.fromkeys(r["noise"] for r in rows))
+    names = [name for _, name, _, _ in CURVE_KINDS]
+
+    def order(label: str) -> tuple:  # per noise model: the HCR's entries, the CRLB's, then the others
+        noise = next((k for k, v in enumerate(noises) if v in label), len(noises))
+        kind = next((k for k, v in enumerate(names) if label.startswith(f"{v}:")), len(names))
+        return noise, kind, "point, bars" not in label
+
+    legend_below(ax, order=order)
     fig.tight_layout()
     return fig
+
+
+#: how the interval bounds of a curve are drawn: (kind, name, point marker, line style of the points' line)
+CURVE_KINDS = (("hcr", "HCR", "o", "-"), ("crlb", "CRLB", "s", "--"))
 
 
 def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, parameter: str = "θ",
                       units: str = "units", zzb: dict | None = None, zzb_notes: dict | None = None,
                       quoted: list[dict] | None = None) -> None:
-    """log10 bound vs θ from bound-service rows (theta_<parameter>, log10_<kind>, <kind>_upper, optional
-    <kind>_<end>_note per noise): per noise model the HCR's lower end (solid) with a band to its finite upper
-    end, an open upper end (∞) as ▲ on the lower end, an end that is not a confidence limit as a hollow
-    marker (○ lower, ▽ upper); the CRLB (dashed), the paper's HCR_Neff (dotted) and Barankin (dash-dot)
-    where present; `zzb` {noise: log10} adds the ZZB over Θ as a level line (dotted where `zzb_notes`
-    {noise: reason} says its lower end is not a confidence limit). The y-range follows the HCR,
-    its finite upper ends, the CRLB and the ZZB; values more than `plotstyle.REACH` decades beyond are
-    marked by an arrow at the frame's edge. `quoted` (rows of the bounds at the quoted θ, precise.csv) adds
-    per noise the HCR (◆, nudged left) and CRLB (■, nudged right) points there with bars to their finite ends.
-    Every drawn element has its legend label, nothing else has."""
+    """log10 bound vs θ from bound-service rows (theta_<parameter>, log10_<kind>, <kind>_point, _lower, _upper,
+    optional <kind>_<end>_note per noise): per noise model the HCR interval and the CRLB interval
+    (`plotstyle.interval`), each its point on a line (HCR solid, CRLB dashed) with a bar to its finite ends, the two
+    side by side at each θ (so no bound's end stands against another's point); a point is filled where both its ends
+    are confidence limits and hollow where one is not (a note; `interval_artists`), an open end (±∞) is an arrow
+    from the point to the frame; the paper's HCR_Neff (dotted) and Barankin (dash-dot) where present; `zzb`
+    {noise: log10} adds the ZZB over Θ as a level line (dotted where `zzb_notes` {noise: reason} says its lower end
+    is not a confidence limit). The y-range follows the two intervals' finite points and ends and the ZZB; values
+    more than `plotstyle.REACH` decades beyond are marked by an arrow at the frame's edge. `quoted` (rows of the
+    bounds at the quoted θ, precise.csv) adds per noise the HCR (◆, nudged left) and CRLB (■, nudged right) points
+    there with bars to their finite ends. Every drawn element has its legend label, nothing else has."""
     series = defaultdict(list)
     for r in rows:
         series[r["noise"]].append(r)
     zzb = {k: v for k, v in (zzb or {}).items() if np.isfinite(v)}
+    kinds = [k for k in CURVE_KINDS if any(r.get(f"log10_{k[0]}") not in ("", None) for r in rows)]
     core, others = [], list(zzb.values())
     for rs in series.values():
-        core += [cell(r.get(k)) for r in rs for k in ("log10_hcr", "hcr_upper", "log10_crlb")]
+        core += [v for r in rs for k in kinds for v in interval(r, k[0])]
         others += [cell(r.get(k)) for r in rs for k in ("log10_hcr_neff", "log10_barankin")]
     bottom, top = view(core, others)
+    ax.set_ylim(bottom, top)
+    xs = np.unique([float(r[f"theta_{parameter}"]) for r in rows])
+    slots = len(series) * len(kinds)
+    width = 0.5 * (float(np.diff(xs).min()) if len(xs) > 1 else 1.0) / max(slots, 1)
     slot = 0
     for i, (noise, rs) in enumerate(series.items()):
         x = np.array([float(r[f"theta_{parameter}"]) for r in rs])
         color = f"C{i}"
-        low = np.array([cell(r["log10_hcr"]) for r in rs])
-        ax.plot(x, low, "-", color=color, label=f"HCR lower end, {noise}")
-        if "hcr_upper" in rs[0]:
-            up = np.array([cell(r["hcr_upper"]) for r in rs])
-            band = np.isfinite(up) & np.isfinite(low) & (up > low)
-            if band.any():
-                ax.fill_between(x, low, np.where(band, up, np.nan), where=band, step="mid", color=color, alpha=0.15,
-                                lw=0, label=f"HCR interval (lower to upper end), {noise}")
-            opened = np.isposinf(up) & np.isfinite(low)
-            if opened.any():
-                ax.plot(x[opened], low[opened], "^", ms=5, color=color, label=f"HCR {OPEN}, {noise}")
-            for end, y, marker in (("lower", low, "o"), ("upper", up, "v")):
-                bad = np.array([bool(note(r, "hcr", end)) for r in rs]) & np.isfinite(y)
-                if bad.any():
-                    ax.plot(x[bad], y[bad], marker, ms=6, mfc="none", color=color,
-                            label=f"HCR {end} end {NOT_LIMIT}, {noise}")
-        for key, style, name, lw in (("log10_crlb", "--", "CRLB", 1.2),
-                                     ("log10_hcr_neff", ":", "HCR_Neff (paper)", 0.9),
+        for j, (kind, name, marker, style) in enumerate(kinds):
+            shift = (i * len(kinds) + j - (slots - 1) / 2) * width
+            interval_artists(ax, rs, x + shift, kind, name, noise, marker, style, color)
+        for key, style, name, lw in (("log10_hcr_neff", ":", "HCR_Neff (paper)", 0.9),
                                      ("log10_barankin", "-.", "Barankin", 1.0)):
             if rs and rs[0].get(key) not in ("", None):
                 y = np.array([cell(r[key]) for r in rs])
@@ -113,8 +118,7 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
             ax.axhline(zzb[noise], color=color, lw=0.8, ls=(0, (1, 3)) if bad else (0, (6, 2, 1, 2)),
                        label=f"{name}: lower end {NOT_LIMIT}" if bad else name)
     names = list(series)
-    xs = [float(r[f"theta_{parameter}"]) for r in rows] or [0.0]
-    nudge = 0.006 * (max(xs) - min(xs))  # HCR left, CRLB right of the quoted θ: both bars stay readable
+    nudge = 0.006 * (xs.max() - xs.min()) if len(xs) else 0.0  # HCR left, CRLB right of the quoted θ
     for kind, marker, name, side in (("hcr", "D", "HCR", -1), ("crlb", "s", "CRLB", 1)):
         for noise in dict.fromkeys(r["noise"] for r in quoted or []):
             rs = [r for r in quoted if r["noise"] == noise and r.get(f"{kind}_point") not in ("", None)]
@@ -130,13 +134,45 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
             color = f"C{names.index(noise)}" if noise in names else "k"
             ax.errorbar(x, y, yerr=bars, fmt=marker, ms=5, capsize=3, color=color, mec="k", mew=0.6,
                         label=f"{name} at the quoted θ (point, ends), {noise}")
-    ax.set_ylim(bottom, top)
     if los_until is not None:
         ax.axvline(float(los_until), color="gray", lw=0.8)
-        ax.text(float(los_until), top, " NLOS →", va="top", ha="left", fontsize=8, color="gray")
-        ax.text(float(los_until), top, "← LOS ", va="top", ha="right", fontsize=8, color="gray")
+        below = top - 0.04 * (top - bottom)  # under the arrowheads of open ends
+        ax.text(float(los_until), below, " NLOS →", va="top", ha="left", fontsize=8, color="gray")
+        ax.text(float(los_until), below, "← LOS ", va="top", ha="right", fontsize=8, color="gray")
     ax.set_xlabel(f"θ = {parameter} [{units}]")
     ax.set_ylabel(f"log10 bound [{units}²]")
+
+
+def interval_artists(ax, rows: list[dict], x: np.ndarray, kind: str, name: str, noise: str, marker: str,
+                     style: str, color) -> None:
+    """One interval bound `kind` (titled `name`) of a curve under `noise` at the θ `x` (G,) (set ax's y-limits
+    first): its finite points on a line of `style` with bars to their finite ends, `marker` filled where both ends
+    are confidence limits (an error-bar container); hollow markers where an end is not one (its note); per open side
+    (+∞ upper, −∞ lower: 0) one line of arrows from each such point to the frame (segments apart by NaN, an
+    arrowhead ^ / v at the frame). Each with its legend label."""
+    y, lo, up = (np.array(v) for v in zip(*(interval(r, kind) for r in rows), strict=True))
+    ok = np.isfinite(y)
+    if not ok.any():
+        return
+    limits = np.array([not note(r, kind, "lower") and not note(r, kind, "upper") for r in rows])
+    level = cell(rows[0].get(f"{kind}_level"))
+    ends = f"one-sided {level:.0%} ends" if np.isfinite(level) else "ends"
+    bars = np.stack([np.where(np.isfinite(lo), y - lo, 0.0), np.where(np.isfinite(up), up - y, 0.0)])
+    ax.errorbar(x[ok], y[ok], yerr=bars[:, ok], fmt=marker + style, ms=4, lw=1.0, elinewidth=0.8, capsize=1.5,
+                color=color, markevery=[int(k) for k in np.flatnonzero(limits[ok])],
+                label=f"{name}: point, bars to its {ends}, {noise}")
+    if (ok & ~limits).any():
+        ax.plot(x[ok & ~limits], y[ok & ~limits], marker, ls="none", ms=5, mfc="none", mew=1.0, color=color,
+                label=f"{name}: an end {NOT_LIMIT} (hollow), {noise}")
+    bottom, top = ax.get_ylim()
+    inset = 0.015 * (top - bottom)
+    for side, end, edge, head in (("upper", up, top - inset, "^"), ("lower", lo, bottom + inset, "v")):
+        opened = np.flatnonzero(ok & np.isinf(end))
+        if len(opened):
+            xs = np.repeat(x[opened], 3)
+            ys = np.column_stack([y[opened], np.full(len(opened), edge), np.full(len(opened), np.nan)]).ravel()
+            ax.plot(xs, ys, ":", marker=head, markevery=slice(1, None, 3), ms=4, lw=0.7, color=color,
+                    label=f"{name}: {side} end open ({'∞' if side == 'upper' else '0'}), arrow to the frame, {noise}")
 
 
 def finish(fig, ax, path: Path, dpi: int = 120) -> Path:

@@ -21,6 +21,26 @@ def note(row: dict, kind: str, end: str) -> str:
     return (row.get(f"{kind}_{end}_note") or "").strip()
 
 
+def interval(row: dict, kind: str) -> tuple[float, float, float]:
+    """(point, lower, upper) log10 of the interval bound `kind` in a CSV row (NaN where absent; ±inf an open end);
+    a table without a `<kind>_point` column (older tables, bounds without an interval) gives log10_<kind> as its
+    point and both ends."""
+    def value(key: str, default: str | None = None) -> float:
+        v = row.get(key, default)
+        return float(v) if v not in ("", None) else math.nan
+
+    point = value(f"{kind}_point", row.get(f"log10_{kind}"))
+    return point, value(f"{kind}_lower", row.get(f"log10_{kind}")), value(f"{kind}_upper", row.get(f"log10_{kind}"))
+
+
+def resolved(row: dict, kinds: Sequence[str] = ("hcr", "crlb")) -> bool:
+    """Whether a CSV row's interval bounds among `kinds` (those it has) are resolved: a finite point and both ends
+    finite confidence limits (no open end, no `<kind>_<end>_note`); False when it has none of them."""
+    have = [k for k in kinds if row.get(f"log10_{k}") not in ("", None)]
+    return bool(have) and all(np.isfinite(interval(row, k)).all() and not note(row, k, "lower")
+                              and not note(row, k, "upper") for k in have)
+
+
 def length(v: float, units: str) -> str:
     """A tick label for an RMS error `v` in `units` (metres with a metric prefix: 10 µm, 3 mm, 2 cm)."""
     if units == "m":
@@ -97,10 +117,15 @@ def off_scale(ax, x: np.ndarray, lg: np.ndarray, bottom: float, top: float, name
     return ~(below | above)
 
 
-def legend_below(ax, ncol: int = 2) -> None:
-    """The legend under the axes (off the data), when anything is labelled."""
-    if ax.get_legend_handles_labels()[0]:
-        ax.legend(fontsize=7, ncol=ncol, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
+def legend_below(ax, ncol: int = 2, order=None) -> None:
+    """The legend under the axes (off the data), when anything is labelled; `order` (label → sort key) orders its
+    entries (stable), None: as drawn."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        pairs = sorted(zip(handles, labels, strict=True), key=lambda p: order(p[1])) if order else list(
+            zip(handles, labels, strict=True))
+        ax.legend(*zip(*pairs, strict=True), fontsize=7, ncol=ncol, loc="upper center", bbox_to_anchor=(0.5, -0.16),
+                  frameon=False)
 
 
 def noise_text(noise: str) -> str:
