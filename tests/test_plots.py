@@ -121,26 +121,32 @@ def test_each_interval_is_its_own_bar_open_ends_are_arrows_and_non_limits_hollow
 
 
 def test_the_caption_counts_the_resolved_points_and_what_the_rest_would_cost():
-    """The report's lines under the synthetic curve: 2 of 4 resolved for A, 3 of 4 for B; without a precision target
-    the rest get no cost but the way to have one predicted; with records at the quoted θ (A's 0.2 unmet, 1e8 extra
+    """The report's lines under the synthetic curve: 2 of 4 resolved for A, 3 of 4 for B (split at `los_until`: A 1 of
+    2 on each side, B 1 of 2 and 2 of 2); without a precision target the rest get no cost but the way to have one
+    predicted; with records at the quoted θ (A's 0.2 unmet, 1e8 extra
     pixel-samples, 0.3 met; B's 0.2 predicted never to meet it) the line sums the extra, times it at the measured
     rate (10 ns per pixel-sample: 1e8 → 1 s) and names what no number of sets meets."""
     from nlosbench.studies.bounds import resolution
 
     lines = resolution(SYNTHETIC, "x", [], None, 0.95)
     assert "about 5% of the ends may miss" in lines[0]
-    assert lines[1].startswith("- AWGN, σ = 0.05: 2 of 4 points resolved; the other 2: no cost predicted")
-    assert lines[2].startswith("- Poisson, scale = 300: 3 of 4 points resolved; the other 1: no cost predicted")
+    assert lines[2].startswith("- AWGN, σ = 0.05: 2 of 4 points resolved; the other 2: no cost predicted")
+    assert lines[3].startswith("- Poisson, scale = 300: 3 of 4 points resolved; the other 1: no cost predicted")
+    lines = resolution(SYNTHETIC, "x", [], None, 0.95, los_until=0.25)  # line of sight: θ 0.1, 0.2
+    assert lines[2].startswith("- AWGN, σ = 0.05: 2 of 4 points resolved (line of sight 1 of 2, beyond the corner 1 "
+                               "of 2);")
+    assert lines[3].startswith("- Poisson, scale = 300: 3 of 4 points resolved (line of sight 1 of 2, beyond the "
+                               "corner 2 of 2);")
 
     def rec(noise, theta, met, extra):
         return {"noise": noise, "theta": {"x": theta}, "target": 0.25, "met": met, "extra_pixel_samples": extra}
 
     recs = [rec(A, 0.1, True, 0.0), rec(A, 0.2, False, 1e8), rec(A, 0.3, True, 0.0), rec(B, 0.2, False, math.inf)]
     lines = resolution(SYNTHETIC, "x", recs, 1e-8, 0.95)
-    assert lines[1] == ("- AWGN, σ = 0.05: 2 of 4 points resolved; of the other 2, 1 met ±25 % at the quoted θ, 1 "
+    assert lines[2] == ("- AWGN, σ = 0.05: 2 of 4 points resolved; of the other 2, 1 met ±25 % at the quoted θ, 1 "
                         "would need ≈ 1e+08 more pixel-samples (each θ's prediction, summed, ≈ 1 s on this machine "
                         "at its measured 10 ns per pixel-sample).")
-    assert lines[2].startswith("- Poisson, scale = 300: 3 of 4 points resolved; of the other 1, 1 are predicted to "
+    assert lines[3].startswith("- Poisson, scale = 300: 3 of 4 points resolved; of the other 1, 1 are predicted to "
                                "need more than any number of replicate sets")
 
 

@@ -211,19 +211,25 @@ def summarize(rows: list[dict], zrows: list[dict]) -> dict:
 
 
 def resolution(rows: list[dict], parameter: str, records: list[dict], seconds_per_sample: float | None,
-               level: float) -> list[str]:
+               level: float, los_until: float | None = None) -> list[str]:
     """The caption's lines under the curve: per noise model how many θ of `rows` (bounds.csv) are resolved
-    (`plotstyle.resolved`), and for the others what the precision `records` (`precise.records`, at the quoted θ;
-    [] without a target) say: met there, the predicted extra pixel-samples summed over θ with their time at
-    `seconds_per_sample` (the run's measured rate; None: no time), none predicted to suffice, or not quoted; without
-    records, how to have the cost predicted. Each end is a pointwise one-sided limit at `level`."""
+    (`plotstyle.resolved`; with `los_until`, also in line of sight, θ < los_until, and beyond), and for the others
+    what the precision `records` (`precise.records`, at the quoted θ; [] without a target) say: met there, the
+    predicted extra pixel-samples summed over θ with their time at `seconds_per_sample` (the run's measured rate;
+    None: no time), none predicted to suffice, or not quoted; without records, how to have the cost predicted. Each
+    end is a pointwise one-sided limit at `level`."""
     lines = [f"Resolved: both ends of the HCR and of the CRLB are one-sided {level:.0%} confidence limits (no open "
              f"end, none labelled not a confidence limit); each end holds pointwise, so about {1 - level:.0%} of the "
-             "ends may miss."]
+             "ends may miss.", ""]
     for noise in dict.fromkeys(r["noise"] for r in rows):
         rs = [r for r in rows if r["noise"] == noise]
         rest = [float(r[f"theta_{parameter}"]) for r in rs if not resolved(r)]
         text = f"- {noise_text(noise)}: {len(rs) - len(rest)} of {len(rs)} points resolved"
+        if los_until is not None:
+            thetas = [float(r[f"theta_{parameter}"]) for r in rs]
+            los = sum(t < los_until for t in thetas)
+            text += (f" (line of sight {los - sum(t < los_until for t in rest)} of {los}, beyond the corner "
+                     f"{len(rs) - los - sum(t >= los_until for t in rest)} of {len(rs) - los})")
         if not rest:
             lines.append(text + ".")
             continue
@@ -274,23 +280,25 @@ def report(study_dir: Path, results: dict) -> str:
              f"replicate sets, {results['seeds']} seeds ({results['renders']} renders). log10 of {units}².", "",
              f"- **HCR** (variance of an unbiased estimator): each θ's HCR is a sup over every Δ ≠ 0, including Δ → 0, "
              f"whose limit is the CRLB term; λ(Δ) and the Fisher information are U-statistics over the replicates "
-             f"(unbiased: rendering noise does not inflate them). The line is the lower end, a one-sided {lvl} "
-             f"confidence limit (Bonferroni over the tested Δ and Δ → 0) — the bound to quote; the band reaches "
-             f"the upper end, a one-sided {lvl} limit on the HCR over the tested Δ and Δ → 0 (no Bonferroni share: "
-             f"one fixed term sets it; open where any tested Δ or F is not resolved: ▲ on the plot, ∞ in tables).",
+             f"(unbiased: rendering noise does not inflate them). On the plot its point (○, solid line) with a bar "
+             f"from the lower end, a one-sided {lvl} confidence limit (Bonferroni over the tested Δ and Δ → 0) — the "
+             f"bound to quote — to the upper end, a one-sided {lvl} limit on the HCR over the tested Δ and Δ → 0 "
+             f"(no Bonferroni share: one fixed term sets it; open where any tested Δ or F is not resolved: an "
+             f"arrow to the top of the frame on the plot, ∞ in tables).",
              f"- **CRLB**: 1/F̂ from the unbiased Fisher information of the FD-smoothed derivative, with its {lvl} "
-             f"ends over the FD steps tried. An FD step that is too wide makes F too small (an edge crossing a pixel "
-             f"inside θ ± ξ), so the step is checked: where the paired upper limit of F at the finer step over F at "
-             f"the coarser exceeds 1 + {results.get('step_tol', 0.1):g}, the Δ → 0 lower ends are *not confidence "
-             f"limits* (labelled in bounds.csv: hcr_lower_note, crlb_lower_note; drawn hollow in the plot). A "
-             f"curve does not refine its step; the bounds a trials or fisher-maps study quotes at its θ* do.",
+             f"ends over the FD steps tried (□, dashed line, its own bar beside the HCR's). An FD step that is too "
+             f"wide makes F too small (an edge crossing a pixel inside θ ± ξ), so the step is checked: where the "
+             f"paired upper limit of F at the finer step over F at the coarser exceeds "
+             f"1 + {results.get('step_tol', 0.1):g}, the Δ → 0 lower ends are *not confidence limits* (labelled in "
+             f"bounds.csv: hcr_lower_note, crlb_lower_note; the point drawn hollow on the plot). A curve does not "
+             f"refine its step; the bounds a trials or fisher-maps study quotes at its θ* do.",
              "- **HCR_Neff (paper)**: the paper's direct bound from the replicate means, sup over the grid's Δ "
              "only: without its Δ → 0 term it can sit decades below the CRLB (the paper's 80 cm row is this).",
              "- **ZZB**: the Ziv–Zakai bound on the Bayesian MSE over a uniform prior on the grid's range: it holds "
              "for every estimator, biased or not (one number per noise model).", "",
              f"![bounds]({study_dir.name}/bounds.png)", "",
              *resolution(rows, results.get("parameter", "θ"), results.get("precision", []),
-                         results.get("seconds_per_sample"), results["level"]), "",
+                         results.get("seconds_per_sample"), results["level"], results.get("los_until")), "",
              "| noise | log10 HCR lower end, min – max | θ where Δ → 0 sets it | θ with open upper end | "
              f"θ whose lower end is not a confidence limit | ZZB point [{lvl} ends] |", "|---|---|---|---|---|---|"]
     for noise, s in results["noise"].items():
