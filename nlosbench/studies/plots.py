@@ -157,8 +157,9 @@ def interval_artists(ax, rows: list[dict], x: np.ndarray, kind: str, name: str, 
     limits = np.array([not note(r, kind, "lower") and not note(r, kind, "upper") for r in rows])
     level = cell(rows[0].get(f"{kind}_level"))
     ends = f"one-sided {level:.0%} ends" if np.isfinite(level) else "ends"
-    bars = np.stack([np.where(np.isfinite(lo), y - lo, 0.0), np.where(np.isfinite(up), up - y, 0.0)])
-    ax.errorbar(x[ok], y[ok], yerr=bars[:, ok], fmt=marker + style, ms=4, lw=1.0, elinewidth=0.8, capsize=1.5,
+    yo, lo_ok, up_ok = y[ok], lo[ok], up[ok]
+    bars = np.stack([np.where(np.isfinite(lo_ok), yo - lo_ok, 0.0), np.where(np.isfinite(up_ok), up_ok - yo, 0.0)])
+    ax.errorbar(x[ok], yo, yerr=bars, fmt=marker + style, ms=4, lw=1.0, elinewidth=0.8, capsize=1.5,
                 color=color, markevery=[int(k) for k in np.flatnonzero(limits[ok])],
                 label=f"{name}: point, bars to its {ends}, {noise}")
     if (ok & ~limits).any():
