@@ -158,4 +158,5 @@ def test_the_estimate_before_a_run_gives_the_range_a_precision_budget_allows(tmp
     run = prepare(cfg, out=tmp_path / "run2", quiet=True)
     (e,) = run.estimates.values()
     assert (e.floor, e.samples) == (pilot, CEILING * pilot)
-    assert f"default ceiling of {CEILING * pilot:.3g} pixel-samples" in run.notes[0], run.notes
+    assert f"the default ceiling, {CEILING} × the pilot's pixel-samples (≈ {pilot:.3g}): ≈ {CEILING * pilot:.3g}" in (
+        run.notes[0]), run.notes

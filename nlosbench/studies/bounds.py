@@ -136,8 +136,8 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     """R·G grid renders; with an `fd_step`, 4R·G FD stencil renders more (at ξ and at ξ/2, the step check);
     with a noise model whose weight is signal-dependent (Poisson), G weight renders more; with a `precision` target,
-    the pilot at the quoted θ (per set θ*, its 8 axis offsets, of which ±ξ is the first FD stencil, 2 stencils per
-    halving, and the test grid, which is the curve's own renders when it is the curve's grid: charged to the pilot,
+    the pilot at the quoted θ (per set θ*, its 2·`hcr_offsets` axis offsets, 2 FD stencils per step, every halving
+    counted, and the test grid, which is the curve's own renders when it is the curve's grid: charged to the pilot,
     not rendered again) and what its fresh looks may spend (`precise.estimate`)."""
     weight = any(n.signal_dependent for n in ctx.noises)
     px = pixels(ctx.model)
@@ -145,7 +145,7 @@ def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     samples, pilot = renders * p.spp * px, 0
     if len(p.precision_at):
         Q = len(p.precision_at)
-        own = p.replicates * Q * (1 + 8 + 2 * cfg["max_halvings"]) + weight * Q
+        own = p.replicates * Q * (1 + 2 * cfg["hcr_offsets"] + 2 * (cfg["max_halvings"] + 1)) + weight * Q
         renders += own + (0 if p.test_grid == len(p.thetas) else p.replicates * p.test_grid)
         samples = renders * p.spp * px
         pilot = (own + p.replicates * p.test_grid) * p.spp * px
@@ -244,7 +244,8 @@ def resolution(rows: list[dict], parameter: str, records: list[dict], seconds_pe
         met = sum(r["met"] for r in quoted)
         extra = [r["extra_pixel_samples"] for r in quoted if not r["met"]]
         finite = [x for x in extra if math.isfinite(x)]
-        parts = [f"{met} met ±{fmt(100 * mine[0]['target'], 3)} % at the quoted θ"] if met else []
+        goals = " / ".join(f"±{fmt(100 * g, 3)} %" for g in sorted({r["target"] for r in quoted if r["met"]}))
+        parts = [f"{met} met {goals} at the quoted θ"] if met else []
         if finite:
             total = sum(finite)
             when = (f", ≈ {describe(total * seconds_per_sample)} on this machine at its measured "

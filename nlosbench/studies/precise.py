@@ -61,8 +61,8 @@ def estimate(renders: int, samples: int, cfg: dict, spp: int, pixels: int, pilot
     budget = cfg["precision_budget"]
     if budget is None:
         budget = ceiling(pilot)
-        note = "; ".join(n for n in (note, f"precision: no precision_budget, so at most the default ceiling of "
-                                           f"{budget:.3g} pixel-samples, {CEILING} × the pilot's {pilot:.3g}") if n)
+        note = "; ".join(n for n in (note, f"precision: no precision_budget, so the default ceiling, {CEILING} × "
+                                           f"the pilot's pixel-samples (≈ {pilot:.3g}): ≈ {budget:.3g}") if n)
     fresh = max(budget - pilot, 0)
     return Estimate(renders + fresh // (spp * pixels), samples + fresh, note, samples)
 
