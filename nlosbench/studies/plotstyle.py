@@ -23,14 +23,14 @@ def note(row: dict, kind: str, end: str) -> str:
 
 def interval(row: dict, kind: str) -> tuple[float, float, float]:
     """(point, lower, upper) log10 of the interval bound `kind` in a CSV row (NaN where absent; ±inf an open end);
-    a table without a `<kind>_point` column (older tables, bounds without an interval) gives log10_<kind> as its
-    point and both ends."""
+    a table without `<kind>_point` / `_lower` columns (a bound without an interval) gives log10_<kind> for them, and
+    without `<kind>_upper` an upper end of NaN (not known, so never resolved)."""
     def value(key: str, default: str | None = None) -> float:
         v = row.get(key, default)
         return float(v) if v not in ("", None) else math.nan
 
-    point = value(f"{kind}_point", row.get(f"log10_{kind}"))
-    return point, value(f"{kind}_lower", row.get(f"log10_{kind}")), value(f"{kind}_upper", row.get(f"log10_{kind}"))
+    lg = row.get(f"log10_{kind}")
+    return value(f"{kind}_point", lg), value(f"{kind}_lower", lg), value(f"{kind}_upper")
 
 
 def resolved(row: dict, kinds: Sequence[str] = ("hcr", "crlb")) -> bool:
