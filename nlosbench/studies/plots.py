@@ -80,8 +80,9 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
     {noise: log10} adds the ZZB over Θ as a level line (dotted where `zzb_notes` {noise: reason} says its lower end
     is not a confidence limit). The y-range follows the two intervals' finite points and ends and the ZZB; values
     more than `plotstyle.REACH` decades beyond are marked by an arrow at the frame's edge. `quoted` (rows of the
-    bounds at the quoted θ, precise.csv) adds per noise the HCR (◆, nudged left) and CRLB (■, nudged right) points
-    there with bars to their finite ends. Every drawn element has its legend label, nothing else has."""
+    bounds at the quoted θ, precise.csv) adds per noise the HCR (◆, nudged left of the curve's bars) and CRLB (■,
+    nudged right) points there with bars to their finite ends. Every drawn element has its legend label, nothing
+    else has."""
     series = defaultdict(list)
     for r in rows:
         series[r["noise"]].append(r)
@@ -118,7 +119,8 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
             ax.axhline(zzb[noise], color=color, lw=0.8, ls=(0, (1, 3)) if bad else (0, (6, 2, 1, 2)),
                        label=f"{name}: lower end {NOT_LIMIT}" if bad else name)
     names = list(series)
-    nudge = 0.006 * (xs.max() - xs.min()) if len(xs) else 0.0  # HCR left, CRLB right of the quoted θ
+    # HCR left, CRLB right of the quoted θ, clear of the curve's own bars there (within ±width·slots/2 of a grid θ)
+    nudge = max(0.006 * (xs.max() - xs.min()), width * (slots / 2 + 1)) if len(xs) else 0.0
     for kind, marker, name, side in (("hcr", "D", "HCR", -1), ("crlb", "s", "CRLB", 1)):
         for noise in dict.fromkeys(r["noise"] for r in quoted or []):
             rs = [r for r in quoted if r["noise"] == noise and r.get(f"{kind}_point") not in ("", None)]
