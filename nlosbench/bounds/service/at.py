@@ -94,8 +94,8 @@ class AtTheta(RenderSets):
             upper/point ≤ 1 + p and point/lower ≤ 1 + p (an open end or one that is not a confidence limit does
             not meet it). None: one fixed set of `replicates` (today's behaviour).
         budget : int, optional
-            A cap on the pixel-samples (spp × H × W × renders) this call may spend; None: unlimited (with a
-            precision target only).
+            A cap on the pixel-samples (spp × H × W × renders) this call may spend (with a precision target only);
+            None: the default ceiling, `bounds.precision.CEILING` × the pilot's.
         looks : int, optional
             K ≥ 2: the pilot and at most K − 1 looks at fresh sets, each at level 1 − (1 − level)/K.
 

@@ -124,7 +124,8 @@ class Curves(RenderSets):
             quoted θ or one each; None: no quoted bounds.
         budget : int, optional
             A cap on the pixel-samples (spp × H × W × renders) the quoted bounds may spend beyond the curve's
-            renders; None: unlimited (with a precision target only).
+            renders (with a precision target only); None: the default ceiling, `bounds.precision.CEILING` × the
+            quoted bounds' pilot's.
         looks : int, optional
             K ≥ 2: the pilot and at most K − 1 looks at fresh sets, each quoted end at level 1 − (1 − level)/K.
         quote : array_like of shape (Q,), optional
