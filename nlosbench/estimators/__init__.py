@@ -43,6 +43,15 @@ def register(name: str, factory: Callable[..., Estimator]) -> None:
     ------
     TypeError
         If `factory` is not callable.
+
+    Examples
+    --------
+    A coarse grid search under a name of its own:
+
+    >>> nb.estimators.register("coarse-grid", lambda **options: nb.estimators.GridSearch(num=5, **options))
+    >>> est = nb.estimators.get("coarse-grid", spp=8)
+    >>> type(est).__name__, est.num, est.spp, "coarse-grid" in nb.estimators.available()
+    ('GridSearch', 5, 8, True)
     """
     if not callable(factory):
         raise TypeError(f"estimator factory for {name!r} is not callable: {factory!r}")
@@ -88,6 +97,14 @@ def factory(name: str) -> Callable[..., Estimator]:
         If no estimator has that name.
     ImportError
         If the entry-point plug-in of that name fails to load.
+
+    Examples
+    --------
+    >>> nb.estimators.factory("grid-search") is nb.estimators.GridSearch
+    True
+    >>> nb.estimators.factory("grid-serch")
+    Traceback (most recent call last):
+    KeyError: "unknown estimator 'grid-serch'; did you mean 'grid-search'? (available: ...)"
     """
     if name in _REGISTERED:
         return _REGISTERED[name]
