@@ -59,4 +59,4 @@ bench-gpu:
 
 clean:
 	rm -rf runs .pytest_cache docs/_build docs/auto_tutorials docs/reference/generated docs/reference/api.md \
-		docs/reference/config.md
+		docs/reference/config.md docs/_generated
