@@ -14,6 +14,7 @@ from __future__ import annotations
 import importlib
 import inspect
 import json
+import pkgutil
 import re
 from pathlib import Path
 
@@ -218,9 +219,29 @@ def plain_notation(app, what, name, obj, options, lines) -> None:
         lines[i] = "".join(parts)
 
 
+def constant_comment(app, what, name, obj, options, lines) -> None:
+    """A public constant's page shows the `#:` comment where it is assigned (in the module named, or in a module of
+    that package it imports from); without one autodoc shows its type's docstring (str's, tuple's), and the build
+    warns."""
+    if what != "data" or "\n".join(lines).strip() != (inspect.getdoc(type(obj)) or "").strip():
+        return
+    from sphinx.pycode import ModuleAnalyzer
+    from sphinx.util import logging
+
+    module, attr = name.rsplit(".", 1)
+    pkg = importlib.import_module(module)
+    for mod in [module, *(f"{module}.{m.name}" for m in pkgutil.iter_modules(getattr(pkg, "__path__", [])))]:
+        found = ModuleAnalyzer.for_module(mod).find_attr_docs().get(("", attr))
+        if found:
+            lines[:] = list(found)
+            return
+    logging.getLogger(__name__).warning(f"{name}: a public constant needs a #: comment where it is assigned")
+
+
 def setup(app):
     app.connect("config-inited", generate)  # before Sphinx lists the source files and autosummary reads them
     app.connect("autodoc-process-docstring", plain_notation, priority=400)  # before numpydoc (500) reads them
+    app.connect("autodoc-process-docstring", constant_comment, priority=300)
     return {"parallel_read_safe": True, "parallel_write_safe": True, "version": "1"}
 
 

@@ -27,6 +27,7 @@ from ..seeds import derive
 from .cost import Cost
 from .images import GradientRun, gradient_images
 
+#: the remedies `remedy_run` applies, by name (the module docstring says what each does)
 REMEDIES = ("mean", "median", "visibility-boost")
 
 

@@ -21,6 +21,7 @@ from .mle_adam import AdamMLE
 from .multi_start import MultiStart
 from .surrogate import Surrogate
 
+#: the entry-point group of estimator plug-ins: name = "package.module:factory" (usually an Estimator subclass)
 ENTRY_POINT_GROUP = "nlosbench.estimators"
 
 _BUILTIN: dict[str, Callable[..., Estimator]] = {c.name: c for c in (AdamMLE, GridSearch, GaussNewton, MultiStart,
