@@ -25,7 +25,7 @@ extensions = [
 ]
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
 root_doc = "index"
-exclude_patterns = ["_build", "pypi.md", "tutorials/README.rst", "tutorials/*.py", "tutorials/*.md"]
+exclude_patterns = ["_build", "_generated", "pypi.md", "tutorials/README.rst", "tutorials/*.py", "tutorials/*.md"]
 templates_path = ["_templates"]
 myst_enable_extensions = ["dollarmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3

@@ -52,6 +52,15 @@ def to_float64(x, what: str = "input") -> torch.Tensor:
     ------
     ValueError
         If `x` is not numeric.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> nb.noise.to_float64(np.array([0.1, 0.2], dtype=np.float32)).dtype
+    torch.float64
+    >>> nb.noise.to_float64("bright", "L")
+    Traceback (most recent call last):
+    ValueError: L: not a numeric array (could not convert string to float: 'bright')
     """
     if isinstance(x, torch.Tensor):
         return x.detach().to(torch.float64)
@@ -75,6 +84,13 @@ def check_finite(x: torch.Tensor, what: str) -> None:
     ------
     ValueError
         If `x` holds NaN or ±Inf.
+
+    Examples
+    --------
+    >>> import torch
+    >>> nb.noise.check_finite(torch.tensor([1.0, float("nan"), float("inf")]), "L")
+    Traceback (most recent call last):
+    ValueError: L contains 1 NaN and 1 Inf values (first at index (1,))
     """
     bad = ~torch.isfinite(x)
     if bool(bad.any()):
@@ -89,6 +105,21 @@ class NoiseModel(ABC):
 
     Subclasses implement `sample`, `nll`, `chi2_exponent`, `gram_exponent` and `fisher`, and register
     themselves with `register`.
+
+    Examples
+    --------
+    A model from the registry, used as a study uses it:
+
+    >>> import torch
+    >>> noise = nb.noise.get("poisson", scale=50.0)
+    >>> isinstance(noise, nb.noise.NoiseModel), noise.signal_dependent
+    (True, True)
+    >>> L = torch.full((2, 2), 0.5)
+    >>> y = noise.sample(L, torch.Generator().manual_seed(0))
+    >>> bool(((50 * y).round() - 50 * y).abs().max() < 1e-4)  # photon counts, reported in radiance units
+    True
+    >>> float(noise.fisher(L, torch.ones(2, 2)).sum())  # 4 pixels of scale / L
+    400.0
     """
 
     name: ClassVar[str] = ""
@@ -259,7 +290,32 @@ class QuadraticNoise(NoiseModel):
     """Models with λ = Σ_ω w(L0)(L1 − L0)², log E[ℓ_i ℓ_j] = Σ_ω w(L0)(Li − L0)(Lj − L0) and
     per-pixel Fisher information w(L)(∂L/∂θ)². A pixel with infinite weight contributes 0 where the
     difference (or derivative) is 0 and +inf otherwise — never NaN. Subclasses implement `weight` and
-    declare `signal_dependent`."""
+    declare `signal_dependent`.
+
+    Examples
+    --------
+    Shot and read noise as a Gaussian of variance L/scale + read², a model the bound service can use:
+
+    >>> import torch
+    >>> class ShotRead(nb.noise.QuadraticNoise):
+    ...     def __init__(self, scale, read):
+    ...         self.scale, self.read = scale, read
+    ...     def variance(self, L):
+    ...         return L.clamp(min=0) / self.scale + self.read**2
+    ...     def weight(self, L0):
+    ...         return 1 / self.variance(L0)
+    ...     def sample(self, L, generator):
+    ...         return L + self.variance(L).sqrt() * torch.randn(L.shape, generator=generator, dtype=L.dtype)
+    ...     def nll(self, y, L):
+    ...         v = self.variance(L.double())
+    ...         return 0.5 * ((y - L) ** 2 / v + v.log()).sum()
+    >>> noise = ShotRead(scale=64.0, read=0.125)
+    >>> L0 = torch.ones(4)
+    >>> noise.chi2_exponent(L0, L0 + 0.125)  # 4 pixels of 0.125² / (1/64 + 0.125²)
+    tensor(2., dtype=torch.float64)
+    >>> nb.noise.bounds_refusal(noise), noise.signal_dependent
+    ('', True)
+    """
 
     @abstractmethod
     def weight(self, L0: torch.Tensor) -> torch.Tensor:
@@ -389,6 +445,16 @@ def register(name: str) -> Callable[[type[NoiseModel]], type[NoiseModel]]:
     -------
     callable
         The decorator; it returns the class unchanged.
+
+    Examples
+    --------
+    >>> @nb.noise.register("awgn-variance")
+    ... class AWGNVariance(nb.noise.AWGN):
+    ...     "AWGN given by its variance."
+    ...     def __init__(self, variance):
+    ...         super().__init__(sigma=variance**0.5)
+    >>> nb.noise.get("awgn-variance", variance=0.25), AWGNVariance.name
+    (AWGNVariance(sigma=0.5), 'awgn-variance')
     """
 
     def deco(cls: type[NoiseModel]) -> type[NoiseModel]:
@@ -425,6 +491,14 @@ def model_class(name: str) -> type[NoiseModel]:
         If no model has that name (with a close match), or a plug-in is not a NoiseModel subclass.
     ImportError
         If the plug-in fails to import.
+
+    Examples
+    --------
+    >>> nb.noise.model_class("poisson") is nb.noise.Poisson
+    True
+    >>> nb.noise.model_class("poison")
+    Traceback (most recent call last):
+    ValueError: unknown noise model 'poison'; did you mean 'poisson'? (available: ...)
     """
     if name in _REGISTRY:
         return _REGISTRY[name]

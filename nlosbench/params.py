@@ -25,6 +25,14 @@ class Param:
         The units of the value (metres for positions and radii).
     description : str, default ""
         What the parameter is, for tables and plots.
+
+    Examples
+    --------
+    >>> nb.Param("x", 0.0, 1.0, 0.5)
+    Param(name='x', lower=0.0, upper=1.0, default=0.5, units='m', description='')
+    >>> nb.Param("x", 0.0, 1.0, 2.0)
+    Traceback (most recent call last):
+    ValueError: parameter 'x': default 2.0 outside [0.0, 1.0]
     """
 
     name: str

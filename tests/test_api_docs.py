@@ -4,8 +4,9 @@ Every public name of `nlosbench`, `nb.bounds`, `nb.estimators` and `nb.noise` (t
 public method a class defines itself, passes numpydoc's validation for the checks `docs/conf.py` enables
 (GL08 a docstring, PR01/PR02 every parameter documented and none invented, RT01 a Returns section), with
 the same exclusions. `make docs` runs the same checks inside Sphinx, with warnings as errors; this test
-names every failure at once, before the slower site build. The docstrings' `>>>` examples run once, in `make docs-check`
-(the target `make docs` and `make test` both end with), not here.
+names every failure at once, before the slower site build. Every function and class the API reference lists has
+an Examples section with a `>>>` example, and every module holding one is in the Makefile's DOCTESTS, whose
+examples run once, in `make docs-check` (the target `make docs` and `make test` both end with), not here.
 """
 from __future__ import annotations
 
@@ -67,3 +68,26 @@ def test_every_public_name_has_numpydoc_parameters_and_returns():
         if errors:
             failures.append(f"{name}: " + "; ".join(errors))
     assert not failures, f"{len(failures)} public names fail numpydoc validation:\n" + "\n".join(failures)
+
+
+def test_every_public_function_and_class_has_an_example():
+    missing = docs_ext.without_examples()
+    assert not missing, (f"{len(missing)} public names have no Examples section with a >>> example (add a short one "
+                         "that checks what it shows; `python docs/_ext/nlosbench_docs.py` lists them):\n"
+                         + "\n".join(missing))
+
+
+def _doctest_paths() -> list[Path]:
+    """The Makefile's DOCTESTS: the files and folders whose docstrings `make docs-check` runs."""
+    text = (ROOT / "Makefile").read_text().replace("\\\n", " ")
+    [line] = [ln for ln in text.splitlines() if ln.startswith("DOCTESTS :=")]
+    return [ROOT / w for w in line.split(":=", 1)[1].split()]
+
+
+def test_every_module_with_examples_runs_them_in_docs_check():
+    paths = _doctest_paths()
+    assert all(p.exists() for p in paths), [str(p) for p in paths if not p.exists()]
+    with_examples = [f for f in sorted((ROOT / "nlosbench").rglob("*.py")) if ">>>" in f.read_text()]
+    left_out = [str(f.relative_to(ROOT)) for f in with_examples if not any(f == p or p in f.parents for p in paths)]
+    assert not left_out, f"modules with >>> examples that make docs-check leaves out (add them to DOCTESTS): {left_out}"
+

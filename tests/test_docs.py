@@ -79,3 +79,25 @@ def test_the_layout_page_names_every_module_of_the_package():
     modules |= {p.name for p in package.iterdir() if p.is_dir() and (p / "__init__.py").is_file()}
     missing = sorted(m for m in modules if not re.search(rf"(?<![\w-]){re.escape(m)}(?![\w-])", page))
     assert not missing, missing
+
+
+def test_the_cost_table_has_a_row_per_config_with_its_estimate_rate_and_committed_run():
+    """performance.md's cost table (generated at every build): a row per configs/*.yaml with the plan `nlosbench run`
+    prints, every config with a measured rate, and a committed run's wall time from its machine.json."""
+    import json
+
+    from nlosbench.experiment.runner import forecast
+    from nlosbench.studies.estimate import describe
+
+    page = docs_ext.costs_page()
+    rows = {c[0].strip("`"): c for c in (
+        [x.strip() for x in ln.split("|")[1:-1]] for ln in page.splitlines() if ln.startswith("| `"))}
+    assert list(rows) == sorted(p.name for p in (ROOT / "configs").glob("*.yaml"))
+    unrated = [c for c, cells in rows.items() if "no rate measured" in cells[3]]
+    assert not unrated, f"no rate in results/rates.json for {unrated}: python scripts/measure_rates.py {unrated[0]}"
+    _, studies_ = forecast(ROOT / "configs" / "quick.yaml")
+    machine = json.loads((ROOT / "results" / "quick" / "machine.json").read_text())
+    quick = rows["quick.yaml"]
+    assert quick[1] == str(sum(e.renders for e in studies_.values())) and quick[4] == "`results/quick/`"
+    assert quick[5] == describe(machine["seconds_total"])
+    assert quick[6] == str(sum(s["renders"] for s in machine["studies"].values()))

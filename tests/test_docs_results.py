@@ -21,7 +21,8 @@ AT_13 = f"{BOUNDS}[noise_index=0, theta_object_position=1.3]"
 
 
 def pages() -> list[Path]:
-    docs = [p for p in sorted((ROOT / "docs").rglob("*.md")) if not {"_build", "generated"} & set(p.parts)]
+    generated = {"_build", "generated", "_generated"}  # read from the code and the files at every build
+    docs = [p for p in sorted((ROOT / "docs").rglob("*.md")) if not generated & set(p.parts)]
     return [p for p in docs if p.name not in ("api.md", "config.md")]
 
 

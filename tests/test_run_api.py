@@ -57,3 +57,12 @@ def test_compare_refuses_runs_without_a_table_in_common(runs, tmp_path, capsys):
     assert main(["compare", str(runs[0].dir), str(runs[1].dir), "--table", "local/summary"]) == BAD_INPUT
     assert "'local/summary' is not a table of both runs (shared: 00-bounds/bounds, 00-bounds/zzb)" in \
         capsys.readouterr().err
+
+
+def test_compare_matches_a_grid_written_with_other_rounding():
+    """quick writes θ = 0.7899999999999999 where precise_nlos writes 0.79 (the same 34-point grid): every AWGN
+    row is in both runs; only quick's Poisson rows are its own."""
+    out = nb.compare("results/quick", "results/precise_nlos", ["00-bounds/bounds"])
+    alone = [ln for ln in out.splitlines() if "only in" in ln]
+    assert len(alone) == 34 and all(ln.startswith("  noise_index 1,") and ln.endswith("only in A") for ln in alone)
+    assert sum(": crlb " in ln for ln in out.splitlines()) == 34

@@ -44,6 +44,17 @@ class BarankinResult:
         As for HCR: some Δ has λ ≤ 0.
     reason : str
         The HCR's reason plus why the point selection stopped.
+
+    Examples
+    --------
+    Test points of a model quadratic in θ (θ* = 1): more points than the HCR's one tighten the bound:
+
+    >>> import numpy as np, torch
+    >>> g = torch.tensor([1.0, 2.0, 2.0])
+    >>> deltas = np.array([-0.5, 0.5, 1.0, 2.0])
+    >>> r = nb.bounds.barankin(g, torch.stack([(1.0 + d) ** 2 * g for d in deltas]), deltas, nb.noise.AWGN(3.0))
+    >>> len(r.points), r.tightening >= 1, r.log10 >= r.hcr_log10
+    (3, True, True)
     """
 
     value: float

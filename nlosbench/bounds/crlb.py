@@ -66,6 +66,12 @@ class CRLBResult:
         Some parameter is not identifiable.
     reason : str
         Which parameters are not identifiable and why ("" when none).
+
+    Examples
+    --------
+    >>> r = nb.bounds.crlb([[4.0, 0.0], [0.0, 1.0]])
+    >>> r.component.tolist(), r.trace, r.cond, r.singular
+    ([0.25, 1.0], 1.25, 1.0, False)
     """
 
     component: np.ndarray

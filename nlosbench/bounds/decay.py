@@ -78,6 +78,15 @@ class DecayResult:
         |p − 1| > tolerance.
     warning : str
         The message warned ("" if none).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> levels = np.array([8, 16, 32, 64])
+    >>> V = np.random.default_rng(1).uniform(0.5, 2.0, 50) / levels[:, None]  # variances falling as 1/N
+    >>> r = nb.bounds.decay_check(V, levels, n_weights=100)
+    >>> r.levels.tolist(), r.q05 <= r.p <= r.q95, r.far_from_one
+    ([8, 16, 32, 64], True, False)
     """
 
     levels: np.ndarray

@@ -80,6 +80,16 @@ def save_fisher_maps(maps: np.ndarray, names: Sequence[str], outdir: str | Path,
     -------
     list of Path
         The written paths, an EXR and a PNG per parameter.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> import numpy as np
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     paths = nb.bounds.save_fisher_maps(np.ones((1, 4, 4)), ["x"], tmp, where="θ = 0.5 m")
+    ...     names = sorted(p.name for p in paths)
+    >>> names
+    ['fisher_x.exr', 'fisher_x.png']
     """
     from nlosbench import io
 

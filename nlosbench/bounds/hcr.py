@@ -75,6 +75,15 @@ class HCRResult:
         log10 of `component_value`, exact.
     component_index : ndarray of int, shape (P,)
         Index k of the maximising Δ per component; −1 where none.
+
+    Examples
+    --------
+    λ = 2000 at Δ = 1: the bound 1/(e²⁰⁰⁰ − 1) underflows, its log10 does not:
+
+    >>> import numpy as np
+    >>> r = nb.bounds.hcr_from_lambda(np.array([2000.0]), np.array([1.0]))
+    >>> r.value, round(r.log10, 1), r.usable.tolist()
+    (0.0, -868.6, [True])
     """
 
     value: float

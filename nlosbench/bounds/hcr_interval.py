@@ -79,6 +79,17 @@ class HCRInterval:
         log10 point estimate without replicate k (empty when R < 3).
     tested : int, optional
         The number of tested Δ inside the limits (the lower end's Bonferroni share is over them and Δ → 0).
+
+    Examples
+    --------
+    Two replicates give an estimate without a standard error, and say so:
+
+    >>> import numpy as np
+    >>> lam = nb.bounds.UStat(np.array([0.25, 1.0]), np.full(2, np.nan), np.empty((0, 2)), 2)
+    >>> F = nb.bounds.UStat(np.array([[1.0]]), np.array([[np.nan]]), np.empty((0, 1, 1)), 2)
+    >>> iv = nb.bounds.hcr_interval(lam, np.array([0.5, 1.0]), F)
+    >>> iv.flags, iv.lower == iv.point == iv.upper
+    (('estimate-only',), True)
     """
 
     point: float

@@ -150,6 +150,16 @@ class LambdaFit:
         The decay rate p used.
     noise_dominated : ndarray of bool, shape (…)
         C/N_max^p > λ̂ — even at the highest level rendering noise outweighs the signal.
+
+    Examples
+    --------
+    λ̃ = 1 + 8/N exactly at three levels: the fit recovers λ = 1 and C = 8:
+
+    >>> import numpy as np
+    >>> levels = [8, 16, 32]
+    >>> fit = nb.bounds.inexact.fit_lambda(np.array([[1 + 8 / n] for n in levels]), levels)
+    >>> fit.lam.round(9).tolist(), fit.C.round(9).tolist(), fit.noise_dominated.tolist()
+    ([1.0], [8.0], [False])
     """
 
     lam: np.ndarray
@@ -248,6 +258,17 @@ class InexactHCR:
         Fraction of resamples whose HCR-hat was unresolved (NaN without bootstrap).
     samples_levels, samples_eff : int
         spp spent per image by each method (Σ N_i, N_eff).
+
+    Examples
+    --------
+    Renders without rendering noise at two levels: no bias to remove, and the interval closes:
+
+    >>> import numpy as np
+    >>> g, deltas = np.array([1.0, 2.0, 2.0]), np.array([0.5, 1.0])
+    >>> X0, XD = np.tile(g, (2, 1, 1)), np.tile((1 + deltas)[:, None] * g, (2, 1, 1, 1))  # (k, R = 1, ...)
+    >>> r = nb.bounds.inexact_hcr(X0, XD, deltas, [8, 16], nb.noise.AWGN(3.0), X0[0], XD[0], 24)
+    >>> r.width, r.fit.C.tolist(), r.inverted
+    (0.0, [0.0, 0.0], False)
     """
 
     levels: np.ndarray
@@ -307,6 +328,22 @@ def inexact_hcr(X0, XD, deltas, levels: Sequence[int], noise: NoiseModel, X0_eff
     -------
     InexactHCR
         HCR_Neff and HCR-hat (parameter units²), the λ̂ fit, and the bootstrap intervals (log10).
+
+    Examples
+    --------
+    A linear toy (L = θ·g, θ* = 1) with rendering noise of variance 1/N per pixel, R = 2 replicates: the
+    direct N_eff set's λ̃ carries the noise's bias, so HCR_Neff sits below HCR-hat:
+
+    >>> import numpy as np
+    >>> g, deltas, levels, rng = np.array([1.0, 2.0, 2.0]), np.array([0.5, 1.0]), [8, 16], np.random.default_rng(0)
+    >>> def sets(n):  # R = 2 replicates of n/2 spp: noise variance 2/n
+    ...     return (1 + np.concatenate([[0.0], deltas]))[:, None] * g + rng.standard_normal((2, 3, 3)) / np.sqrt(n / 2)
+    >>> X = np.stack([sets(n) for n in levels])  # (k, R, 1 + K, S): θ* first, then θ* + Δ
+    >>> eff = sets(24)
+    >>> r = nb.bounds.inexact_hcr(X[:, :, 0], X[:, :, 1:], deltas, levels, nb.noise.AWGN(3.0),
+    ...                           eff[:, 0], eff[:, 1:], n_eff=24)
+    >>> r.width > 0, r.hcr_neff.log10 < r.hcr_hat.log10, r.samples_levels == r.samples_eff
+    (True, True, True)
     """
     X0, X0_eff = to_float64(X0, "X0"), to_float64(X0_eff, "X0_eff")
     # the Δ renders stay in their dtype: `replicate_grams` takes them to float64 one Δ at a time

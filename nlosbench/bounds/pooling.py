@@ -304,6 +304,18 @@ class PooledFisherMap:
         The round indices each half used (disjoint).
     precision : float or None
         The relative precision a resolved cell meets (None: lower > 0 only).
+
+    Examples
+    --------
+    Six rounds: cells chosen on three, valued on the other three:
+
+    >>> import numpy as np
+    >>> mean = np.zeros((32, 32)); mean[8:16, 8:16] = 1.0
+    >>> m = nb.bounds.pool_fisher_map(mean + np.random.default_rng(0).normal(size=(6, 32, 32)), 1.0)
+    >>> m.select_rounds, m.estimate_rounds, m.tests == 2 * m.cells
+    ((0, 1, 2), (3, 4, 5), True)
+    >>> bool(np.isclose(np.nansum(m.density("all")), m.est.sum()))  # a cell's density sums to its estimate
+    True
     """
 
     labels: np.ndarray

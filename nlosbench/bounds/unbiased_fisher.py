@@ -62,6 +62,17 @@ class UnbiasedFisher:
     pixel_map : ndarray of shape (P, *S)
         The unbiased per-pixel information of each parameter (diagonal terms; noisy, may be negative);
         sums to diag(F).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> J = (np.array([1.0, 2.0, 2.0]) + 0.1 * np.random.default_rng(0).standard_normal((4, 3)))[:, None]
+    >>> u = nb.bounds.unbiased_fisher(J, nb.noise.AWGN(3.0))
+    >>> bool(u.excess[0, 0] > 0)  # each round's own plug-in is biased high by the FD noise
+    True
+    >>> crlb, lower, upper = u.crlb_interval()
+    >>> bool(lower[0] <= crlb[0] <= upper[0]), bool(np.isclose(u.pixel_map.sum(), u.F[0, 0]))
+    (True, True)
     """
 
     F: np.ndarray

@@ -56,6 +56,13 @@ class UStat:
         R.
     df : ndarray of shape (*T) or None, optional
         Degrees of freedom of the SE (None: R − 1, the replicate jackknife's).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> u = nb.bounds.UStat(est=np.array([2.0]), se=np.array([0.5]), loo=np.empty((0, 1)), replicates=5)
+    >>> u.dof  # the replicate jackknife's R − 1
+    array([4.])
     """
 
     est: np.ndarray

@@ -28,7 +28,13 @@ _STATUS, _CLEAR_REFS = Path("/proc/self/status"), Path("/proc/self/clear_refs")
 
 @dataclass
 class Cost:
-    """seconds: wall time; peak_bytes: peak RSS increase during the work; method: how it was measured."""
+    """seconds: wall time; peak_bytes: peak RSS increase during the work; method: how it was measured.
+
+    Examples
+    --------
+    >>> nb.diagnostics.Cost()  # what `measure` fills in when its block ends
+    Cost(seconds=0.0, peak_bytes=0, method='')
+    """
 
     seconds: float = 0.0
     peak_bytes: int = 0
@@ -64,7 +70,18 @@ _OPEN: list[measure] = []
 
 
 class measure:
-    """`with measure() as c: work()` fills `c` (a Cost) when the block ends."""
+    """`with measure() as c: work()` fills `c` (a Cost) when the block ends.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> with nb.diagnostics.measure() as cost:
+    ...     block = np.ones(2**24)  # 128 MiB, every page written
+    >>> cost.seconds > 0, cost.method in ("vmhwm", "rss-sampled", "maxrss-delta")
+    (True, True)
+    >>> cost.peak_bytes >= 2**27 or cost.method == "maxrss-delta"  # the last method sees only a new lifetime peak
+    True
+    """
 
     def __init__(self, interval: float = 0.002):
         self.interval = interval

@@ -31,7 +31,16 @@ FD_OPTIONS = ("step", "rounds", "crn")
 
 def backend(spec: dict) -> GradientSettings:
     """GradientSettings from `{method: ad, integrator: ..., <AD options>}` (no integrator: the model's
-    choice, e.g. exact autograd for the analytic toys) or `{method: fd, step, rounds, crn}`."""
+    choice, e.g. exact autograd for the analytic toys) or `{method: fd, step, rounds, crn}`.
+
+    Examples
+    --------
+    >>> s = nb.diagnostics.backend({"method": "fd", "step": 0.01, "rounds": 4, "crn": True})
+    >>> s.method, s.step, s.rounds, s.crn
+    ('fd', 0.01, 4, True)
+    >>> nb.diagnostics.backend({"method": "ad", "integrator": "prb", "sppi": 0}).ad
+    {'type': 'prb', 'sppi': 0}
+    """
     spec = dict(spec)
     method = spec.pop("method", None)
     if method == "ad":
@@ -51,7 +60,14 @@ def backend(spec: dict) -> GradientSettings:
 
 
 def spec_of(settings: GradientSettings) -> dict:
-    """The config mapping that `backend` turns back into `settings` (JSON-serialisable)."""
+    """The config mapping that `backend` turns back into `settings` (JSON-serialisable).
+
+    Examples
+    --------
+    >>> spec = {"method": "ad", "integrator": "prb_projective", "sppi": 0}
+    >>> nb.diagnostics.spec_of(nb.diagnostics.backend(spec)) == spec
+    True
+    """
     if settings.method == "fd":
         step = settings.step if np.isscalar(settings.step) else list(settings.step)
         return {"method": "fd", "step": step, "rounds": settings.rounds, "crn": settings.crn}
@@ -62,7 +78,13 @@ def spec_of(settings: GradientSettings) -> dict:
 
 def label(settings: GradientSettings) -> str:
     """A short unique name, e.g. `fd(ξ=0.01,R=4,crn)`, `ad:prb_projective(guiding=none,sppi=0)`,
-    `mixed(ad[2]=ad:prb,fd(ξ=0.01,R=1,crn))` or `auto`."""
+    `mixed(ad[2]=ad:prb,fd(ξ=0.01,R=1,crn))` or `auto`.
+
+    Examples
+    --------
+    >>> nb.diagnostics.label(nb.diagnostics.backend({"method": "fd", "step": 0.01, "rounds": 4, "crn": True}))
+    'fd(ξ=0.01,R=4,crn)'
+    """
     if settings.method == "auto":
         return "auto"
     if settings.method == "mixed":
@@ -87,7 +109,16 @@ def _binding(model: ForwardModel, index: int):
 
 
 def param_kind(model: ForwardModel, index: int) -> str | None:
-    """Binding kind of parameter `index` (translate, path, radius, reflectance, radiance) or None."""
+    """Binding kind of parameter `index` (translate, path, radius, reflectance, radiance) or None.
+
+    Examples
+    --------
+    >>> model = nb.scenes.get("cornell_ball", defines={"res": 8})
+    >>> [nb.diagnostics.param_kind(model, j) for j in range(3)]
+    ['translate', 'radius', 'reflectance']
+    >>> nb.diagnostics.param_kind(nb.scenes.get("blob2d"), 0) is None  # an analytic toy has no scene bindings
+    True
+    """
     b, _ = _binding(model, index)
     return b.kind if b is not None else None
 
@@ -95,7 +126,15 @@ def param_kind(model: ForwardModel, index: int) -> str | None:
 def applicable_integrators(model: ForwardModel, index: int) -> dict[str, str]:
     """AD integrators for parameter `index` → '' when applicable, else why not. Geometry moves
     silhouettes, which `prb` does not differentiate; `direct_projective` differentiates direct
-    illumination only, so it matches the primal image only when the path depth is ≤ 2."""
+    illumination only, so it matches the primal image only when the path depth is ≤ 2.
+
+    Examples
+    --------
+    >>> model = nb.scenes.get("cornell_ball", defines={"res": 8})
+    >>> why = nb.diagnostics.applicable_integrators(model, 0)  # ball_x moves a silhouette
+    >>> why["prb_projective"], why["prb"]
+    ('', 'ignores visibility changes (silhouettes, shadows) of a moving/resizing object')
+    """
     b, depth = _binding(model, index)
     if b is None:
         return {}
@@ -110,7 +149,18 @@ def applicable_integrators(model: ForwardModel, index: int) -> dict[str, str]:
 @dataclass
 class GradientRun:
     """S gradient images (S, H, W, C) float32 of one backend at one spp, one per seed, with the wall
-    seconds and peak RSS increase of each, and the renders / AD passes they took."""
+    seconds and peak RSS increase of each, and the renders / AD passes they took.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> fd = nb.diagnostics.backend({"method": "fd", "step": 0.01, "rounds": 1})
+    >>> run = nb.diagnostics.gradient_images(nb.scenes.get("blob2d"), [0.5, 0.5], 1, fd, spp=4, seeds=[1, 2, 3])
+    >>> run.images.shape, run.renders  # a central difference per seed: 2 renders each
+    ((3, 24, 24, 1), 6)
+    >>> run.seconds == float(np.median([c.seconds for c in run.costs[1:]]))  # the first seed's is a cold start
+    True
+    """
 
     images: np.ndarray
     seeds: list[int]
@@ -137,7 +187,21 @@ def warm(values: Sequence[float]) -> float:
 
 def gradient_images(model: ForwardModel, theta, index: int, settings: GradientSettings, spp: int,
                     seeds: Sequence[int]) -> GradientRun:
-    """∂L/∂θ_index by `settings` at `spp`, once per seed (seeds chosen by the caller, e.g. derived)."""
+    """∂L/∂θ_index by `settings` at `spp`, once per seed (seeds chosen by the caller, e.g. derived).
+
+    Examples
+    --------
+    AD and FD agree on the analytic blob:
+
+    >>> import numpy as np
+    >>> model, specs = nb.scenes.get("blob2d"), ({"method": "ad"}, {"method": "fd", "step": 1e-4})
+    >>> ad, fd = (nb.diagnostics.gradient_images(model, [0.5, 0.5], 0, nb.diagnostics.backend(spec), 4, [1, 2])
+    ...           for spec in specs)
+    >>> ad.images.shape, ad.grad_passes, fd.renders
+    ((2, 24, 24, 1), 2, 4)
+    >>> bool(np.allclose(ad.images, fd.images, atol=1e-3 * np.abs(ad.images).max()))
+    True
+    """
     before = model.stats.snapshot()
     imgs, costs = [], []
     for s in seeds:
@@ -150,7 +214,14 @@ def gradient_images(model: ForwardModel, theta, index: int, settings: GradientSe
 
 def forward_cost(model: ForwardModel, theta, spp: int, seeds: Sequence[int]) -> Cost:
     """Warm cost of one forward render at `spp`: like GradientRun, median seconds and largest peak
-    after the first seed."""
+    after the first seed.
+
+    Examples
+    --------
+    >>> cost = nb.diagnostics.forward_cost(nb.scenes.get("blob2d"), [0.5, 0.5], spp=4, seeds=[1, 2, 3])
+    >>> type(cost).__name__, cost.seconds > 0
+    ('Cost', True)
+    """
     costs = []
     for s in seeds:
         with measure() as c:

@@ -27,16 +27,33 @@ from ..seeds import derive
 from .cost import Cost
 from .images import GradientRun, gradient_images
 
+#: the remedies `remedy_run` applies, by name (the module docstring says what each does)
 REMEDIES = ("mean", "median", "visibility-boost")
 
 
 def mean_of_k(passes) -> np.ndarray:
-    """Per-pixel mean of K passes (K, H, W, C) → (H, W, C) float64."""
+    """Per-pixel mean of K passes (K, H, W, C) → (H, W, C) float64.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> passes = np.array([1.0, 2.0, 30.0]).reshape(3, 1, 1, 1)  # one pass hit by an outlier
+    >>> float(nb.diagnostics.mean_of_k(passes)[0, 0, 0])
+    11.0
+    """
     return np.asarray(passes, dtype=np.float64).mean(axis=0)
 
 
 def median_of_k(passes) -> np.ndarray:
-    """Per-pixel median of K passes (K, H, W, C) → (H, W, C) float64."""
+    """Per-pixel median of K passes (K, H, W, C) → (H, W, C) float64.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> passes = np.array([1.0, 2.0, 30.0]).reshape(3, 1, 1, 1)  # one pass hit by an outlier
+    >>> float(nb.diagnostics.median_of_k(passes)[0, 0, 0])
+    2.0
+    """
     return np.median(np.asarray(passes, dtype=np.float64), axis=0)
 
 
@@ -96,7 +113,22 @@ def remedy_run(
     k: int = 4,
     boost: int = 4,
 ) -> GradientRun:
-    """Dispatch on a remedy name in REMEDIES."""
+    """Dispatch on a remedy name in REMEDIES.
+
+    Examples
+    --------
+    On the analytic blob (exact AD) the median of K passes is the plain gradient:
+
+    >>> import numpy as np
+    >>> model, ad = nb.scenes.get("blob2d"), nb.diagnostics.backend({"method": "ad"})
+    >>> run = nb.diagnostics.remedy_run(model, [0.5, 0.5], 0, ad, spp=8, seeds=[1, 2], name="median", k=3)
+    >>> plain = nb.diagnostics.gradient_images(model, [0.5, 0.5], 0, ad, spp=8, seeds=[1])
+    >>> run.images.shape, bool(np.allclose(run.images[0], plain.images[0]))
+    ((2, 24, 24, 1), True)
+    >>> nb.diagnostics.remedy_run(model, [0.5, 0.5], 0, ad, spp=8, seeds=[1], name="visibility-boost")
+    Traceback (most recent call last):
+    ValueError: visibility-boost needs a projective AD backend (prb_projective or direct_projective), got ...
+    """
     if name in ("mean", "median"):
         return k_pass(model, theta, index, settings, spp, seeds, k, name)
     if name == "visibility-boost":

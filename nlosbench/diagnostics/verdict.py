@@ -44,7 +44,14 @@ _GENERALITY = ("prb", "direct_projective", "prb_projective")
 class Verdict:
     """status: ad-clean | ad-artifact-prone | ad-biased | undetermined; text: for people;
     backend: spec of the recommended gradient backend (see images.backend); cheapest: label of the
-    measured configuration that reaches the target error at least cost; reasons: the evidence."""
+    measured configuration that reaches the target error at least cost; reasons: the evidence.
+
+    Examples
+    --------
+    >>> v = nb.diagnostics.Verdict("x", "ad-biased", "AD biased: use FD", {"method": "fd", "step": 0.01})
+    >>> v.settings().method, v.settings().step
+    ('fd', 0.01)
+    """
 
     param: str
     status: str
@@ -86,7 +93,18 @@ def classify(row: dict, control: dict | None, low: dict | None, control_low: dic
 def judge(rows: list[dict], param: str) -> Verdict:
     """The verdict for `param` from summary rows (dicts with param, method, remedy, spp, spec, label,
     crn, applicable, outlier_pixels_per_image, agrees, total, ref_total, ci_low, ci_high,
-    cost_to_target)."""
+    cost_to_target).
+
+    Examples
+    --------
+    The committed Cornell-box study's summary rows give the verdicts it saved:
+
+    >>> import csv
+    >>> with open("results/cornell_gradients/00-gradients/summary.csv", newline="") as f:
+    ...     rows = list(csv.DictReader(f))
+    >>> [nb.diagnostics.judge(rows, p).status for p in ("red_x", "red_radius", "red_color")]
+    ['ad-artifact-prone', 'ad-biased', 'ad-clean']
+    """
     mine = [r for r in rows if r["param"] == param]
     if not mine:
         raise ValueError(f"no gradient metrics recorded for parameter {param!r}")
@@ -118,11 +136,30 @@ def judge(rows: list[dict], param: str) -> Verdict:
 
 
 def save_verdicts(path: str | Path, verdicts: dict[str, Verdict]) -> Path:
+    """Write `verdicts` (parameter → Verdict) as JSON to `path`, as a `gradients` study saves its verdicts.json;
+    returns the path.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> v = nb.diagnostics.load_verdicts("results/cornell_gradients/00-gradients")
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     again = nb.diagnostics.load_verdicts(nb.diagnostics.save_verdicts(f"{tmp}/verdicts.json", v))
+    >>> again == v
+    True
+    """
     return write_text(path, json.dumps({k: asdict(v) for k, v in verdicts.items()}, indent=2))
 
 
 def load_verdicts(path: str | Path) -> dict[str, Verdict]:
-    """Verdicts saved by a `gradients` study (its `verdicts.json`, or the study folder)."""
+    """Verdicts saved by a `gradients` study (its `verdicts.json`, or the study folder).
+
+    Examples
+    --------
+    >>> v = nb.diagnostics.load_verdicts("results/cornell_gradients/00-gradients")
+    >>> sorted(v), v["red_color"].text
+    (['red_color', 'red_radius', 'red_x'], 'AD clean')
+    """
     path = Path(path)
     if path.is_dir():
         path = path / "verdicts.json"

@@ -21,6 +21,7 @@ from .mle_adam import AdamMLE
 from .multi_start import MultiStart
 from .surrogate import Surrogate
 
+#: the entry-point group of estimator plug-ins: name = "package.module:factory" (usually an Estimator subclass)
 ENTRY_POINT_GROUP = "nlosbench.estimators"
 
 _BUILTIN: dict[str, Callable[..., Estimator]] = {c.name: c for c in (AdamMLE, GridSearch, GaussNewton, MultiStart,
@@ -43,6 +44,15 @@ def register(name: str, factory: Callable[..., Estimator]) -> None:
     ------
     TypeError
         If `factory` is not callable.
+
+    Examples
+    --------
+    A coarse grid search under a name of its own:
+
+    >>> nb.estimators.register("coarse-grid", lambda **options: nb.estimators.GridSearch(num=5, **options))
+    >>> est = nb.estimators.get("coarse-grid", spp=8)
+    >>> type(est).__name__, est.num, est.spp, "coarse-grid" in nb.estimators.available()
+    ('GridSearch', 5, 8, True)
     """
     if not callable(factory):
         raise TypeError(f"estimator factory for {name!r} is not callable: {factory!r}")
@@ -88,6 +98,14 @@ def factory(name: str) -> Callable[..., Estimator]:
         If no estimator has that name.
     ImportError
         If the entry-point plug-in of that name fails to load.
+
+    Examples
+    --------
+    >>> nb.estimators.factory("grid-search") is nb.estimators.GridSearch
+    True
+    >>> nb.estimators.factory("grid-serch")
+    Traceback (most recent call last):
+    KeyError: "unknown estimator 'grid-serch'; did you mean 'grid-search'? (available: ...)"
     """
     if name in _REGISTERED:
         return _REGISTERED[name]

@@ -54,6 +54,18 @@ class BankGrid:
         Their renders, (G, H, W, C) float32.
     spp : int
         Samples per pixel of the renders.
+
+    Examples
+    --------
+    Renders of a 5-point grid, found again by the problem they are handed to:
+
+    >>> import torch
+    >>> model = nb.scenes.get("blob2d").restrict(["x"])
+    >>> thetas = model.params.grid(5)
+    >>> grid = nb.estimators.BankGrid(thetas, torch.stack([model.render(t, 4, 0) for t in thetas]), spp=4)
+    >>> problem = nb.estimators.Problem(model, nb.noise.AWGN(sigma=0.01), bank=grid)
+    >>> problem.find_grid(thetas, 4) is grid, problem.find_grid(thetas, 8)
+    (True, None)
     """
 
     thetas: np.ndarray
@@ -192,6 +204,14 @@ class Budget:
         The most primal renders plus AD gradient passes.
     seconds : float, optional
         The most wall-clock seconds.
+
+    Examples
+    --------
+    >>> nb.estimators.Budget(iterations=5).cap(30), nb.estimators.Budget().cap(30)
+    (5, 30)
+    >>> nb.estimators.Budget(renders=0)
+    Traceback (most recent call last):
+    ValueError: budget renders must be > 0 or None, got 0
     """
 
     iterations: int | None = None
@@ -251,6 +271,18 @@ class Estimate:
         The start θ, float64 (P,).
     trace : list of dict, optional
         One dict per iteration {iteration, loss, theta, renders, seconds}, renders and seconds cumulative.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> model = nb.scenes.get("blob2d").restrict(["x"])
+    >>> problem = nb.estimators.Problem(model, nb.noise.AWGN(sigma=0.01))
+    >>> y = model.render([0.5], spp=64, seed=0)
+    >>> fit = nb.estimators.get("gauss-newton", spp=16).fit(problem, y, init=[0.4], rng=np.random.default_rng(0))
+    >>> fit.theta.round(6), fit.init, fit.status, fit.converged
+    (array([0.5]), array([0.4]), 'converged', True)
+    >>> len(fit.trace) == fit.iterations and fit.trace[-1]["renders"] <= fit.renders
+    True
     """
 
     theta: np.ndarray
@@ -276,6 +308,17 @@ class Tracker:
         The model whose counters measure the fit's work (from now on).
     budget : Budget
         The fit's limits.
+
+    Examples
+    --------
+    >>> model = nb.scenes.get("blob2d")
+    >>> tracker = nb.estimators.Tracker(model, nb.estimators.Budget(renders=2))
+    >>> tracker.exhausted() is None
+    True
+    >>> for seed in (1, 2):
+    ...     _ = model.render(model.params.default, spp=4, seed=seed)
+    >>> tracker.used().renders, tracker.exhausted()
+    (2, 'render budget (2) used')
     """
 
     def __init__(self, model: ForwardModel, budget: Budget):
@@ -355,6 +398,15 @@ class Outcome:
         Why it stopped.
     final_loss : float
         The last negative log-likelihood evaluated.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> nb.estimators.Outcome(np.array([0.5]), 3, True, "a plug-in written for the 0.1 API", 0.0).status
+    'converged'
+    >>> nb.estimators.Outcome(np.array([0.5]), 3, "done", "", 0.0)
+    Traceback (most recent call last):
+    ValueError: fit status must be one of ['converged', 'stalled', 'step-rejected', 'budget', 'max-iterations'], ...
     """
 
     theta: np.ndarray
@@ -372,7 +424,26 @@ class Outcome:
 
 class Estimator(ABC):
     """Base class of estimators. Subclasses set `name` and `valid_when` (when the estimator is the
-    right tool, in one or two sentences) and implement `_fit`. Options go to `__init__` as keywords."""
+    right tool, in one or two sentences) and implement `_fit`. Options go to `__init__` as keywords.
+
+    Examples
+    --------
+    A plug-in that keeps its start; the base class validates the start and counts the render it made:
+
+    >>> import numpy as np
+    >>> from nlosbench.estimators import Estimator, Outcome
+    >>> class KeepStart(Estimator):
+    ...     name = "keep-start"
+    ...     valid_when = "never: it shows the contract"
+    ...     def _fit(self, problem, y, theta0, rng, tracker):
+    ...         loss = float(problem.nll(y, problem.model.render(theta0, 4, 0)))
+    ...         return Outcome(theta0, 0, "max-iterations", "no step taken", loss)
+    >>> model = nb.scenes.get("edge1d")
+    >>> problem = nb.estimators.Problem(model, nb.noise.AWGN(sigma=0.1))
+    >>> fit = KeepStart().fit(problem, model.render([0.5], 4, 0), init=[0.3], rng=np.random.default_rng(0))
+    >>> fit.theta, fit.status, fit.renders
+    (array([0.3]), 'max-iterations', 1)
+    """
 
     name: ClassVar[str] = ""
     valid_when: ClassVar[str] = ""

@@ -70,6 +70,19 @@ class GaussNewton(Estimator):
     start : {"given", "profile"}, default "given"
         Start at `init` (or a uniform random point), or at the profile-likelihood minimum over the
         problem's bank grid.
+
+    Examples
+    --------
+    From a far start, under Poisson noise (20 photons per unit radiance):
+
+    >>> import numpy as np
+    >>> model = nb.scenes.get("blob2d")
+    >>> problem = nb.estimators.Problem(model, nb.noise.Poisson(scale=20.0))
+    >>> y = model.render([0.45, 0.55], spp=64, seed=0)
+    >>> fit = nb.estimators.GaussNewton(spp=16, iterations=10).fit(problem, y, init=[0.4, 0.6],
+    ...                                                              rng=np.random.default_rng(0))
+    >>> fit.theta.round(4), fit.status
+    (array([0.45, 0.55]), 'converged')
     """
 
     name = "gauss-newton"

@@ -45,6 +45,18 @@ class GridSearch(Estimator):
         The refinement's θ tolerance, in units of Θ's width.
     max_grid : int, default MAX_GRID (100000)
         Refuse grids with more points than this.
+
+    Examples
+    --------
+    Without refinement θ̂ is the grid point nearest the minimum, for the grid's renders alone:
+
+    >>> import numpy as np
+    >>> model = nb.scenes.get("blob2d").restrict(["x"])
+    >>> problem = nb.estimators.Problem(model, nb.noise.AWGN(sigma=0.01))
+    >>> y = model.render([0.5], spp=64, seed=0)
+    >>> fit = nb.estimators.GridSearch(num=9, spp=16, refine=False).fit(problem, y, rng=np.random.default_rng(0))
+    >>> fit.theta, fit.renders
+    (array([0.5]), 9)
     """
 
     name = "grid-search"

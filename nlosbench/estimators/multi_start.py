@@ -27,6 +27,17 @@ class MultiStart(Estimator):
         The base estimator's options.
     spp : int, default 1024
         Samples per pixel of the common render on which the candidates' NLL is compared.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> model = nb.scenes.get("blob2d").restrict(["x"])
+    >>> problem = nb.estimators.Problem(model, nb.noise.AWGN(sigma=0.01))
+    >>> y = model.render([0.5], spp=64, seed=0)
+    >>> est = nb.estimators.MultiStart(base="gauss-newton", starts=3, options={"spp": 16}, spp=16)
+    >>> fit = est.fit(problem, y, init=[0.25], rng=np.random.default_rng(0))
+    >>> fit.theta.round(4), fit.reason.startswith("best of 3 start(s)")
+    (array([0.5]), True)
     """
 
     name = "multi-start"

@@ -86,6 +86,18 @@ class Surrogate(Estimator):
         How often the window may move to the lattice point nearest θ̂ before the fit stops ("max-iterations").
     xtol : float, default 1e-6
         Brent's θ tolerance, in units of h.
+
+    Examples
+    --------
+    The lattice is rendered once per process, then every fit is a polynomial fit to it:
+
+    >>> import numpy as np
+    >>> model = nb.scenes.get("blob2d").restrict(["x"])
+    >>> problem = nb.estimators.Problem(model, nb.noise.AWGN(sigma=0.01))
+    >>> y = model.render([0.5], spp=64, seed=0)
+    >>> fit = nb.estimators.Surrogate(spp=16).fit(problem, y, rng=np.random.default_rng(0))
+    >>> fit.theta.round(4), fit.status
+    (array([0.5]), 'converged')
     """
 
     name = "surrogate"

@@ -124,13 +124,7 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
             quiet: bool = False, smoke: bool = False, yes: bool = False, anyway: bool = False) -> Run:
     """Check a run completely without writing anything (see the module docstring); ConfigError otherwise.
     `anyway`: a resume may go across a code change (recorded in the run)."""
-    cfg = config_mod.load(config_path, overrides, smoke=smoke)
-    ids = []
-    for i, study in enumerate(cfg["studies"]):
-        study["id"] = study.get("id") or f"{i:02d}-{study['type']}"
-        if study["id"] in ids:
-            raise ConfigError(f"studies[{i}].id", f"{study['id']!r} is used by an earlier study; give each its own id")
-        ids.append(study["id"])
+    cfg = _load(config_path, overrides, smoke)
     run_dir = Path(out) if out else Path(cfg["output"]) / cfg["name"]
     if run_dir.exists() and not run_dir.is_dir():
         raise ConfigError("--out", f"{run_dir} is a file, not a folder")
@@ -143,21 +137,12 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
     elif (run_dir / "results.json").is_file():
         outputs.load_results(run_dir / "results.json")  # damaged: one line naming it, before the scene loads
     ctx = RunContext.create(cfg, run_dir, resume=resume, quiet=quiet)  # the scene: ConfigError if it cannot load
-    plans, estimates = {}, {}
-    for study in cfg["studies"]:
-        mod = studies.get(study["type"])
-        plans[study["id"]] = mod.plan(ctx, study)
-        estimates[study["id"]] = mod.cost(ctx, study, plans[study["id"]])
-        if estimates[study["id"]].renders > MAX_PLAN_RENDERS:
-            raise ConfigError(study["id"], f"plans {estimates[study['id']].renders} renders, above the ceiling "
-                                           f"of {MAX_PLAN_RENDERS} a study may plan; make its grids, sets or trials "
-                                           "smaller")
+    plans, estimates = _plan(cfg, ctx)
     fp = rundir.fingerprint(cfg, ctx.model.content_key(), plans)
     rundir.check(run_dir, fp, resume, anyway)
     rate = estimate.rate(ctx.model)
     ctx.rate = rate.seconds_per_sample  # what a study predicts further work's time from
-    total = sum(rate.seconds(e) for e in estimates.values())
-    least = sum(_least(e, rate) for e in estimates.values())  # seconds if every pilot suffices
+    least, total = seconds(estimates, rate)
     lines = [f"[{sid}] plan: {_cost(e, rate)}" + (f" ({e.note})" if e.note else "") for sid, e in estimates.items()]
     lines.append(f"estimate: ≈ {estimate.describe(total)} in all" + (
         f" at most, {estimate.describe(least)} if every precision pilot meets its target" if least < total else "") +
@@ -178,6 +163,41 @@ def prepare(config_path: str | Path, overrides: list[str] = (), out: str | Path 
                machine.command(config_path, overrides, out if out else run_dir, smoke))
 
 
+def _load(config_path: str | Path, overrides: list[str], smoke: bool) -> dict:
+    """The resolved config, each study with its id (given, or its index and type: 00-bounds)."""
+    cfg = config_mod.load(config_path, overrides, smoke=smoke)
+    ids = []
+    for i, study in enumerate(cfg["studies"]):
+        study["id"] = study.get("id") or f"{i:02d}-{study['type']}"
+        if study["id"] in ids:
+            raise ConfigError(f"studies[{i}].id", f"{study['id']!r} is used by an earlier study; give each its own id")
+        ids.append(study["id"])
+    return cfg
+
+
+def _plan(cfg: dict, ctx: RunContext) -> tuple[dict, dict]:
+    """Every study's plan and the Estimate of its cost, by study id (ConfigError for a plan above the ceiling)."""
+    plans, estimates = {}, {}
+    for study in cfg["studies"]:
+        mod = studies.get(study["type"])
+        plans[study["id"]] = mod.plan(ctx, study)
+        estimates[study["id"]] = mod.cost(ctx, study, plans[study["id"]])
+        if estimates[study["id"]].renders > MAX_PLAN_RENDERS:
+            raise ConfigError(study["id"], f"plans {estimates[study['id']].renders} renders, above the ceiling "
+                                           f"of {MAX_PLAN_RENDERS} a study may plan; make its grids, sets or trials "
+                                           "smaller")
+    return plans, estimates
+
+
+def forecast(config_path: str | Path, overrides: list[str] = (), smoke: bool = False) -> tuple[RunContext, dict]:
+    """What a run of the config will cost, as `prepare` plans it before a run, without a run folder or a rate:
+    the context (its scene loaded, `ctx.model`) and each study's `estimate.Estimate` by study id. Nothing is
+    written; ConfigError as `prepare` raises it."""
+    cfg = _load(config_path, list(overrides), smoke)
+    ctx = RunContext.create(cfg, Path(cfg["output"]) / cfg["name"], quiet=True)
+    return ctx, _plan(cfg, ctx)[1]
+
+
 def _cost(e: estimate.Estimate, rate: estimate.Rate) -> str:
     """'N renders, S pixel-samples, ≈ T', or with a data-dependent part (a precision target's fresh looks) the range
     from what is spent in any case to the most the budget allows."""
@@ -186,6 +206,12 @@ def _cost(e: estimate.Estimate, rate: estimate.Rate) -> str:
     lo = estimate.describe(_least(e, rate))
     return (f"at most {e.renders} renders, {e.floor:.3g} to {e.samples:.3g} pixel-samples (the pilot meeting its "
             f"precision target, or its budget spent), ≈ {lo} to {estimate.describe(rate.seconds(e))}")
+
+
+def seconds(estimates: dict, rate: estimate.Rate) -> tuple[float, float]:
+    """(seconds if every precision pilot meets its target, most seconds) of a run's study estimates at `rate`: the
+    estimate `prepare` prints before a run."""
+    return sum(_least(e, rate) for e in estimates.values()), sum(rate.seconds(e) for e in estimates.values())
 
 
 def _least(e: estimate.Estimate, rate: estimate.Rate) -> float:

@@ -48,6 +48,15 @@ class RenderCache:
     ----------
     root : str or os.PathLike
         The cache folder (made if missing).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> with tempfile.TemporaryDirectory() as tmp:
+    ...     model = nb.scenes.get("blob2d", cache=tmp)
+    ...     first, again = (model.render([0.5, 0.5], spp=4, seed=0) for _ in range(2))
+    >>> model.cache.misses, model.cache.hits, model.stats.renders  # the second image came from the disk
+    (1, 1, 1)
     """
 
     def __init__(self, root: str | os.PathLike):

@@ -87,6 +87,21 @@ class MitsubaModel(ForwardModel):
     llvm_target: Dr.Jit's LLVM code-generation target for this process, 'native' or 'portable' (default: the
     one already fixed in this process, else $NLOSBENCH_LLVM_TARGET, else native); fixed once per process
     (`llvm_target.pin`): a model asking for another one later raises TargetError.
+
+    Examples
+    --------
+    The Cornell box of scenes/ at 8 × 8 pixels, θ the ball's offset along x:
+
+    >>> from nlosbench.forward.mitsuba_model import MitsubaModel
+    >>> ball_x = {"name": "ball_x", "kind": "translate", "object": "ball", "axis": [1, 0, 0],
+    ...           "lower": -0.4, "upper": 0.4, "default": 0.0}
+    >>> model = MitsubaModel("box", "scenes/cornell_ball.xml", [ball_x], defines={"res": 8, "max_depth": 3})
+    >>> loads = MitsubaModel.loads
+    >>> left, right = (model.render([x], spp=4, seed=0) for x in (-0.2, 0.2))
+    >>> left.shape, model.size, bool((left != right).any())
+    (torch.Size([8, 8, 3]), (8, 8), True)
+    >>> MitsubaModel.loads == loads  # moving the ball updates the loaded scene, never reloads it
+    True
     """
 
     #: scene loads in this process, across all models (tests check that θ changes never reload)

@@ -19,7 +19,17 @@ from .cache import RenderCache, render_key
 
 
 class RenderError(RuntimeError):
-    """A render produced NaN or Inf; the message names scene, θ, spp and seed."""
+    """A render produced NaN or Inf; the message names scene, θ, spp and seed.
+
+    Examples
+    --------
+    >>> import torch
+    >>> toy = nb.scenes.get("edge1d")
+    >>> toy._render = lambda theta, spp, seed: torch.full((1, 4, 1), float("nan"))  # a renderer gone wrong
+    >>> toy.render([0.5], spp=4, seed=7)
+    Traceback (most recent call last):
+    nlosbench.forward.model.RenderError: render of scene 'edge1d' has 4 NaN/Inf value(s) at θ={'edge': 0.5}, ...
+    """
 
 
 @dataclass
@@ -63,6 +73,30 @@ class ForwardModel(ABC):
         The parameter space Θ; θ vectors follow its order and units.
     cache : RenderCache, str, os.PathLike or None, optional
         An on-disk render cache, or the folder of one; None renders every time.
+
+    Examples
+    --------
+    A model of your own: an exact 1 × 8 ramp whose slope is θ:
+
+    >>> import numpy as np, torch
+    >>> class Ramp(nb.ForwardModel):
+    ...     exact, channels = True, 1
+    ...     def __init__(self):
+    ...         super().__init__("ramp", nb.ParamSpace([nb.Param("slope", 0.0, 2.0, 1.0, units="1")]))
+    ...     def _render(self, theta, spp, seed):
+    ...         return float(theta[0]) * self.jvp(theta, 0, spp, seed)
+    ...     def jvp(self, theta, index, spp, seed, **ad):
+    ...         return torch.linspace(0, 1, 8).reshape(1, 8, 1)
+    ...     def vjp(self, theta, grad_out, spp, seed, indices=None, **ad):
+    ...         return np.array([float((grad_out * self.jvp(theta, 0, spp, seed)).sum())])
+    ...     def content_key(self):
+    ...         return {"scene": "ramp"}
+    >>> model = Ramp()
+    >>> model.render([0.5], spp=1, seed=0).shape, model.stats.renders
+    (torch.Size([1, 8, 1]), 1)
+    >>> model.render([3.0], spp=1, seed=0)
+    Traceback (most recent call last):
+    ValueError: θ out of range: slope=3 outside [0, 2] 1
     """
 
     name: str

@@ -105,7 +105,14 @@ def describe() -> dict[str, str]:
 
 
 def register(name: str, factory: Callable[..., ForwardModel]) -> None:
-    """Add a scene factory (called with the options given to `get`)."""
+    """Add a scene factory (called with the options given to `get`).
+
+    Examples
+    --------
+    >>> nb.scenes.register("small-blob", lambda **options: nb.scenes.get("blob2d", size=8, **options))
+    >>> nb.scenes.get("small-blob").render([0.5, 0.5], spp=1, seed=0).shape, "small-blob" in nb.scenes.available()
+    (torch.Size([8, 8, 1]), True)
+    """
     _BUILTIN[name] = factory
 
 
@@ -152,7 +159,14 @@ def load_spec(path: str | Path, **options) -> ForwardModel:
     dropped from the scene before loading, e.g. [light_c] to see what the bound owes it), `max_pass_samples`
     (a cap on the backend's pass size), `freeze` (the frozen render path; default on) and `llvm_target`
     (native | portable: Dr.Jit's CPU code-generation target). Options given here
-    override the spec's top-level keys; `defines` are merged. SpecError for a spec that does not load."""
+    override the spec's top-level keys; `defines` are merged. SpecError for a spec that does not load.
+
+    Examples
+    --------
+    >>> model = nb.scenes.load_spec("scenes/cornell_ball.yaml", defines={"res": 8})
+    >>> model.params.names, model.size
+    (('ball_x', 'ball_radius', 'ball_red'), (8, 8))
+    """
     from ..forward.mitsuba_model import MitsubaModel
 
     path = Path(path)
