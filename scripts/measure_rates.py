@@ -48,15 +48,14 @@ def main(argv=None) -> None:
     p.add_argument("configs", nargs="*", help="config file names under configs/ (default: all)")
     p.add_argument("--repeats", type=int, default=3, help="measurements per rate, the least kept (default: 3)")
     a = p.parse_args(argv)
-    sys.path[:0] = [str(ROOT), str(ROOT / "scripts")]
-    from publish_result import machine
+    sys.path[:0] = [str(ROOT)]
+    from nlosbench.experiment.machine import host
 
     paths = [ROOT / "configs" / c for c in a.configs] or sorted((ROOT / "configs").glob("*.yaml"))
     load = os.getloadavg()[0]
     rates = measure(paths, a.repeats)
     kept = json.loads(RATES.read_text())["configs"] if a.configs and RATES.is_file() else {}
-    info = {k: v for k, v in machine({}).items() if k not in ("seconds_total", "studies")}
-    record = {"machine": info | {"load_average": round(load, 2)}, "date": datetime.date.today().isoformat(),
+    record = {"machine": host() | {"load_average": round(load, 2)}, "date": datetime.date.today().isoformat(),
               "command": "python scripts/measure_rates.py" + "".join(f" {c}" for c in a.configs),
               "configs": dict(sorted((kept | rates).items()))}
     RATES.write_text(json.dumps(record, indent=2) + "\n")

@@ -65,9 +65,8 @@ def render_key(fingerprint: dict) -> dict | None:
     return key.get("render") if isinstance(key, dict) else None
 
 
-def describe(results: dict, fingerprint: dict, cmd: str, loads: dict) -> dict:
-    """machine.json's content for a finished run (results.json's dict, fingerprint.json's dict, the command, the
-    load averages {"start": [...], study id: [...]})."""
+def host() -> dict:
+    """The machine: CPU model, cores, memory, GPU (None without one), the Mitsuba variant and package versions."""
     import drjit
     import mitsuba
     import numpy
@@ -75,8 +74,6 @@ def describe(results: dict, fingerprint: dict, cmd: str, loads: dict) -> dict:
 
     from .. import variant
 
-    studies = results.get("studies", {})
-    ones = [v[0] for v in loads.values() if v]
     return {
         "cpu": cpu_model(),
         "cores": os.cpu_count(),
@@ -85,6 +82,16 @@ def describe(results: dict, fingerprint: dict, cmd: str, loads: dict) -> dict:
         "variant": mitsuba.variant() or variant.select(),
         "versions": {"python": platform.python_version(), "mitsuba": mitsuba.__version__,
                      "drjit": drjit.__version__, "torch": torch.__version__, "numpy": numpy.__version__},
+    }
+
+
+def describe(results: dict, fingerprint: dict, cmd: str, loads: dict) -> dict:
+    """machine.json's content for a finished run (results.json's dict, fingerprint.json's dict, the command, the
+    load averages {"start": [...], study id: [...]})."""
+    studies = results.get("studies", {})
+    ones = [v[0] for v in loads.values() if v]
+    return {
+        **host(),
         "seconds_total": results.get("seconds_total"),
         "studies": {k: {"seconds": v.get("seconds"), "renders": (v.get("results") or {}).get("renders")}
                     for k, v in studies.items()},
