@@ -25,7 +25,7 @@ from nlosbench.bounds.inexact import fit_lambda as fit_lambda
 from nlosbench.bounds.inexact import half_sample_lambda as half_sample_lambda
 from nlosbench.bounds.inexact import replicate_grams as replicate_grams
 from nlosbench.bounds.pooling import PooledFisherMap, pool_fisher_map
-from nlosbench.bounds.service import Bound, BoundPoint, BoundService, Curve, FisherPoint
+from nlosbench.bounds.service import Bound, BoundPoint, BoundService, Curve, FisherPoint, cameras_crlb
 from nlosbench.bounds.unbiased_fisher import UnbiasedFisher, unbiased_fisher
 from nlosbench.bounds.ustat import UStat, pairwise_ustat, u_statistic
 from nlosbench.bounds.zzb import ZZBInterval, ZZBResult, ziv_zakai, zzb_interval
@@ -44,4 +44,6 @@ __all__ = [
     "inexact_hcr", "InexactHCR", "LambdaFit", "decay_check", "DecayResult",
     # the bound service studies use
     "BoundService", "Bound", "BoundPoint", "Curve", "FisherPoint",
+    # the CRLB of θ from independent cameras (their Fisher matrices add)
+    "cameras_crlb",
 ]

@@ -4,30 +4,29 @@ plenoptic information localisation: 31 × 31 offsets at 2.54 cm in the x–z pla
 At each viewpoint the camera is moved by an offset (two world axes, `num` points each, the standard view
 in the centre) and re-aimed at a fixed `target`; the image L_θ and its FD Jacobian (central, common random
 numbers) give per-pixel Fisher maps for every parameter and noise model, whose spatial mean is one cell of
-the heat map. Output: viewpoints.csv, one heat map PNG per noise model (log10 of the mean FI), and the
-render and FD-FI maps at the centre and two opposite corners. Viewpoints are independent tasks for the
-run's executor (each worker poses its own copy of the scene); finished ones are appended to
+the heat map; the view's Fisher matrix F̂ (P × P) and its A-optimal score tr F̂⁻¹ with one-sided limits (the bound
+service's CRLB of θ, `camera.view_scores`; limits need fd_rounds >= 3) are in every row too (the score and F̂'s
+upper triangle repeat across a view's parameter rows). Output: viewpoints.csv, one heat map PNG per noise model
+(log10 of the mean FI), and the render and FD-FI maps at the centre and two opposite corners. Viewpoints are
+independent tasks for the run's executor (each worker poses its own copy of the scene); finished ones are appended to
 viewpoints.jsonl (a `records.RecordLog`), so a resumed run skips them.
 
-The camera pose is not part of θ: it is written into the loaded scene's sensor (`mi.traverse` of the
-sensor, no reload), and the model's render cache is bypassed while a viewpoint is posed (its key does not
-know the pose).
+The camera is posed by `camera.CameraRig` (outside θ, no reload); a pose's information comes from the bound
+service (`camera.viewpoint_information`).
 """
 from __future__ import annotations
 
-import math
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..bank import RenderBank
-from ..bounds import BoundService, FisherPoint, save_fisher_maps
+from ..bounds import save_fisher_maps
 from ..forward.model import ForwardModel
 from ..io import read_csv, write_csv, write_exr, write_png
 from ..records import RecordLog
 from ..schema import ConfigError, Field
+from .camera import CameraRig, score_cells, unit_axes, view_scores, viewpoint_information
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import heat_maps
@@ -49,59 +48,6 @@ SCHEMA = {
 }
 
 
-class CameraRig:
-    """The first sensor of a Mitsuba model, moved by offsets from its pose in the scene file while looking
-    at a fixed world point `target` (default: where its optical axis meets the scene), same up vector."""
-
-    def __init__(self, model: ForwardModel, target=None):
-        import mitsuba as mi
-
-        self.model = getattr(model, "base", model)
-        if not hasattr(self.model, "scene"):
-            raise ValueError(f"the viewpoints study needs a Mitsuba scene; {model.name!r} has no camera")
-        self.sensor_params = mi.traverse(self.model.scene.sensors()[0])
-        self.rest = mi.Transform4f(self.sensor_params["to_world"])
-        m = np.array(self.rest.matrix, dtype=np.float64).reshape(4, 4)
-        self.origin, self.up = m[:3, 3].copy(), m[:3, 1].copy()
-        self.target = self._axis_hit(m[:3, 2]) if target is None else np.asarray(target, dtype=np.float64)
-        if self.target.shape != (3,):
-            raise ValueError(f"target must be a point [x, y, z], got {target!r}")
-
-    def _axis_hit(self, forward: np.ndarray) -> np.ndarray:
-        """The first surface point along the optical axis."""
-        import mitsuba as mi
-
-        si = self.model.scene.ray_intersect(mi.Ray3f(_point(self.origin), mi.Vector3f(_point(forward))))
-        t = float(np.asarray(si.t).ravel()[0])
-        if not math.isfinite(t):
-            raise ValueError("the camera's optical axis hits nothing; give the viewpoints study a `target`")
-        return self.origin + t * forward
-
-    @contextmanager
-    def at(self, offset):
-        """Within the block, renders see the camera moved by `offset` (world metres) and re-aimed."""
-        import mitsuba as mi
-
-        o = self.origin + np.asarray(offset, dtype=np.float64)
-        cache, self.model.cache = self.model.cache, None
-        self.sensor_params["to_world"] = mi.Transform4f().look_at(origin=_point(o), target=_point(self.target),
-                                                                  up=_point(self.up))
-        self.sensor_params.update()
-        try:
-            yield
-        finally:
-            self.sensor_params["to_world"] = self.rest
-            self.sensor_params.update()
-            self.model.cache = cache
-
-
-def _point(v):
-    """A mi.Point3f from a numpy 3-vector."""
-    import mitsuba as mi
-
-    return mi.Point3f(*(float(x) for x in v))
-
-
 def offset_grid(num: int, step: float, axes) -> tuple[np.ndarray, np.ndarray]:
     """Offsets along each axis (num,) [m], centred on 0, and the world offsets (num, num, 3): [i, j] is
     u_i·axes[0] + u_j·axes[1] with unit axes."""
@@ -109,22 +55,9 @@ def offset_grid(num: int, step: float, axes) -> tuple[np.ndarray, np.ndarray]:
         raise ValueError(f"num must be a positive odd number (the standard view in the centre), got {num}")
     if not step > 0:
         raise ValueError(f"step must be > 0, got {step}")
-    a = np.asarray(axes, dtype=np.float64)
-    if a.shape != (2, 3) or np.any(np.linalg.norm(a, axis=1) == 0):
-        raise ValueError(f"axes must be two non-zero 3-vectors, got {axes!r}")
-    a = a / np.linalg.norm(a, axis=1, keepdims=True)
+    a = unit_axes(axes)
     u = (np.arange(num) - (num - 1) / 2) * step
     return u, u[:, None, None] * a[0] + u[None, :, None] * a[1]
-
-
-def viewpoint_information(model: ForwardModel, theta, spp: int, seed: int, fd_step: float, rounds: int, noises,
-                          reduce: str = "mean") -> FisherPoint:
-    """Render, FD Jacobian and per-pixel Fisher maps (P, H, W) per noise model at the current camera pose,
-    from the bound service over a render bank of the posed model (its seeds derive from `seed`). The maps
-    compare poses at one FD step ξ (no halving: the heat map is of the FD-smoothed information, at the same
-    cost per pose); the CRLB of a pose is labelled as not a confidence limit for that reason."""
-    svc = BoundService(RenderBank(model, seed=seed), noises)
-    return svc.fisher([theta], spp, fd_step, rounds, reduce, max_halvings=0)[0]
 
 
 def _saved_views(num: int) -> dict[tuple[int, int], str]:
@@ -145,7 +78,8 @@ def _viewpoint_task(model: ForwardModel, item: dict) -> tuple:
     renders = model.stats.since(before).renders
     rec = {"i": item["i"], "j": item["j"], "offset": item["offset"],
            "mean_fisher": [[float(np.mean(mp)) for mp in nm] for nm in maps],
-           "infinite_pixels": [[int(np.isinf(mp).sum()) for mp in nm] for nm in maps], "renders": renders}
+           "infinite_pixels": [[int(np.isinf(mp).sum()) for mp in nm] for nm in maps],
+           "scores": view_scores([fp], item["noises"], model.channels), "renders": renders}
     if item["keep"]:
         rec["images"] = (fp.L.numpy(), maps)
     return (item["i"], item["j"]), rec, renders
@@ -250,6 +184,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                         "param": name,
                         "mean_fisher": rec["mean_fisher"][k][p],
                         "infinite_pixels": rec["infinite_pixels"][k][p],
+                        **score_cells(rec["scores"][k], list(m.params.names)),
                     }
                 )
     write_csv(out / "viewpoints.csv", rows)

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 from nlosbench.bounds.service.at import AtTheta, axis_offsets
 from nlosbench.bounds.service.curve import QUOTE_TEST_GRID, Curves, quote_test_grid
-from nlosbench.bounds.service.fisher import FisherInformation
+from nlosbench.bounds.service.fisher import FisherInformation, cameras_crlb
 from nlosbench.bounds.service.interval import PaperIntervals, interval_points
 from nlosbench.bounds.service.points import Bound, BoundPoint, Curve, FisherPoint, crlb_bound, hcr_bound, interval_bound
 from nlosbench.bounds.service.renders import PURPOSE, SEEDS, poisson_weight_image
@@ -83,5 +83,5 @@ class BoundService(Curves, AtTheta, FisherInformation, PaperIntervals):
 
 
 __all__ = ["PURPOSE", "QUOTE_TEST_GRID", "SEEDS", "Bound", "BoundPoint", "BoundService", "Curve", "FisherPoint",
-           "axis_offsets", "crlb_bound", "hcr_bound", "interval_bound", "interval_points", "poisson_weight_image",
-           "quote_test_grid"]
+           "axis_offsets", "cameras_crlb", "crlb_bound", "hcr_bound", "interval_bound", "interval_points",
+           "poisson_weight_image", "quote_test_grid"]
