@@ -96,7 +96,7 @@ install_packages() {
     fi
     # The installed torch is a constraint: pip may not upgrade or replace it to satisfy pyproject.toml.
     echo "torch==$have" > "$pins"
-    if ! "$VENV/bin/pip" install -q --disable-pip-version-check -c "$pins" -e ".[dev,dask,docs,transient]"; then
+    if ! "$VENV/bin/pip" install -q --disable-pip-version-check -c "$pins" -e ".[dev,dask,docs,transient,search]"; then
         echo "setup: pip could not install nlosbench next to torch $have (pyproject.toml asks for" \
              "$(sed -n 's/^ *"\(torch[<>=!~][^"]*\)".*/\1/p' pyproject.toml)); upgrade torch yourself (the build you" \
              "want, e.g. from the PyTorch index for your CUDA), then re-run" >&2

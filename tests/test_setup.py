@@ -80,7 +80,7 @@ def test_existing_cuda_torch_is_kept_and_pinned(tmp_path):
     assert calls, "setup.sh never called pip"
     assert not any(installs_torch(c) for c in calls), f"setup.sh installs torch over 2.5.1+cu121: {calls}"
     (project,) = [c for c in calls if "-e" in c]
-    assert project[0] == str(ROOT) and project[project.index("-e") + 1] == ".[dev,dask,docs,transient]"
+    assert project[0] == str(ROOT) and project[project.index("-e") + 1] == ".[dev,dask,docs,transient,search]"
     assert constraint_file(project).read_text().split() == ["torch==2.5.1+cu121"]
     assert "keeping the torch 2.5.1+cu121" in r.stdout
 

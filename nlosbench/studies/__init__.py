@@ -32,7 +32,8 @@ from __future__ import annotations
 import importlib
 
 _MODULES = {"bounds": "bounds", "fisher-maps": "fisher_maps", "trials": "trials", "inexact": "inexact",
-            "gradients": "gradients", "viewpoints": "viewpoints", "fidelity": "fidelity",
+            "gradients": "gradients", "viewpoints": "viewpoints", "viewpoint-search": "viewpoint_search",
+            "fidelity": "fidelity",
             "time-of-flight": "time_of_flight"}
 
 
