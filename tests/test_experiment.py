@@ -161,6 +161,11 @@ SCENES = {"edge": ({"name": "edge1d"}, [0.5]), "blob": ({"name": "blob2d"}, [[0.
     ("blob", {"type": "gradients", "at": {"z": 0.5}}, "01-gradients.at.z: unknown parameter"),
     ("pi", {"type": "viewpoints", "num": 4}, "01-viewpoints.num: num must be a positive odd number"),
     ("pi", {"type": "viewpoints", "at": [2.5]}, "01-viewpoints.at: θ out of range"),
+    ("pi", {"type": "viewpoint-search", "fd_rounds": 2}, "01-viewpoint-search.fd_rounds: expected an integer >= 3"),
+    ("pi", {"type": "viewpoint-search", "box": [[0.1, 0.3], [-0.3, 0.3]]},
+     "01-viewpoint-search.box: expected two [low, high] pairs around the standard view"),
+    ("pi", {"type": "viewpoint-search", "grid": "nowhere"},
+     "01-viewpoint-search.grid: no `viewpoints` study with id 'nowhere' before this one"),
     ("edge", {"type": "fidelity", "grid": [0.3, 0.5, 0.7], "spp": [9], "bins": [1, 3]},
      "01-fidelity.bins: b = 3 does not divide the 1×64 image"),
 ])

@@ -199,7 +199,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         search.tell(X, [r["views"][0][k]["log10"] for r in recs], [r["views"][0][k]["log_se"] for r in recs], phase)
     evaluations = [done[f"evaluation-{n}"] for n in range(cfg["evaluations"])]
     phases = search.phase
-    found, post_mean, post_sd = search.recommend()
+    resolved = bool(np.isfinite(search.y).any())  # else no view has a positive definite F̂: nothing to return
+    found, post_mean, post_sd = search.recommend() if resolved else (None, math.nan, math.nan)
 
     # candidates for the pair: the evaluations' views, then the grid's
     cand_x = [e["offsets"][0] for e in evaluations]
@@ -208,7 +209,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     if p["grid"] is not None:
         gx, gF, gbest = _grid_views(ctx.dir / p["grid"]["id"] / "viewpoints.csv", str(ctx.noises[k]), names)
         cand_x, cand_F, grid_best = cand_x + gx, cand_F + gF, gx[gbest]
-    confirm = [("search", [found.tolist()]), ("standard", [[0.0, 0.0]])]
+    confirm = ([("search", [found.tolist()])] if resolved else []) + [("standard", [[0.0, 0.0]])]
     if grid_best is not None:
         confirm.append(("grid-best", [grid_best]))
     pair = None
@@ -216,7 +217,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         a, b, predicted, method = best_pair(np.stack(cand_F), cfg["max_pairs"])
         pair = {"views": [cand_x[a], cand_x[b]], "indices": [a, b], "predicted_log10": _log10(predicted),
                 "method": method, "candidates": len(cand_x)}
-        confirm.append(("pair", pair["views"]))
+        if math.isfinite(predicted):  # else no pair's summed F̂ is positive definite: nothing to confirm
+            confirm.append(("pair", pair["views"]))
     items = [{**base, "tag": f"confirm-{label}", "offsets": offs, "rounds": cfg["confirm_rounds"],
               "seeds": [ctx.seed_for("viewpoint-confirm", c, v) for v in range(len(offs))]}
              for c, (label, offs) in enumerate(confirm)]
@@ -242,7 +244,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         "noises": [str(n) for n in ctx.noises], "noise": k, "box": p["box"].tolist(), "axes": cfg["axes"],
         "target": p["target"].tolist(), "spp": cfg["spp"], "fd_rounds": cfg["fd_rounds"],
         "confirm_rounds": cfg["confirm_rounds"], "evaluations": cfg["evaluations"], "initial": cfg["initial"],
-        "batch": cfg["batch"], "found": found.tolist(), "posterior_log10": post_mean, "posterior_sd": post_sd,
+        "batch": cfg["batch"], "found": None if found is None else found.tolist(),
+        "posterior_log10": post_mean, "posterior_sd": post_sd,
         "pair": pair, "grid": None if p["grid"] is None else p["grid"]["id"],
         "renders": sum(r["renders"] for r in done.values()),
         "pixel_samples": sum(r["renders"] for r in done.values()) * cfg["spp"] * pixels(ctx.model),
@@ -280,7 +283,7 @@ def report(study_dir: Path, results: dict) -> str:
     path = _path_plot(study_dir, results)
     k = results["noise"]
     noise = results["noises"][k]
-    units = "·".join(f"{u}" for u in results["units"])
+    units = f"{results['units'][0]}²" if len(set(results["units"])) == 1 else "each θ_j's units²"
     lo, hi = np.array(results["box"]).T * 100
     lines = [
         f"Bayesian optimisation of the A-optimal score tr F̂⁻¹ of θ = {results['theta']} over camera offsets "
@@ -293,10 +296,12 @@ def report(study_dir: Path, results: dict) -> str:
         "",
         f"![search path]({study_dir.name}/{path.name})",
         "",
-        f"The search returns ({results['found'][0] * 100:.3g}, {results['found'][1] * 100:.3g}) cm (posterior "
-        f"log10 score {results['posterior_log10']:.3g} ± {results['posterior_sd']:.2g}). Confirmed with fresh renders "
-        f"({results['confirm_rounds']} rounds, seeds the search never used); one-sided 95 % limits, units "
-        f"{units}² summed over θ:",
+        (f"The search returns ({results['found'][0] * 100:.3g}, {results['found'][1] * 100:.3g}) cm (posterior "
+         f"log10 score {results['posterior_log10']:.3g} ± {results['posterior_sd']:.2g})." if results["found"] else
+         "No evaluated view has a resolved score (F̂ positive definite): the search returns no view (more spp or FD "
+         "rounds would resolve one).") +
+        f" Confirmed with fresh renders ({results['confirm_rounds']} rounds, seeds the search never used); one-sided "
+        f"95 % limits, {units} summed over θ (∞: F̂ not positive definite, no resolved information):",
         "",
         "| view | offsets [cm] | noise | tr F̂⁻¹ | lower | upper |",
         "|---|---|---|---|---|---|",
@@ -309,8 +314,10 @@ def report(study_dir: Path, results: dict) -> str:
                      f"{_fmt(r['score_lower'])} | {_fmt(r['score_upper'])} |")
         if r["score_lower_note"]:
             notes.add(r["score_lower_note"])
-    if results["pair"]:
-        pr = results["pair"]
+    pr = results["pair"]
+    if pr and not math.isfinite(pr["predicted_log10"]):
+        lines += ["", f"No pair among {pr['candidates']} views has a positive definite summed F̂: no pair confirmed."]
+    elif pr:
         lines += ["", f"The pair was chosen ({pr['method']}, no new render) among {pr['candidates']} views' Fisher "
                       f"matrices (predicted tr (F̂_a + F̂_b)⁻¹ = {_fmt(pr['predicted_log10'])}); its confirmed score is "
                       "the joint one, its views' own scores beside it. Two cameras at the best single view would "
@@ -321,8 +328,9 @@ def report(study_dir: Path, results: dict) -> str:
 
 
 def _fmt(lg) -> str:
+    """A log10 value as a number (∞ for +inf, 0 for −inf, – for NaN)."""
     v = float(lg)
-    return "–" if not math.isfinite(v) else f"{10 ** v:.3g}"
+    return "∞" if v == math.inf else "0" if v == -math.inf else "–" if math.isnan(v) else f"{10 ** v:.3g}"
 
 
 def _path_plot(study_dir: Path, results: dict) -> Path:
@@ -349,10 +357,10 @@ def _path_plot(study_dir: Path, results: dict) -> Path:
     ax.plot(x[:, 0], x[:, 1], "-", color="0.5", lw=0.6, zorder=2)
     for n, (a, b) in enumerate(x):
         ax.annotate(str(n), (a, b), textcoords="offset points", xytext=(4, 4), fontsize=7, zorder=4)
-    f = np.array(results["found"]) * 100
-    ax.plot(*f, "*", color="red", ms=16, mec="k", label="returned view", zorder=5)
+    if results["found"]:
+        ax.plot(*np.array(results["found"]) * 100, "*", color="red", ms=16, mec="k", label="returned view", zorder=5)
     ax.plot(0, 0, "P", color="white", ms=10, mec="k", label="standard view", zorder=5)
-    if results["pair"]:
+    if results["pair"] and math.isfinite(results["pair"]["predicted_log10"]):
         pv = np.array(results["pair"]["views"]) * 100
         ax.plot(pv[:, 0], pv[:, 1], "D--", color="orange", ms=9, mec="k", label="best pair", zorder=5)
     lo, hi = np.array(results["box"]).T * 100

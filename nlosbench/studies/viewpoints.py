@@ -212,7 +212,7 @@ def _save_view(out: Path, label: str, L, maps, names: list[str]) -> None:
 
 
 def smoke(block: dict) -> dict:
-    return {**block, "num": min(block["num"], 3), "spp": min(block["spp"], 16), "fd_rounds": 2}
+    return {**block, "num": min(block["num"], 3), "spp": min(block["spp"], 16), "fd_rounds": min(block["fd_rounds"], 3)}
 
 
 def report(study_dir: Path, results: dict) -> str:
