@@ -15,8 +15,10 @@ import yaml
 import nlosbench as nb
 from nlosbench.bounds import Bound, FisherPoint, cameras_crlb, unbiased_fisher
 from nlosbench.cli import main
-from nlosbench.studies import bayesopt
+from nlosbench.experiment import config
+from nlosbench.studies import bayesopt, viewpoint_search
 from nlosbench.studies.camera import best_pair
+from nlosbench.studies.context import RunContext
 
 BOX = [[-0.381, 0.381], [-0.381, 0.381]]
 OPTIMUM = np.array([0.12, -0.2])
@@ -188,3 +190,16 @@ def test_the_study_runs_through_the_cli_with_a_grid(tmp_path):
     report = (out / "report.md").read_text()
     assert "search/search_path.png)" in report and "| pair |" in report
     assert (out / "search" / "search_path.png").stat().st_size > 0
+    # resume after a kill that lost the last evaluation and the confirmations: the same seeded offsets are asked
+    # again, only the missing views are rendered, and the tables come out the same
+    tables = {name: (out / "search" / name).read_text() for name in ("evaluations.csv", "confirmed.csv")}
+    log = out / "search" / "search.jsonl"
+    kept = [line for line in log.read_text().splitlines()
+            if json.loads(line)["tag"] in ("evaluation-0", "evaluation-1", "evaluation-2")]
+    log.write_text("\n".join(kept) + "\n")
+    run_cfg = config.load(out / "config.yaml")
+    ctx = RunContext.create(run_cfg, out, resume=True, quiet=True)
+    before = ctx.model.stats.renders
+    again = viewpoint_search.run(ctx, run_cfg["studies"][1])
+    assert ctx.model.stats.renders - before == 7 + 5 * 7 and again["found"] == res["found"]
+    assert {name: (out / "search" / name).read_text() for name in tables} == tables
