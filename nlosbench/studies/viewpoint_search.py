@@ -64,6 +64,8 @@ SCHEMA = {
                   "is drawn under the search's path", nullable=True),
 }
 GRID_KEYS = ("at", "axes", "target", "fd_step", "reduce")
+#: what is confirmed with fresh renders; the index in this tuple seeds its renders (purpose "viewpoint-confirm")
+CONFIRMED = ("search", "standard", "grid-best", "pair")
 
 
 def check(block: dict, path: str) -> None:
@@ -220,8 +222,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         if math.isfinite(predicted):  # else no pair's summed F̂ is positive definite: nothing to confirm
             confirm.append(("pair", pair["views"]))
     items = [{**base, "tag": f"confirm-{label}", "offsets": offs, "rounds": cfg["confirm_rounds"],
-              "seeds": [ctx.seed_for("viewpoint-confirm", c, v) for v in range(len(offs))]}
-             for c, (label, offs) in enumerate(confirm)]
+              "seeds": [ctx.seed_for("viewpoint-confirm", CONFIRMED.index(label), v) for v in range(len(offs))]}
+             for label, offs in confirm]
     confirmed = {label: rec for (label, _), rec in zip(confirm, render(items, "confirmations"), strict=True)}
 
     write_csv(out / "evaluations.csv", [
