@@ -343,19 +343,27 @@ def _path_plot(study_dir: Path, results: dict) -> Path:
     noise = results["noises"][k]
     rows = [r for r in read_csv(study_dir / "evaluations.csv") if r["noise"] == noise]
     fig, ax = plt.subplots(figsize=(6.2, 5))
-    if results.get("grid"):
-        u0, u1, val, _ = bayesopt.read_grid(study_dir.parent / results["grid"] / "viewpoints.csv", noise)
-        h0, h1 = (u0[1] - u0[0]) * 50 if len(u0) > 1 else 1, (u1[1] - u1[0]) * 50 if len(u1) > 1 else 1
-        im = ax.imshow(val.T, origin="lower", cmap="viridis_r", interpolation="nearest",
-                       extent=[u0[0] * 100 - h0, u0[-1] * 100 + h0, u1[0] * 100 - h1, u1[-1] * 100 + h1])
-        fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04, label=f"grid log10 tr F̂⁻¹ ({results['grid']})")
     x = np.array([[float(r["offset_0"]), float(r["offset_1"])] for r in rows]) * 100
     score = np.array([float(r["log10_score"]) for r in rows])
+    grid = bayesopt.read_grid(study_dir.parent / results["grid"] / "viewpoints.csv", noise) if results.get("grid") \
+        else None
+    shown = np.concatenate([score] + ([grid[2].ravel()] if grid else []))
+    shown = shown[np.isfinite(shown)]
+    norm = {"vmin": shown.min(), "vmax": shown.max()} if shown.size else {}  # one colour scale: grid and path
+    label = "log10 tr F̂⁻¹ (evaluations" + (f"; grid {results['grid']})" if grid else ")")
+    mappable = None
+    if grid:
+        u0, u1, val, _ = grid
+        h0, h1 = (u0[1] - u0[0]) * 50 if len(u0) > 1 else 1, (u1[1] - u1[0]) * 50 if len(u1) > 1 else 1
+        mappable = ax.imshow(val.T, origin="lower", cmap="viridis_r", interpolation="nearest", **norm,
+                             extent=[u0[0] * 100 - h0, u0[-1] * 100 + h0, u1[0] * 100 - h1, u1[-1] * 100 + h1])
     sobol = np.array([r["phase"] == "sobol" for r in rows])
-    for mask, marker, label in ((sobol, "s", "Sobol design"), (~sobol, "o", "model-guided")):
+    for mask, marker, name in ((sobol, "s", "Sobol design"), (~sobol, "o", "model-guided")):
         if mask.any():
-            ax.scatter(x[mask, 0], x[mask, 1], c=np.where(np.isfinite(score[mask]), score[mask], np.nan),
-                       cmap="viridis_r", marker=marker, edgecolors="k", s=45, label=label, zorder=3)
+            sc = ax.scatter(x[mask, 0], x[mask, 1], c=np.where(np.isfinite(score[mask]), score[mask], np.nan),
+                            cmap="viridis_r", marker=marker, edgecolors="k", s=45, label=name, zorder=3, **norm)
+            mappable = mappable or sc
+    fig.colorbar(mappable, ax=ax, fraction=0.046, pad=0.04, label=label)
     ax.plot(x[:, 0], x[:, 1], "-", color="0.5", lw=0.6, zorder=2)
     for n, (a, b) in enumerate(x):
         ax.annotate(str(n), (a, b), textcoords="offset points", xytext=(4, 4), fontsize=7, zorder=4)
@@ -366,8 +374,10 @@ def _path_plot(study_dir: Path, results: dict) -> Path:
         pv = np.array(results["pair"]["views"]) * 100
         ax.plot(pv[:, 0], pv[:, 1], "D--", color="orange", ms=9, mec="k", label="best pair", zorder=5)
     lo, hi = np.array(results["box"]).T * 100
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
+    pad = 0.04 * (hi - lo)  # the box's edges stay visible, with the views on them
+    ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
+    ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
+    ax.add_patch(plt.Rectangle(lo, *(hi - lo), fill=False, ls=":", color="0.3", zorder=1))
     ax.set_xlabel("camera offset along axis 0 [cm]")
     ax.set_ylabel("camera offset along axis 1 [cm]")
     ax.set_title(f"search path, log10 tr F̂⁻¹ under {noise_text(noise)}", fontsize=9)
