@@ -27,7 +27,7 @@ class CameraRig:
 
         self.model = getattr(model, "base", model)
         if not hasattr(self.model, "scene"):
-            raise ValueError(f"the viewpoints study needs a Mitsuba scene; {model.name!r} has no camera")
+            raise ValueError(f"a viewpoint study needs a Mitsuba scene; {model.name!r} has no camera")
         self.sensor_params = mi.traverse(self.model.scene.sensors()[0])
         self.rest = mi.Transform4f(self.sensor_params["to_world"])
         m = np.array(self.rest.matrix, dtype=np.float64).reshape(4, 4)
@@ -43,7 +43,7 @@ class CameraRig:
         si = self.model.scene.ray_intersect(mi.Ray3f(_point(self.origin), mi.Vector3f(_point(forward))))
         t = float(np.asarray(si.t).ravel()[0])
         if not math.isfinite(t):
-            raise ValueError("the camera's optical axis hits nothing; give the viewpoints study a `target`")
+            raise ValueError("the camera's optical axis hits nothing; give the study a `target`")
         return self.origin + t * forward
 
     @contextmanager
