@@ -323,8 +323,8 @@ def interval_bound(iv: HCRInterval, extra_flags: tuple = (), step: StepFisher | 
     terms = f"lower: {iv.lower_term}; upper: {iv.upper_term}; point: {iv.point_term}"
     reason = ("both ends are point estimates (fewer than 3 replicates)" if iv.estimate_only else
               f"one-sided {iv.level:.0%} limits from {iv.replicates} replicates over {iv.tested} tested Δ and Δ → 0 "
-              "(the CRLB term), the lower end with a Bonferroni share over them; the upper end bounds the HCR over "
-              "the tested Δ and Δ → 0")
+              "(the CRLB term), the lower end's jointly over those that could reach the sup; the upper end bounds the "
+              "HCR over the tested Δ and Δ → 0")
     if iv.unresolved:
         reason += f"; unresolved Δ (λ_L ≤ 0: the upper end is open): {iv.unresolved}"
     if step is not None and step.checked:
@@ -691,15 +691,14 @@ class BoundService:
         points, zzbs = [], {}
         for j, noise in self._select(noises).items():
             Wflat = np.stack([w for w, _ in weights[j]])
-            lam = pairwise_ustat(Xd.reshape(R, G, -1).numpy(), Wflat, self.group)
             plug = pairwise_lambda(pooled, noise) if not isinstance(noise, Poisson) else _plugin_poisson(pooled, Wflat)
             for g, t in enumerate(T):
                 others = np.flatnonzero(np.arange(G) != g)
                 deltas = T[others] - t
                 flags = weights[j][g][1]
                 sf = converge(stages[g], Wflat[g], self.level, step_tol, spp)
-                loo = lam.loo[:, g, others] if lam.loo.size else lam.loo
-                sub = UStat(lam.est[g, others], lam.se[g, others], loo, R, lam.df[g, others])
+                # row g of the pairwise λ (`pairwise_ustat`), with the per-pixel terms the lower end's joint level uses
+                sub = pixel_ustat((Xd[:, others] - Xd[:, g:g + 1]).reshape(R, G - 1, -1).numpy(), Wflat[g], self.group)
                 b: dict[str, Bound] = {}
                 b["hcr"] = interval_bound(hcr_interval(sub, deltas, sf, self.level, lo - t, hi - t), flags, sf)
                 if crlb:

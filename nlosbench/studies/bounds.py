@@ -204,7 +204,8 @@ def report(study_dir: Path, results: dict) -> str:
              f"- **HCR** (variance of an unbiased estimator): each θ's HCR is a sup over every Δ ≠ 0, including Δ → 0, "
              f"whose limit is the CRLB term; λ(Δ) and the Fisher information are U-statistics over the replicates "
              f"(unbiased: rendering noise does not inflate them). The line is the lower end, a one-sided {lvl} "
-             f"confidence limit (Bonferroni over the tested Δ and Δ → 0) — the bound to quote; the band reaches "
+             f"confidence limit (jointly over the tested Δ and Δ → 0 that could reach the sup) — the bound to quote; "
+             f"the band reaches "
              f"the upper end, a one-sided {lvl} limit on the HCR over the tested Δ and Δ → 0 (no Bonferroni share: "
              f"one fixed term sets it; open where any tested Δ or F is not resolved: ▲ on the plot, ∞ in tables).",
              f"- **CRLB**: 1/F̂ from the unbiased Fisher information of the FD-smoothed derivative, with its {lvl} "
