@@ -25,8 +25,8 @@ SIGMA, THETA, SPP = 0.3, 0.45, 16
 AT = dict(test_grid=3, offsets=1, fd_step=0.002, max_halvings=1)
 GRID = np.linspace(0.2, 0.8, 9)  # the ZZB's uniform grid (prior uniform on [0.2, 0.8])
 SEEDS = 1000
-#: the top of the binomial 99.9 % band (30–73) of the misses of a one-sided 95 % end over SEEDS runs
-MOST_MISSES = 73
+#: the binomial 99.9 % band (30–73) of the misses of a one-sided 95 % end over SEEDS runs
+FEWEST_MISSES, MOST_MISSES = 30, 73
 
 
 def _model(**kw):
@@ -102,12 +102,12 @@ def _ends(seed: int) -> list[float]:
     """One seed's (lower, point, upper) log10 ends of the HCR and the CRLB from `at` without and with a precision
     target (±25 %, 3 looks), and of the ZZB on GRID from R = 3 replicates of common seeds."""
     m = _model()
+    svc = BoundService(RenderBank(m, seed=seed), [nb.noise.AWGN(SIGMA)])  # one bank: the pilot's renders are reused
     out = []
     for prec in (None, 0.25):
-        (pt,) = BoundService(RenderBank(m, seed=seed), [nb.noise.AWGN(SIGMA)]).at([[THETA]], SPP, precision=prec,
-                                                                                  **AT)
+        (pt,) = svc.at([[THETA]], SPP, precision=prec, **AT)
         out += [v for k in ("hcr", "crlb") for v in (pt.bounds[k].lower, pt.bounds[k].point, pt.bounds[k].upper)]
-    X = BoundService(RenderBank(m, seed=seed), [nb.noise.AWGN(SIGMA)]).replicates(GRID, SPP, "common", 3).double()
+    X = svc.replicates(GRID, SPP, "common", 3).double()
     z = zzb_interval(pairwise_ustat(X.reshape(3, len(GRID), -1).numpy(), 1 / SIGMA**2, m.channels), GRID, "lambda")
     return out + [z.lower, z.point, z.upper]
 
@@ -115,12 +115,22 @@ def _ends(seed: int) -> list[float]:
 def test_every_end_covers_the_exact_bound_on_a_channel_shared_toy():
     """spot_rgb as above, `at` (test grid 3, one axis offset, ξ = 2 mm, one halving) without and with a ±25 %
     precision target, and the ZZB over a 9-point grid (R = 3), 1000 seeds: every one-sided 95 % end misses the exact
-    bound at most 73 times (the top of the binomial 99.9 % band, 30–73, for 5 %): no end is too narrow. Ends that take
-    no share of α — the CRLB's two ends, the HCR's upper end, the ZZB's two ends — miss at least 20 times (they are not
-    much wider than needed); the HCR's lower end takes a Bonferroni share over its tested Δ and Δ → 0 and each look
-    of a precision target α/K, so those cover more often by construction. Measured (misses of 1000, lower / upper):
-    HCR 1 / 41, CRLB 26 / 41, with the target HCR 10 / 7 and CRLB 16 / 7, ZZB 42 / 28. With the channels summed as
-    independent values the SEs are ≈ 0.74× the spread (the test above)."""
+    bound at most 73 times (the top of the binomial 99.9 % band, 30–73, for 5 %): no end is too narrow. The HCR's and
+    the CRLB's upper ends and the ZZB's two ends miss inside the band (not wider than needed). Measured (misses of
+    1000, lower / upper): HCR 25 / 41, CRLB 26 / 41, ZZB 32 / 40 (the ZZB centred on its bias-corrected estimate;
+    on the point, 42 / 28), with the target HCR 14 / 9 and CRLB 17 / 9.
+    Below the band, asserted ≥ 20: the HCR's and the CRLB's lower ends. Their construction has no slack left here
+    (the HCR's terms are taken jointly, no longer Bonferroni over every tested Δ: it missed once; the FD candidates
+    are one statistic, correlation 1.000); the jackknife's has: at R = 3 it counts the noise × noise variance of a
+    degree-2 U-statistic 2(R − 1)/(R − 2) = 4 times, so F̂'s SE is 1.08× its SD over the seeds, and over 2000 seeds
+    they miss 3.3 % and 3.6 % (65 and 71), of which seeds 0–999 draw 25 and 26.
+    With a target each look's ends are at level 1 − α/3 (the stopping rule's union bound over 3 looks: 16.7 expected
+    misses): asserted inside that level's 99.9 % band, 4–30. The reported look is the pilot in ≈ 1 % of runs and a
+    fresh look otherwise (≈ 72 % the first, 26 % the second), so no spending of α over the looks that the union bound
+    allows brings them into the 5 % band: the pilot's share is almost never used, and two fresh looks sharing the
+    rest (0.95 α) with their nested correlation (Pocock's boundary at √½, which overstates that of nested
+    U-statistics) would get at most 2.9 % each. With the channels summed as independent values the SEs are ≈ 0.74×
+    the spread (the test above)."""
     exact = _exact()
     with ProcessPoolExecutor(2, mp_context=mp.get_context("spawn")) as ex:
         rows = np.array(list(ex.map(_ends, range(SEEDS), chunksize=50)))
@@ -130,8 +140,11 @@ def test_every_end_covers_the_exact_bound_on_a_channel_shared_toy():
         lo, up = rows[:, 3 * i], rows[:, 3 * i + 2]
         misses[name] = (int((lo > e + 1e-12).sum()), int((up < e - 1e-12).sum()))
     assert all(m <= MOST_MISSES for pair in misses.values() for m in pair), misses
-    no_share = [misses["crlb"][0], misses["crlb"][1], misses["hcr"][1], *misses["zzb"]]
-    assert all(m >= 20 for m in no_share), misses
+    in_band = [misses["hcr"][1], misses["crlb"][1], *misses["zzb"]]
+    assert all(m >= FEWEST_MISSES for m in in_band), misses
+    assert misses["hcr"][0] >= 20 and misses["crlb"][0] >= 20, misses
+    looks = [*misses["hcr-precision"], *misses["crlb-precision"]]
+    assert all(4 <= m <= 30 for m in looks), misses
 
 
 def test_the_zzb_lower_end_carries_a_noisy_weight_render():

@@ -96,7 +96,7 @@ def test_a_non_uniform_grid_is_refused():
 def test_interval_from_replicates_covers_the_exact_zzb():
     """120 runs of R = 5 replicates of a smooth 1-D toy (40 pixels, synthetic rendering noise 0.15 per
     pixel, independent across replicates): the interval's lower end is below the exact ZZB in ≥ 90 %
-    of runs (stated level 95 %, Bonferroni over h makes it conservative) and the upper end above it in
+    of runs (stated level 95 %) and the upper end above it in
     ≥ 90 %; the point estimate is within 10 % of it on average."""
     t = np.linspace(0, 1, 41)
     x = np.linspace(0, 1, 40)

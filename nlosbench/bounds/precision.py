@@ -48,8 +48,8 @@ of x (Gaussian errors, independent pixels), has
 replicates, d² s² and s⁴ their unbiased (Gaussian) estimates, the sum clipped at 0. `Fit.bounds` builds UStats
 with the look's estimates and SE √(a/R + b/(R(R − 1))) (degrees of freedom the look's Satterthwaite df ×
 (R − 1)/(R0 − 1); for a vector θ, leave-one-outs scaled to that variance) and calls the same interval code as
-the service (`hcr_interval`, `crlb_term`), so an open end (λ_L ≤ 0), the Bonferroni share and the FD stages are
-predicted the way they are computed. Where a look's λ̂(Δ) ≤ 0 (no information on λ at that Δ), the plan uses the
+the service (`hcr_interval`, `crlb_term`), so an open end (λ_L ≤ 0), the lower end's joint level and the FD stages
+are predicted the way they are computed. Where a look's λ̂(Δ) ≤ 0 (no information on λ at that Δ), the plan uses the
 local quadratic ΔᵀF̂Δ instead. Plans only choose R; the proof above does not depend on them. This is not
 n·(width/target)² (SE ∝ R^−½): where the noise × noise part b dominates, SE falls like 1/R.
 

@@ -13,7 +13,12 @@ plug-in from the replicate mean, 1ᵀG1/R², carries the rendering noise tr(G)/R
 
 Standard error. `u_statistic` (any Grams): the delete-one jackknife over replicates (R ≥ 3; NaN for
 R = 2), with R − 1 degrees of freedom. Measured on toys (see `unbiased_fisher`): right where the signal
-dominates, conservative (SE² up to ~2× the variance) where the noise × noise part dominates.
+dominates, conservative (SE² up to ~2× the variance) where the noise × noise part dominates. In terms of the
+Hoeffding parts (ζ₁ signal × noise, ζ₂ noise × noise) the jackknife's expectation is 4ζ₁/R + 4ζ₂/(R(R − 2))
+against the variance 4ζ₁/R + 2ζ₂/(R(R − 1)): ζ₂ counts 2(R − 1)/(R − 2) times, 4× at R = 3 (spot_rgb's F̂ at
+R = 3: SE 1.08× its SD over 2000 seeds, so its one-sided 95 % ends miss 3.6 %). Removing it needs ζ₂ itself,
+which three replicates give only under a model of the errors' fourth moments (`precision.variance_terms`
+assumes Gaussian ones; heavy tails would make it too large and the corrected SE too small).
 `pixel_ustat` (sums over pixels): a path tracer's Monte Carlo errors are independent across pixels (each
 pixel's samples are its own; common random numbers couple θ within a pixel, never two pixels), so the
 U-statistic is a sum of independent per-pixel terms and its variance is the sum of their variances. Each
@@ -56,6 +61,9 @@ class UStat:
         R.
     df : ndarray of shape (*T) or None, optional
         Degrees of freedom of the SE (None: R − 1, the replicate jackknife's).
+    terms : ndarray of shape (R, *T, M) or None, optional
+        Per-pixel-group leave-one-outs, the M summands of `loo` (`pixel_ustat`): two statistics over the same
+        replicates and pixels get their covariance from them (`covariance`); None where not kept.
 
     Examples
     --------
@@ -70,6 +78,7 @@ class UStat:
     loo: np.ndarray
     replicates: int
     df: np.ndarray | None = None
+    terms: np.ndarray | None = None
 
     @property
     def dof(self) -> np.ndarray:
@@ -129,6 +138,15 @@ def u_statistic(G: np.ndarray) -> UStat:
     loo = (cross[None] - (row - diag) - (col - diag)) / ((R - 1) * (R - 2))
     se = np.sqrt((R - 1) / R * ((loo - loo.mean(axis=0)) ** 2).sum(axis=0))
     return UStat(est, se, loo, R)
+
+
+def covariance(terms: np.ndarray) -> np.ndarray:
+    """The covariance (J, J) of J statistics from their per-group leave-one-outs `terms` (J, R, M) (`UStat.terms`,
+    the same R replicates and M pixel groups): Σ_m (R − 1)/R Σ_r (t_jrm − t̄_jm)(t_irm − t̄_im), the grouped jackknife
+    whose diagonal is each statistic's SE² (independent groups, so no cross-group terms)."""
+    dev = terms - terms.mean(axis=1, keepdims=True)
+    R = terms.shape[1]
+    return (R - 1) / R * np.einsum("arm,brm->ab", dev, dev)
 
 
 def t_quantile(level: float, dof, tests: int = 1):
@@ -199,7 +217,8 @@ def pixel_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -> U
     replicate differences or FD Jacobians, pixels flattened with each pixel's `group` values (its channels)
     consecutive; weights scalar, (N,) or (K, N)): est (K,), loo (R, K) (the estimate without replicate r, for
     downstream jackknifes), se (K,) from the per-group jackknife variances summed over groups (independent
-    pixels, correlated channels: see the module docstring), df (K,) Satterthwaite's. float64, in chunks of K."""
+    pixels, correlated channels: see the module docstring), df (K,) Satterthwaite's, terms (R, K, M) the per-group
+    leave-one-outs (M = N / group). float64, in chunks of K."""
     X = np.asarray(X)
     R, K, N = X.shape
     if R < 2:
@@ -208,6 +227,7 @@ def pixel_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -> U
     W = np.broadcast_to(np.asarray(weights, dtype=np.float64), (K, N)) if np.ndim(weights) else None
     est, se, df = np.empty(K), np.full(K, math.nan), np.full(K, math.nan)
     loo = np.empty((R, K)) if R >= 3 else np.empty((0, K))
+    terms = np.empty((R, K, N // group)) if R >= 3 else None
     step = max(1, chunk_bytes // (8 * R * N * 3))
     for k0 in range(0, K, step):
         k1 = min(K, k0 + step)
@@ -215,8 +235,8 @@ def pixel_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -> U
         e, left, s, d = sum_terms(per, lo, R, group)
         est[k0:k1], se[k0:k1], df[k0:k1] = e, s, d
         if R >= 3:
-            loo[:, k0:k1] = left
-    return UStat(est, se, loo, R, df)
+            loo[:, k0:k1], terms[:, k0:k1] = left, grouped(lo, group)
+    return UStat(est, se, loo, R, df, terms)
 
 
 def pairwise_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -> UStat:

@@ -282,10 +282,10 @@ def report(study_dir: Path, results: dict) -> str:
              f"- **HCR** (variance of an unbiased estimator): each θ's HCR is a sup over every Δ ≠ 0, including Δ → 0, "
              f"whose limit is the CRLB term; λ(Δ) and the Fisher information are U-statistics over the replicates "
              f"(unbiased: rendering noise does not inflate them). On the plot its point (○, solid line) with a bar "
-             f"from the lower end, a one-sided {lvl} confidence limit (Bonferroni over the tested Δ and Δ → 0) — the "
-             f"bound to quote — to the upper end, a one-sided {lvl} limit on the HCR over the tested Δ and Δ → 0 "
-             f"(no Bonferroni share: one fixed term sets it; open where any tested Δ or F is not resolved: an "
-             f"arrow to the top of the frame on the plot, ∞ in tables).",
+             f"from the lower end, a one-sided {lvl} confidence limit (jointly over the tested Δ and Δ → 0 that could "
+             f"reach the sup) — the bound to quote — to the upper end, a one-sided {lvl} limit on the HCR over the "
+             f"tested Δ and Δ → 0 (no Bonferroni share: one fixed term sets it; open where any tested Δ or F is not "
+             f"resolved: an arrow to the top of the frame on the plot, ∞ in tables).",
              f"- **CRLB**: 1/F̂ from the unbiased Fisher information of the FD-smoothed derivative, with its {lvl} "
              f"ends over the FD steps tried (□, dashed line, its own bar beside the HCR's). An FD step that is too "
              f"wide makes F too small (an edge crossing a pixel inside θ ± ξ), so the step is checked: where the "

@@ -29,7 +29,7 @@ from nlosbench.bounds.service.renders import (
     _flat,
     _need_replicates,
 )
-from nlosbench.bounds.ustat import UStat, pairwise_ustat
+from nlosbench.bounds.ustat import pairwise_ustat, pixel_ustat
 from nlosbench.bounds.zzb import bhattacharyya_ustat, uniform_spacing, zzb_interval
 from nlosbench.noise import AWGN, NoiseModel, Poisson
 
@@ -181,15 +181,14 @@ class Curves(RenderSets):
         points, zzbs = [], {}
         for j, noise in self._select(noises).items():
             Wflat = np.stack([w for w, _ in weights[j]])
-            lam = pairwise_ustat(Xd.reshape(R, G, -1).numpy(), Wflat, self.group)
             plug = pairwise_lambda(pooled, noise) if not isinstance(noise, Poisson) else _plugin_poisson(pooled, Wflat)
             for g, t in enumerate(T):
                 others = np.flatnonzero(np.arange(G) != g)
                 deltas = T[others] - t
                 flags = weights[j][g][1]
                 sf = converge(stages[g], Wflat[g], self.level, step_tol, spp)
-                loo = lam.loo[:, g, others] if lam.loo.size else lam.loo
-                sub = UStat(lam.est[g, others], lam.se[g, others], loo, R, lam.df[g, others])
+                # row g of the pairwise λ (`pairwise_ustat`), with the per-pixel terms the lower end's joint level uses
+                sub = pixel_ustat((Xd[:, others] - Xd[:, g:g + 1]).reshape(R, G - 1, -1).numpy(), Wflat[g], self.group)
                 b: dict[str, Bound] = {}
                 b["hcr"] = interval_bound(hcr_interval(sub, deltas, sf, self.level, lo - t, hi - t), flags, sf)
                 if crlb:

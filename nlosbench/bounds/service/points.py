@@ -277,8 +277,8 @@ def interval_bound(iv: HCRInterval, extra_flags: tuple = (), step: StepFisher | 
     terms = f"lower: {iv.lower_term}; upper: {iv.upper_term}; point: {iv.point_term}"
     reason = ("both ends are point estimates (fewer than 3 replicates)" if iv.estimate_only else
               f"one-sided {iv.level:.0%} limits from {iv.replicates} replicates over {iv.tested} tested Δ and Δ → 0 "
-              "(the CRLB term), the lower end with a Bonferroni share over them; the upper end bounds the HCR over "
-              "the tested Δ and Δ → 0")
+              "(the CRLB term), the lower end's jointly over those that could reach the sup; the upper end bounds the "
+              "HCR over the tested Δ and Δ → 0")
     if iv.unresolved:
         reason += f"; unresolved Δ (λ_L ≤ 0: the upper end is open): {iv.unresolved}"
     if step is not None and step.checked:
