@@ -18,8 +18,13 @@ demo: setup
 	$(PY) -m nlosbench.cli run $(CONFIG) --out runs/demo
 	@echo "report: runs/demo/report.md"
 
+# the suite on TEST_WORKERS processes (pytest-xdist); with --dist loadgroup tests/conftest.py schedules: a file with
+# module-scoped fixtures runs in one process (made once; the own-scene run is written by one process), other tests
+# go one by one to whichever process is free. The 20 slowest are listed: all of `make test` has 12 min on 2 cores
+TEST_WORKERS ?= 2
+
 test: setup lint
-	NLOSBENCH_OWN_SCENE_OUT=$(OWN_SCENE) $(PY) -m pytest -q
+	NLOSBENCH_OWN_SCENE_OUT=$(OWN_SCENE) $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=20
 	@$(MAKE) --no-print-directory docs-check
 
 # the modules whose docstrings hold `>>>` examples (tests/test_api_docs.py checks that none is left out)

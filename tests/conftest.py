@@ -1,4 +1,9 @@
-"""Shared fixtures. Mitsuba scenes load once per test session (scene loads are the slow part)."""
+"""Shared fixtures. Mitsuba scenes load once per test session (scene loads are the slow part): once per worker
+process under `make test`'s `pytest -n 2 --dist loadgroup` (pytest-xdist), whose scheduler is defined here."""
+import functools
+import re
+from pathlib import Path
+
 import drjit as dr
 import numpy as np
 import pytest
@@ -41,3 +46,37 @@ def _rates_cache(tmp_path_factory):
     mp.setenv("XDG_CACHE_HOME", str(tmp_path_factory.mktemp("xdg-cache")))
     yield
     mp.undo()
+
+
+#: a test file that defines a fixture of one of these scopes is one unit of work under `--dist loadgroup`
+_SHARED_SCOPE = re.compile(r"""scope\s*=\s*["'](?:module|class|package)["']""")
+
+
+@functools.cache
+def _shares_fixtures(path: Path) -> bool:
+    try:
+        return bool(_SHARED_SCOPE.search(path.read_text(encoding="utf-8")))
+    except OSError:  # not a file (a doctest's module, say): keep its tests together
+        return True
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """`make test` runs `pytest -n 2 --dist loadgroup`, scheduled here: a test file that defines a module- or
+    class-scoped fixture is one unit of work, run by one worker (the fixture is made once, and whatever it writes
+    to a fixed place, such as the own-scene run in $NLOSBENCH_OWN_SCENE_OUT, is written by one process); every
+    other test is a unit of its own, handed to whichever worker is free, so that no long file holds the run up.
+    Units go out largest first. (pytest-xdist's `xdist_group` marks do not reach its scheduler under pytest 9.2,
+    which reads a test's id from elsewhere, so the grouping is decided here, from the file.)"""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    root = Path(config.rootpath)
+
+    class FileOrTest(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            path = nodeid.split("::", 1)[0]
+            return path if _shares_fixtures(root / path) else nodeid
+
+    return FileOrTest(config, log)
