@@ -16,6 +16,18 @@ from ..bank import RenderBank
 from ..bounds import Bound, BoundService, FisherPoint, cameras_crlb
 from ..bounds.fd_step import trace_inv
 from ..forward.model import ForwardModel
+from ..schema import Field
+
+#: the schema keys both viewpoint studies share: the offsets' axes, the point the camera keeps looking at, and the
+#: renders' spp and FD step
+VIEW_KEYS = {
+    "axes": Field(list, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], "two world directions of the offsets (x, then z)",
+                  items=Field(list, items=float)),
+    "target": Field(list, None, "world point the camera keeps looking at (default: the surface point on the "
+                    "standard view's optical axis)", items=float, nullable=True),
+    "spp": Field(int, 256, "samples per pixel of every render"),
+    "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
+}
 
 
 class CameraRig:

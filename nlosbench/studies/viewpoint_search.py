@@ -33,7 +33,7 @@ from ..io import read_csv, save_figure, write_csv
 from ..records import RecordLog
 from ..schema import ConfigError, Field
 from . import bayesopt
-from .camera import CameraRig, best_pair, score_cells, unit_axes, view_scores, viewpoint_information
+from .camera import VIEW_KEYS, CameraRig, best_pair, score_cells, unit_axes, view_scores, viewpoint_information
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import _plt, noise_text
@@ -44,12 +44,7 @@ SCHEMA = {
                 "parameters' defaults)", items=float, nullable=True),
     "box": Field(list, [[-0.381, 0.381], [-0.381, 0.381]], "[low, high] offsets [m] along each axis (paper: ±38.1 cm)",
                  items=Field(list, items=float)),
-    "axes": Field(list, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], "two world directions of the offsets (x, then z)",
-                  items=Field(list, items=float)),
-    "target": Field(list, None, "world point the camera keeps looking at (default: the surface point on the "
-                    "standard view's optical axis)", items=float, nullable=True),
-    "spp": Field(int, 256, "samples per pixel of every render"),
-    "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
+    **VIEW_KEYS,
     "fd_rounds": Field(int, 3, "independent FD rounds per evaluation (>= 3: a standard error)"),
     "reduce": Field(str, "mean", "combine the RGB channels of the Fisher maps by", choices=("sum", "mean")),
     "noise": Field(int, 0, "index of the noise model whose score the search minimises"),

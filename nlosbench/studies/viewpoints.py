@@ -26,7 +26,7 @@ from ..forward.model import ForwardModel
 from ..io import read_csv, write_csv, write_exr, write_png
 from ..records import RecordLog
 from ..schema import ConfigError, Field
-from .camera import CameraRig, score_cells, unit_axes, view_scores, viewpoint_information
+from .camera import VIEW_KEYS, CameraRig, score_cells, unit_axes, view_scores, viewpoint_information
 from .context import RunContext
 from .estimate import Estimate, pixels
 from .plots import heat_maps
@@ -37,12 +37,7 @@ SCHEMA = {
                 "(default: the parameters' defaults)", items=float, nullable=True),
     "num": Field(int, 3, "viewpoints per axis; odd, so the standard view is the centre (paper: 31)"),
     "step": Field(float, 0.0254, "offset between neighbouring viewpoints [m] (paper: 2.54 cm)"),
-    "axes": Field(list, [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]], "two world directions of the offsets (x, then z)",
-                  items=Field(list, items=float)),
-    "target": Field(list, None, "world point the camera keeps looking at (default: the surface point on the "
-                    "standard view's optical axis)", items=float, nullable=True),
-    "spp": Field(int, 256, "samples per pixel of every render"),
-    "fd_step": Field(float, 0.01, "FD step ξ (parameter units)"),
+    **VIEW_KEYS,
     "fd_rounds": Field(int, 2, "independent FD rounds of the unbiased Fisher information (>= 2)"),
     "reduce": Field(str, "mean", "combine the RGB channels' information by (paper: mean)", choices=("sum", "mean")),
 }
