@@ -1047,7 +1047,7 @@ def test_stopping_a_pool_with_queued_tasks_leaves_no_error_in_its_thread(monkeyp
 BLOB = {"name": "blob2d", "options": {"width": 0.15, "render_noise": 2.0}, "params": ["x"]}
 PRECISE = {"type": "trials", "id": "t", "theta": [0.7], "n": 2, "n_eff": 16, "truth_replicates": 1,
            "bounds": ["hcr", "crlb"], "bound_spp": 16, "replicates": 3, "hcr_grid": 3, "hcr_offsets": 1,
-           "fd_step": 0.01, "max_halvings": 1, "bootstrap": 10, "precision": 0.1, "precision_budget": 300000,
+           "fd_step": 0.01, "max_halvings": 1, "bootstrap": 10, "precision": 0.07, "precision_budget": 300000,
            "estimators": [{"name": "grid-search", "options": {"spp": 4, "num": 5, "refine": False}}]}
 QUOTE = {"type": "bounds", "id": "b", "grid": {"start": 0.2, "stop": 0.8, "num": 3}, "spp": 16, "replicates": 3,
          "fd_step": 0.01, "max_halvings": 1, "zzb": False, "save_images": False, "precision": 0.1,
