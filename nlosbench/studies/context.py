@@ -7,6 +7,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from .. import executors, scenes
@@ -142,3 +143,12 @@ def noise_options(block: dict) -> dict:
     """A config's `noise:` entry as the parameters of `noise.get`: sigma / scale where given, and `options`."""
     return {**{k: v for k, v in block.items() if k not in ("model", "options") and v is not None},
             **(block.get("options") or {})}
+
+
+def theta_at(ctx: RunContext, cfg: dict, sid: str) -> np.ndarray:
+    """θ (P,) of a study block's `at` (None: the parameters' defaults), inside Θ; ConfigError naming `<sid>.at`."""
+    params = ctx.model.params
+    try:
+        return params.validate(params.default if cfg["at"] is None else cfg["at"])
+    except ValueError as e:
+        raise ConfigError(f"{sid}.at", str(e)) from None

@@ -42,7 +42,7 @@ from ..io import read_csv, write_csv
 from ..noise import Poisson
 from ..schema import MAX_HALVINGS, ConfigError, Field
 from ..seeds import derive
-from .context import RunContext
+from .context import RunContext, theta_at
 from .estimate import Estimate, pixels
 
 NAME = "time-of-flight"
@@ -89,10 +89,7 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     renders nothing."""
     sid = cfg.get("id") or NAME
     m = ctx.model
-    try:
-        theta = m.params.validate(m.params.default if cfg["at"] is None else cfg["at"])
-    except ValueError as e:
-        raise ConfigError(f"{sid}.at", str(e)) from None
+    theta = theta_at(ctx, cfg, sid)
     if cfg["param"] not in m.params.names:
         raise ConfigError(f"{sid}.param", f"expected one of {list(m.params.names)}, got {cfg['param']!r}")
     nuis = list(cfg["nuisance"])

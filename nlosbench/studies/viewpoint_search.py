@@ -34,7 +34,7 @@ from ..records import RecordLog
 from ..schema import ConfigError, Field
 from . import bayesopt
 from .camera import VIEW_KEYS, CameraRig, best_pair, score_cells, unit_axes, view_scores, viewpoint_information
-from .context import RunContext
+from .context import RunContext, theta_at
 from .estimate import Estimate, pixels
 from .plots import _plt, noise_text
 
@@ -76,10 +76,7 @@ def plan(ctx: RunContext, cfg: dict) -> dict:
     from the validated block; ConfigError naming the key for what the schema cannot see. Renders nothing."""
     sid = cfg.get("id") or NAME
     m = ctx.model
-    try:
-        theta = m.params.validate(m.params.default if cfg["at"] is None else cfg["at"])
-    except ValueError as e:
-        raise ConfigError(f"{sid}.at", str(e)) from None
+    theta = theta_at(ctx, cfg, sid)
     checks = [("spp", cfg["spp"] >= 1, "a positive integer"), ("fd_step", cfg["fd_step"] > 0, "a step > 0"),
               ("fd_rounds", cfg["fd_rounds"] >= 3, "an integer >= 3 (a standard error needs 3 rounds)"),
               ("confirm_rounds", cfg["confirm_rounds"] >= 3, "an integer >= 3"),

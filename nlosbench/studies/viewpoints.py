@@ -27,7 +27,7 @@ from ..io import read_csv, write_csv, write_exr, write_png
 from ..records import RecordLog
 from ..schema import ConfigError, Field
 from .camera import VIEW_KEYS, CameraRig, score_cells, unit_axes, view_scores, viewpoint_information
-from .context import RunContext
+from .context import RunContext, theta_at
 from .estimate import Estimate, pixels
 from .plots import heat_maps
 
@@ -96,10 +96,7 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     Casts one ray (the default target), renders nothing."""
     sid = cfg.get("id") or NAME
     m = ctx.model
-    try:
-        theta = m.params.validate(m.params.default if cfg["at"] is None else cfg["at"])
-    except ValueError as e:
-        raise ConfigError(f"{sid}.at", str(e)) from None
+    theta = theta_at(ctx, cfg, sid)
     if cfg["spp"] < 1:
         raise ConfigError(f"{sid}.spp", f"expected a positive integer, got {cfg['spp']}")
     if cfg["fd_rounds"] < 2:
