@@ -1,6 +1,7 @@
 """Committed runs that estimate the same CRLB by independent routes agree: a two-sided 5 % test on the log scale,
 each side's standard error read from its one-sided confidence ends at their stated level (the half-width over the
-normal quantile, the wider side). The routes: the decisive curve's quoted CRLB at 1.3 m (the bound service's `at`,
+normal quantile, the wider side; the ends are Student-t, so this overstates the SE: the test errs lenient).
+The routes: the decisive curve's quoted CRLB at 1.3 m (the bound service's `at`,
 the curve's sets as pilot, common seeds) against the reference FD rounds of curve_references and fisher_maps_nlos
 (independent rounds, a seed per stencil)."""
 import csv

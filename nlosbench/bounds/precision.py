@@ -635,7 +635,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         for R, win in sorted({(now[i], star[i][1].window) for i in todo}, key=lambda g: (g[0], repr(g[1]))):
             idx = np.array([i for i in todo if (now[i], star[i][1].window) == (R, win)])
             run(idx, R, R0, k, win, {int(i): star[int(i)][1].tested for i in idx})
-        grid_done = max(grid_done, max(now.values()))
+        grid_done = max(grid_done, max(now[i] for i in todo))  # the admitted θ* only
         for i in todo:
             st.notes[i] = (f"met at look {k}" if worst(i) <= goal[i] else f"not met after look {k}") + (
                 " (exploratory)" if "exploratory" in st.notes[i] else "")
