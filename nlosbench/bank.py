@@ -461,6 +461,9 @@ class RenderBank:
             else:
                 out[r] = hit
                 self._ask(r, hit, 0)
+        # grouped by θ (stable): a model writes θ into its scene only when θ changes (a mesh's update rebuilds its
+        # acceleration structure, which costs as much as a small render), so R replicates of a θ pay it once
+        todo.sort(key=lambda r: r.theta)
         for r, imgs, renders in self._tasks(render_task, [(r, [r]) for r in todo], desc):
             out[r] = imgs[0]
             self._keep(r, imgs[0], renders)

@@ -121,18 +121,19 @@ def fd_jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: Gradi
     lo, hi = model.params.lower, model.params.upper
     out = []
     for j in idx:
+        plus, minus = t.copy(), t.copy()
+        plus[j] = min(t[j] + xi[j], hi[j])
+        minus[j] = max(t[j] - xi[j], lo[j])
+        if plus[j] - minus[j] <= 0:
+            raise ValueError(f"FD step for {model.params.names[j]!r} leaves no room inside Θ")
+        seeds = [derive(seed, "fd", j, r) for r in range(settings.rounds)]
+        # every round's θ + ξ, then every round's θ − ξ: the scene is written twice, not twice per round
+        P = [model.render(plus, spp, s).double() for s in seeds]
+        M = [model.render(minus, spp, s if settings.crn else derive(seed, "fd-independent", j, r)).double()
+             for r, s in enumerate(seeds)]
         acc = None
-        for r in range(settings.rounds):
-            s = derive(seed, "fd", j, r)
-            plus, minus = t.copy(), t.copy()
-            plus[j] = min(t[j] + xi[j], hi[j])
-            minus[j] = max(t[j] - xi[j], lo[j])
-            if plus[j] - minus[j] <= 0:
-                raise ValueError(f"FD step for {model.params.names[j]!r} leaves no room inside Θ")
-            s_minus = s if settings.crn else derive(seed, "fd-independent", j, r)
-            d = (model.render(plus, spp, s).double() - model.render(minus, spp, s_minus).double()) / (
-                plus[j] - minus[j]
-            )
+        for p_r, m_r in zip(P, M):
+            d = (p_r - m_r) / (plus[j] - minus[j])
             acc = d if acc is None else acc + d
         out.append((acc / settings.rounds).float())
     return torch.stack(out)
