@@ -301,6 +301,43 @@ class RenderBank:
         return self.images([self.request(t, spp, purpose, common, replicate) for t in _points(thetas)],
                            desc or f"{purpose} renders")
 
+    def sets(self, thetas, spp: int, purpose: str, replicates: range, common: bool = False,
+             desc: str | None = None) -> torch.Tensor:
+        """Images (R, N, H, W, C) float32 of thetas (N,) or (N, P) in the R render sets `replicates` of (purpose,
+        spp): `at` for each replicate, asked for in one list so that each θ's R renders are made one after the
+        other (the scene is written once per θ).
+
+        Parameters
+        ----------
+        thetas : array_like
+            N points in parameter units, (N, P), or (N,) for a one-parameter model.
+        spp : int
+            Samples per pixel.
+        purpose : str
+            The render sets' purpose.
+        replicates : range
+            The replicate indices r of the sets, R of them.
+        common : bool, default False
+            Every θ of a set gets the set's common seed (common random numbers across θ).
+        desc : str, optional
+            The progress label (default: "<purpose> renders").
+
+        Returns
+        -------
+        torch.Tensor
+            The images (R, N, H, W, C) float32: [r, i] is θ_i in set replicates[r].
+
+        Examples
+        --------
+        >>> bank = nb.RenderBank(nb.scenes.get("blob2d"), seed=0)
+        >>> bank.sets([[0.4, 0.5], [0.6, 0.5]], spp=4, purpose="demo", replicates=range(3)).shape
+        torch.Size([3, 2, 24, 24, 1])
+        """
+        pts = _points(thetas)
+        imgs = self.images([self.request(t, spp, purpose, common, r) for r in replicates for t in pts],
+                           desc or f"{purpose} renders")
+        return imgs.reshape((len(replicates), len(pts)) + tuple(imgs.shape[1:]))
+
     def jacobians_at(self, thetas, spp: int, step: float, purpose: str, common: bool = False, replicate: int = 0,
                      rounds: int = 1, desc: str | None = None, method: str = "fd", ad: dict | None = None
                      ) -> torch.Tensor:

@@ -132,7 +132,7 @@ def fd_jacobian(model: ForwardModel, theta, spp: int, seed: int, settings: Gradi
         M = [model.render(minus, spp, s if settings.crn else derive(seed, "fd-independent", j, r)).double()
              for r, s in enumerate(seeds)]
         acc = None
-        for p_r, m_r in zip(P, M):
+        for p_r, m_r in zip(P, M, strict=True):
             d = (p_r - m_r) / (plus[j] - minus[j])
             acc = d if acc is None else acc + d
         out.append((acc / settings.rounds).float())

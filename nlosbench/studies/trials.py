@@ -468,11 +468,8 @@ def run(ctx, cfg: dict) -> dict:
         trials = make_bayes_trials(p.thetas, p.settings, p.noises, cleans, tseed, p.budget, cfg["traces"],
                                    bank_grid, grids)
     else:
-        cleans = {}
-        for c in range(p.clusters):
-            for i, img in enumerate(ctx.bank.at(p.thetas, p.n_eff // p.clusters, TRUTH, replicate=c,
-                                                desc=f"clean images (replicate {c})")):
-                cleans[i, c] = img
+        sets = ctx.bank.sets(p.thetas, p.n_eff // p.clusters, TRUTH, range(p.clusters), desc="clean images")
+        cleans = {(i, c): sets[c, i] for c in range(p.clusters) for i in range(len(p.thetas))}
         for i in range(len(p.thetas)):
             mean = sum(cleans[i, c] for c in range(p.clusters)) / p.clusters
             # a transient capture (scan_y, scan_x, T, C) goes in as T·C channels of its scan grid

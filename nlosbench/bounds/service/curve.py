@@ -237,8 +237,7 @@ class Curves(RenderSets):
                          f"and Poisson noise, not {type(noise).__name__}", lower=-math.inf, upper=math.inf,
                          point=math.nan, extra={"prior_variance": math.nan, "halved": math.nan})
         if isinstance(noise, Poisson):
-            Y = torch.stack([self.bank.at(T, spp, PURPOSE + "-weight", replicate=r,
-                                          desc=f"Poisson weight renders (replicate {r})") for r in range(R)]).double()
+            Y = self.bank.sets(T, spp, PURPOSE + "-weight", range(R), desc="Poisson weight renders").double()
             stat = bhattacharyya_ustat(Xd.reshape(R, len(T), -1).numpy(), Y.reshape(R, len(T), -1).numpy(),
                                        noise.scale, self.group)
             kind = "bhattacharyya"

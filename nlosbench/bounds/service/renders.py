@@ -74,10 +74,7 @@ class RenderSets:
         """
         _check(seeds, R)
         pts = np.asarray(points, dtype=np.float64).reshape(-1, self.params.dim)
-        sets = range(first, first + R)
-        reqs = [self.bank.request(t, spp, PURPOSE, seeds == "common", r) for r in sets for t in pts]
-        imgs = self.bank.images(reqs, desc)
-        return imgs.reshape((R, len(pts)) + tuple(imgs.shape[1:]))
+        return self.bank.sets(pts, spp, PURPOSE, range(first, first + R), seeds == "common", desc)
 
     def _stencils(self, thetas: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
         """FD stencil points (T, P, 2, P): θ ± ξ e_j clipped into Θ (one-sided at its edge), and their
