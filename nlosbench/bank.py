@@ -498,13 +498,19 @@ class RenderBank:
             else:
                 out[r] = hit
                 self._ask(r, hit, 0)
-        # grouped by θ (stable): a model writes θ into its scene only when θ changes (a mesh's update rebuilds its
-        # acceleration structure, which costs as much as a small render), so R replicates of a θ pay it once
-        todo.sort(key=lambda r: r.theta)
-        for r, imgs, renders in self._tasks(render_task, [(r, [r]) for r in todo], desc):
-            out[r] = imgs[0]
-            self._keep(r, imgs[0], renders)
-            self._ask(r, imgs[0], renders)
+        # one task per θ: a model writes θ into its scene only when θ changes (a mesh's update rebuilds its
+        # acceleration structure, which costs as much as a small render), so R replicates of a θ pay it once,
+        # whichever worker renders them
+        groups: dict[tuple, list[Request]] = {}
+        for r in todo:
+            groups.setdefault(r.theta, []).append(r)
+        for theta, imgs, renders in self._tasks(render_task, list(groups.items()), desc):
+            group = groups[theta]
+            for i, (r, img) in enumerate(zip(group, imgs, strict=True)):
+                made = renders // len(group) + (i < renders % len(group))  # the task's renders, one per image
+                out[r] = img
+                self._keep(r, img, made)
+                self._ask(r, img, made)
         return torch.stack([out[r] for r in requests])
 
     def jacobians(self, requests: Sequence[JacobianRequest], desc: str = "FD Jacobians") -> torch.Tensor:
