@@ -37,6 +37,7 @@ under-states the SE by up to √C (×1.55 measured on the Π hallway's F). The g
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -173,23 +174,59 @@ def pixel_terms(x: np.ndarray, w) -> tuple[np.ndarray, np.ndarray]:
     return per, w * ((S[None] - x) ** 2 - (Q[None] - x * x)) / ((R - 1) * (R - 2))
 
 
-def sum_terms(per: np.ndarray, lo: np.ndarray, R: int, group: int = 1
+def pair_squares(xs: Sequence[np.ndarray], coefs: Sequence[float], w, group: int = 1) -> np.ndarray:
+    """Q_m = Σ_{r≠s} H_rs² per group (k, M) of the kernel H_rs = Σ_j coef_j Σ_{ω∈m} w_ω x_j,r,ω x_j,s,ω: a linear
+    combination of per-value statistics over the same R replicates (xs: arrays (R, k, N); w scalar or (k, N)), each
+    group the `group` consecutive values that share path samples. With y_r the group's J·C values of replicate r and
+    ω their weights coef_j·w_c, H_rs = Σ_a ω_a y_ra y_sa, so Σ_{r,s} H_rs² = Σ_ab ω_a ω_b (Σ_r y_ra y_rb)² and Q is
+    that less Σ_r H_rr² (memory (J·C)² per group, whatever R). The square part of `sum_terms`' unbiased variance."""
+    R, k, N = xs[0].shape
+    C = check_group(group, N)
+    y = np.concatenate([x.reshape(R, k, N // C, C) for x in xs], axis=-1)  # (R, k, M, J·C)
+    wv = np.broadcast_to(np.asarray(w, dtype=np.float64), (k, N)).reshape(k, N // C, C)
+    om = np.concatenate([c * wv for c in coefs], axis=-1)  # (k, M, J·C)
+    P = np.einsum("rkma,rkmb->kmab", y, y)
+    diag = np.einsum("rkma,kma->rkm", y * y, om)  # H_rr
+    return np.einsum("kmab,kma,kmb->km", P * P, om, om) - (diag * diag).sum(axis=0)
+
+
+def sum_terms(per: np.ndarray, lo: np.ndarray, R: int, group: int = 1, q: np.ndarray | None = None
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(est (k,), loo (R, k), se (k,), df (k,)) of a sum over independent groups of values of per-value
     statistics per (k, N) with leave-one-out values lo (R, k, N): each group of `group` consecutive values
-    (a pixel's channels, N = M·group) summed first, se from the per-group jackknife variances summed,
-    Satterthwaite's degrees of freedom over the M groups; NaN se for R < 3. Linear in (per, lo), so a contrast of
-    two statistics over the same replicates (paired) is `sum_terms(per_b − c·per_a, lo_b − c·lo_a, R, group)`."""
+    (a pixel's channels, N = M·group) summed first, se² the sum over the M groups of each group's variance estimate
+    v_m, Satterthwaite's degrees of freedom from the per-group jackknife variances; NaN se for R < 3. Linear in
+    (per, lo, the kernel), so a contrast of two statistics over the same replicates (paired) is
+    `sum_terms(per_b − c·per_a, lo_b − c·lo_a, R, group, pair_squares([xa, xb], [−c, 1], w, group))`.
+
+    v_m: with q (the group's Q = Σ_{r≠s} H_rs², `pair_squares`) and R ≥ 4, the unbiased estimate of Var U_m
+    (module docstring: U_m² less the degree-4 U-statistic of θ_m²); else (R = 3, or no q) the delete-one jackknife,
+    conservative where the noise × noise part dominates. The per-group v_m may be < 0; their total is used where
+    it is > 0, and where it is not (rare: signal and noise both tiny beside the spread of the estimate) the
+    jackknife total is."""
     est = per.sum(axis=1)
     if R < 3:
         nan = np.full(est.shape, math.nan)
         return est, np.empty((0,) + est.shape), nan, nan
     lo = grouped(lo, group)
-    v = (R - 1) / R * ((lo - lo.mean(axis=0)) ** 2).sum(axis=0)  # per-group jackknife variances (k, M)
-    tot = v.sum(axis=1)
+    jack = (R - 1) / R * ((lo - lo.mean(axis=0)) ** 2).sum(axis=0)  # per-group jackknife variances (k, M)
+    tot = jack.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        df = np.where(tot > 0, tot**2 / ((v * v).sum(axis=1) / (R - 1)), R - 1.0)
+        df = np.where(tot > 0, tot**2 / ((jack * jack).sum(axis=1) / (R - 1)), R - 1.0)
+    if q is not None and R >= 4:
+        unbiased = group_variances(grouped(per, group), lo, q, R).sum(axis=1)
+        tot = np.where(unbiased > 0, unbiased, tot)
     return est, lo.sum(axis=2), np.sqrt(tot), df
+
+
+def group_variances(u: np.ndarray, lo: np.ndarray, q: np.ndarray, R: int) -> np.ndarray:
+    """Unbiased estimates v_m (k, M) of Var U_m for per-group U-statistics u (k, M) over R ≥ 4 replicates, from their
+    leave-one-outs lo (R, k, M) and Q_m = Σ_{r≠s} H_rs² (`pair_squares`): with S = R(R − 1)·U and
+    a_r = Σ_{s≠r} H_rs = (S − (R − 1)(R − 2)·lo_r)/2, v = U² − (S² − 4 Σ_r a_r² + 2Q)/(R(R − 1)(R − 2)(R − 3))
+    (module docstring). May be < 0."""
+    S = R * (R - 1) * u
+    a = 0.5 * (S[None] - (R - 1) * (R - 2) * lo)
+    return u * u - (S * S - 4.0 * (a * a).sum(axis=0) + 2.0 * q) / (R * (R - 1) * (R - 2) * (R - 3))
 
 
 def grouped(x: np.ndarray, group: int) -> np.ndarray:
@@ -231,8 +268,9 @@ def pixel_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -> U
     step = max(1, chunk_bytes // (8 * R * N * 3))
     for k0 in range(0, K, step):
         k1 = min(K, k0 + step)
-        per, lo = pixel_terms(X[:, k0:k1].astype(np.float64), float(weights) if W is None else W[k0:k1])
-        e, left, s, d = sum_terms(per, lo, R, group)
+        x, w = X[:, k0:k1].astype(np.float64), float(weights) if W is None else W[k0:k1]
+        per, lo = pixel_terms(x, w)
+        e, left, s, d = sum_terms(per, lo, R, group, pair_squares([x], [1.0], w, group) if R >= 4 else None)
         est[k0:k1], se[k0:k1], df[k0:k1] = e, s, d
         if R >= 3:
             loo[:, k0:k1], terms[:, k0:k1] = left, grouped(lo, group)
