@@ -11,7 +11,7 @@ the derivative on the side of θ* that holds the edge).
 Stages. A `Stage` holds R independent FD rounds at one step ξ in one or more *variants*: "central"
 (X(θ+ξ) − X(θ−ξ))/2ξ and, where the θ* render shares each round's seed (common random numbers), "forward"
 (X(θ+ξ) − X(θ))/ξ and "backward" (X(θ) − X(θ−ξ))/ξ. Stages at ξ, ξ/2, ξ/4 … use the same seeds in each round
-(paired), so F(ξ/2) − c·F(ξ) is a per-pixel contrast with a jackknife SE (`ustat.sum_terms`).
+(paired), so F(ξ/2) − c·F(ξ) is a per-pixel contrast with its own SE (`ustat.sum_terms`).
 
 The rule (`converge`, used by the bound service):
 * halve ξ while, for some parameter, the paired one-sided upper limit of the central F(ξ/2)/F(ξ) exceeds
@@ -33,7 +33,8 @@ The rule (`converge`, used by the bound service):
   the jackknife limits of trace(F⁻¹). The extremes over candidates cost little coverage where the candidates share
   their renders: on spot_rgb (common seeds, one halving) the seven lower-end candidates are one statistic
   (correlation 1.000) and the CRLB's lower end missed 3.55 % of 2000 seeds at a nominal 5 %, the finest central F
-  alone 3.65 %; what remains is the jackknife's (`ustat`: at R = 3 it counts the noise × noise variance 4×);
+  alone 3.65 %; what remains is the jackknife's (`ustat`: at R = 3 it counts the noise × noise variance 4×; from
+  R = 4 on the SE is the unbiased one and the ends miss ≈ 5 %);
 * one FD step only (no check asked for): the lower end is labelled "not a confidence limit: FD step not
   checked"; AD gradients (step NaN) and an F given directly are taken as they are;
 * not converged: the lower end is labelled "not a confidence limit: FD step not converged (F ×r ± se from ξ

@@ -103,7 +103,8 @@ def bhattacharyya_ustat(X, Y, scale: float, group: int = 1) -> UStat:
     """Upper estimates of the pairwise Bhattacharyya distances b[i, j] = ½ s Σ_ω (√L_i − √L_j)² of Poisson
     observations (photon scale s) from R replicate renders X (R, G, N) and weight renders Y of every point,
     independent of X: (G, N), one render, or (R, G, N), one per replicate. est (G, G), loo (R, G, G), se and df
-    (G, G) (the per-pixel jackknife, each pixel's `group` channels summed first, plus the zero-pixel term's).
+    (G, G) (per pixel group, `ustat.sum_terms`, plus the zero-pixel term's jackknife: with one weight render Y the
+    unbiased variance for R ≥ 4, with paired weight renders the jackknife, which carries their noise).
 
     (√L_j − √L_i)² = (L_j − L_i)²·w with w = 1/(√L_i + √L_j)². The U-statistic of (L_j − L_i)² over the
     replicates is unbiased; w is taken from Ȳ, the mean of the weight renders, independent of X. E√Ȳ ≤ √L
