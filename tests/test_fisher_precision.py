@@ -27,13 +27,14 @@ def _exact_crlb(x: float) -> float:
 
 
 def test_both_ends_cover_the_exact_crlb_whatever_the_stopping():
-    """blob2d's x (rendering noise 4 at 16 spp, AWGN σ = 0.3), θ = 0.45 and 0.75 per run, precision 0.25 (K = 3
-    looks, each end at one-sided 1 − 0.05/3), 100 seeds: 200 (θ, seed) intervals, independent (the bank derives each
-    θ's FD seeds from θ). The lower end lies at or below the exact CRLB, and the upper end at or above it, each in
-    ≥ 0.95 − 3·√(0.95·0.05/200) = 0.904 of them, and the runs stop at different looks (the rule is exercised).
-    The FD step (1 cm, halved once) smooths blob2d's Gaussian (width 15 cm) by ≈ (ξ/w)²/6 < 0.1 % of F.
-    Measured (seeds 0–99): lower 1.00, upper 0.99; looks 1/2/3: 74/68/58. (As for `at`, this toy's fixed-R
-    intervals are themselves conservative; the guarantee is the proof in `bounds.precision`.)"""
+    """blob2d's x (rendering noise 4 at 16 spp, AWGN σ = 0.3), θ = 0.45 and 0.75 per run, precision 0.25 (K = 2
+    looks: the pilot's ends at one-sided 1 − 0.05/20, the fresh look's at 1 − 0.95·0.05), 100 seeds: 200 (θ, seed)
+    intervals, independent (the bank derives each θ's FD seeds from θ). The lower end lies at or below the exact
+    CRLB, and the upper end at or above it, each in ≥ 0.95 − 3·√(0.95·0.05/200) = 0.904 of them, and most runs make
+    the fresh look (the rule is exercised). The FD step (1 cm, halved once) smooths blob2d's Gaussian (width 15 cm)
+    by ≈ (ξ/w)²/6 < 0.1 % of F. Measured (seeds 0–99): lower 0.95, upper 0.965; every run made the fresh look (with
+    3 looks each at 1 − 0.05/3 and nested rounds before: 1.00, 0.99). The guarantee is the proof in
+    `bounds.precision`."""
     thetas = [0.45, 0.75]
     exact = np.array([_exact_crlb(x) for x in thetas])
     low, up, looks = [], [], []
@@ -47,7 +48,7 @@ def test_both_ends_cover_the_exact_crlb_whatever_the_stopping():
             looks.append(fp.precise[0].precision.looks)
     need = 0.95 - 3 * math.sqrt(0.95 * 0.05 / len(low))
     assert np.mean(low) >= need and np.mean(up) >= need, (np.mean(low), np.mean(up))
-    assert len(set(looks)) >= 2, np.bincount(looks)
+    assert set(looks) <= {1, 2} and np.mean(np.array(looks) == 2) > 0.5, np.bincount(looks)
 
 
 def _central(bank: RenderBank, theta: np.ndarray, step: float, r: int) -> torch.Tensor:

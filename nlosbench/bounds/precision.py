@@ -204,8 +204,9 @@ class Precision:
     look k 1 − α_k: `spending`); pixel_samples: charged to the whole call (every θ*; spp × H × W per render
     requested, however served: what the budget decides on);
     rendered: the pixel-samples of those renders this process made (0 when all were cached); extra_sets /
-    extra_pixel_samples: predicted fresh sets and pixel-samples still needed to meet it (0 when met, +inf when no
-    number of sets is predicted to); note: why it stopped; budget: the pixel-samples the call was capped at (the
+    extra_pixel_samples: the fresh sets and pixel-samples of one more look of its own predicted to meet it, from the
+    reported look's data (0 when met, +inf when no number of sets is predicted to); note: why it stopped; budget: the
+    pixel-samples the call was capped at (the
     budget given, else the default ceiling `ceiling`)."""
 
     target: float
