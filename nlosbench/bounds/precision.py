@@ -206,8 +206,7 @@ class Precision:
     rendered: the pixel-samples of those renders this process made (0 when all were cached); extra_sets /
     extra_pixel_samples: the fresh sets and pixel-samples of one more look of its own predicted to meet it, from the
     reported look's data (0 when met, +inf when no number of sets is predicted to); note: why it stopped; budget: the
-    pixel-samples the call was capped at (the
-    budget given, else the default ceiling `ceiling`)."""
+    pixel-samples the call was capped at (the budget given, else the default ceiling `ceiling`)."""
 
     target: float
     reached: dict[str, float]
@@ -515,9 +514,9 @@ def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float,
     """The cheapest (ladder count in (above, cap], FD window) predicted to meet `target` with a margin (to reach
     AIM × target): per window the smallest count that reaches it, then the least renders, count × set_cost(stages
     in the window, Δ tested) (None: the count alone). Coarser windows have less FD noise but may not be shown
-    converged; with `subset`, the look tests
-    only the Δ `tested_deltas` keeps; a window may halve up to `most` times (`Fit.windows`). Window and Δ are
-    functions of the pilot alone (the coverage proof in the module docstring needs nothing more)."""
+    converged; with `subset`, the look tests only the Δ `tested_deltas` keeps; a window may halve up to `most` times
+    (`Fit.windows`). Window and Δ are functions of the looks before (the coverage proof in the module docstring needs
+    nothing more)."""
     tested = tested_deltas(raws, target, level) if subset and "hcr" in kinds else None
     fits = [Fit.of(r if tested is None else r.subset(tested)) for r in raws]
     n_tested = None if tested is None else int(tested.sum())
