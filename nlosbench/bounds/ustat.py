@@ -233,12 +233,17 @@ def sum_terms(per: np.ndarray, lo: np.ndarray, R: int, group: int = 1, q: np.nda
 
 def group_variances(u: np.ndarray, lo: np.ndarray, q: np.ndarray, R: int) -> np.ndarray:
     """Unbiased estimates v_m (k, M) of Var U_m for per-group U-statistics u (k, M) over R ≥ 4 replicates, from their
-    leave-one-outs lo (R, k, M) and Q_m = Σ_{r≠s} H_rs² (`pair_squares`): with S = R(R − 1)·U and
-    a_r = Σ_{s≠r} H_rs = (S − (R − 1)(R − 2)·lo_r)/2, v = U² − (S² − 4 Σ_r a_r² + 2Q)/(R(R − 1)(R − 2)(R − 3))
-    (module docstring). May be < 0."""
-    S = R * (R - 1) * u
-    a = 0.5 * (S[None] - (R - 1) * (R - 2) * lo)
-    return u * u - (S * S - 4.0 * (a * a).sum(axis=0) + 2.0 * q) / (R * (R - 1) * (R - 2) * (R - 3))
+    leave-one-outs lo (R, k, M) and Q_m = Σ_{r≠s} H_rs² (`pair_squares`): v = U² − (S² − 4 Σ_r a_r² + 2Q)/D with
+    D = R(R − 1)(R − 2)(R − 3) (module docstring), computed centred: with S = R(R − 1)·U, a_r = Σ_{s≠r} H_rs =
+    (S − (R − 1)(R − 2)·lo_r)/2 and a'_r = a_r − (R − 1)U = (R − 1)(R − 2)(U − lo_r)/2 (Σ a'_r = 0),
+
+        v = (4 Σ_r a'_r² − 2 (Q − R(R − 1) U²)) / D,
+
+    so no U² of the signal is subtracted from itself (U² less an estimate of θ² would lose the variance to rounding
+    where the signal dominates). May be < 0."""
+    dev = lo - u[None]
+    return ((R - 1) ** 2 * (R - 2) ** 2 * (dev * dev).sum(axis=0) - 2.0 * (q - R * (R - 1) * u * u)) / (
+        R * (R - 1) * (R - 2) * (R - 3))
 
 
 def grouped(x: np.ndarray, group: int) -> np.ndarray:
