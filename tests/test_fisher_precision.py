@@ -27,13 +27,14 @@ def _exact_crlb(x: float) -> float:
 
 
 def test_both_ends_cover_the_exact_crlb_whatever_the_stopping():
-    """blob2d's x (rendering noise 4 at 16 spp, AWGN σ = 0.3), θ = 0.45 and 0.75 per run, precision 0.25 (K = 3
-    looks, each end at one-sided 1 − 0.05/3), 100 seeds: 200 (θ, seed) intervals, independent (the bank derives each
-    θ's FD seeds from θ). The lower end lies at or below the exact CRLB, and the upper end at or above it, each in
-    ≥ 0.95 − 3·√(0.95·0.05/200) = 0.904 of them, and the runs stop at different looks (the rule is exercised).
-    The FD step (1 cm, halved once) smooths blob2d's Gaussian (width 15 cm) by ≈ (ξ/w)²/6 < 0.1 % of F.
-    Measured (seeds 0–99): lower 1.00, upper 0.99; looks 1/2/3: 74/68/58. (As for `at`, this toy's fixed-R
-    intervals are themselves conservative; the guarantee is the proof in `bounds.precision`.)"""
+    """blob2d's x (rendering noise 4 at 16 spp, AWGN σ = 0.3), θ = 0.45 and 0.75 per run, precision 0.25 (K = 2
+    looks: the pilot's ends at one-sided 1 − 0.05/20, the fresh look's at 1 − 0.95·0.05), 100 seeds: 200 (θ, seed)
+    intervals, independent (the bank derives each θ's FD seeds from θ). The lower end lies at or below the exact
+    CRLB, and the upper end at or above it, each in ≥ 0.95 − 3·√(0.95·0.05/200) = 0.904 of them, and most runs make
+    the fresh look (the rule is exercised). The FD step (1 cm, halved once) smooths blob2d's Gaussian (width 15 cm)
+    by ≈ (ξ/w)²/6 < 0.1 % of F. Measured (seeds 0–99): lower 0.95, upper 0.965; every run made the fresh look (with
+    3 looks each at 1 − 0.05/3 and nested rounds before: 1.00, 0.99). The guarantee is the proof in
+    `bounds.precision`."""
     thetas = [0.45, 0.75]
     exact = np.array([_exact_crlb(x) for x in thetas])
     low, up, looks = [], [], []
@@ -47,7 +48,7 @@ def test_both_ends_cover_the_exact_crlb_whatever_the_stopping():
             looks.append(fp.precise[0].precision.looks)
     need = 0.95 - 3 * math.sqrt(0.95 * 0.05 / len(low))
     assert np.mean(low) >= need and np.mean(up) >= need, (np.mean(low), np.mean(up))
-    assert len(set(looks)) >= 2, np.bincount(looks)
+    assert set(looks) <= {1, 2} and np.mean(np.array(looks) == 2) > 0.5, np.bincount(looks)
 
 
 def _central(bank: RenderBank, theta: np.ndarray, step: float, r: int) -> torch.Tensor:
@@ -58,13 +59,14 @@ def _central(bank: RenderBank, theta: np.ndarray, step: float, r: int) -> torch.
 
 
 def test_fresh_rounds_go_only_where_the_target_is_unmet_and_the_maps_are_the_reported_looks():
-    """blob2d's x (rendering noise 2), seed 2, precision 0.1: the θ that meets it at the pilot gets no FD round
+    """blob2d's x (rendering noise 2), seed 2, precision 0.145 (the pilot, its ends at 1 − α/20, reaches 0.134 at
+    0.35 and 0.156 at 0.75): the θ that meets it at the pilot gets no FD round
     beyond the pilot's R0 = 3 and keeps them; the other is reported from fresh rounds R0 … R0 + R − 1 only, and its
     rounds, maps and CRLB of θ are those rounds' (the same stencil renders read back from the bank, no render; the map
     sums to the unbiased F of its finest step: Σ_r≠s ⟨J_r, J_s⟩ / (R(R − 1)σ²))."""
     bank = RenderBank(_blob(2.0), seed=2)
     svc = BoundService(bank, [nb.noise.AWGN(SIGMA)])
-    fps = svc.fisher([[0.35], [0.75]], 16, precision=0.1, **FD)
+    fps = svc.fisher([[0.35], [0.75]], 16, precision=0.145, **FD)
     met = [fp for fp in fps if fp.precise[0].precision.looks == 1]
     fresh = [fp for fp in fps if fp.precise[0].precision.looks > 1]
     assert met and fresh, [fp.precise[0].precision for fp in fps]
@@ -75,7 +77,7 @@ def test_fresh_rounds_go_only_where_the_target_is_unmet_and_the_maps_are_the_rep
         assert seeds == {bank.seed("fisher-stencil", 16, fp.theta, r) for r in range(R0)}, seeds
     for fp in fresh:
         R = fp.precise[0].precision.fresh_sets
-        assert fp.rounds.shape[0] == R >= 3
+        assert fp.rounds.shape[0] == R >= 4
         before = bank.renders
         J = torch.stack([_central(bank, fp.theta, fp.step, r) for r in range(R0, R0 + R)])
         assert bank.renders == before

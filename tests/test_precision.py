@@ -93,19 +93,17 @@ def _coverage(model, theta: float, sigma: float, exact: tuple[float, float], see
 
 @pytest.mark.parametrize("case", ["edge1d-gauss", "edge1d-t3", "blob2d-x"])
 def test_both_ends_cover_the_exact_bound_whatever_the_stopping(case):
-    """Precision 0.25 (K = 3 looks, each end at one-sided 1 − 0.05/3), 200 seeds per case: the quoted lower ends of
-    the HCR and the CRLB lie at or below the exact bound, and their upper ends at or above it, each in
-    ≥ 0.95 − 3·√(0.95·0.05/200) = 0.904 of runs, and the runs stop at different looks (the rule is exercised).
+    """Precision 0.25 (K = 2 looks: the pilot's ends at one-sided 1 − 0.05/20, the fresh look's at 1 − 0.95·0.05),
+    200 seeds per case: the quoted lower ends of the HCR and the CRLB lie at or below the exact bound, and their upper
+    ends at or above it, each in ≥ 0.95 − 3·√(0.95·0.05/200) = 0.904 of runs, and most runs make the fresh look (the
+    rule is exercised).
     edge1d (AWGN σ = 0.05, exact HCR = CRLB = σ²/64², synthetic rendering noise 0.3 at 16 spp, Gaussian or
     Student-t₃ of the same variance; its image jumps in θ); blob2d's x (width 0.15, AWGN σ = 0.3, rendering noise 4
     at 16 spp; exact CRLB from the noiseless Jacobian, exact HCR over the tested Δ from noiseless renders).
-    Measured (seeds 0–199), lower ends HCR / CRLB, upper ends HCR / CRLB, runs stopping at look 0/1/2: edge1d Gaussian
-    0.975 / 0.975, 0.95 / 0.95, 79/108/13; t₃ 0.97 / 0.97, 0.99 / 0.99, 129/65/6; blob2d 0.995 / 0.995,
-    0.995 / 0.995, 76/103/21 (the HCR's lower end holds its terms jointly, not Bonferroni over every tested Δ, so
-    more runs meet the target at the pilot: 22/126/52, 42/115/43, 38/112/50 before).
-    The fixed-R intervals of these toys are themselves conservative (edge1d CRLB: 0.98 at a nominal 0.95), so this
-    test alone would not catch uncorrected peeking (0.985 with each look at 0.95); the guarantee is the proof in
-    `bounds.precision`."""
+    Measured (seeds 0–199), lower ends HCR / CRLB, upper ends HCR / CRLB, runs stopping at the pilot / the fresh
+    look: edge1d Gaussian 0.96 / 0.96, 0.95 / 0.95, 9/191; t₃ 0.955 / 0.955, 0.96 / 0.96, 18/182; blob2d
+    0.95 / 0.95, 0.975 / 0.975, 0/200 (with 3 looks each at 1 − 0.05/3 and nested sets before: 0.975–0.995).
+    The guarantee is the proof in `bounds.precision`; this test checks that nothing breaks it in practice."""
     if case.startswith("edge1d"):
         model = nb.scenes.get("edge1d", render_noise=0.3, render_noise_dist=case.split("-")[1])
         sigma, theta, at = 0.05, 0.507, EDGE
@@ -117,31 +115,32 @@ def test_both_ends_cover_the_exact_bound_whatever_the_stopping(case):
     low, up, looks = _coverage(model, theta, sigma, exact, n, **at)
     need = 0.95 - 3 * math.sqrt(0.95 * 0.05 / n)
     assert np.all(low.mean(axis=0) >= need) and np.all(up.mean(axis=0) >= need), (low.mean(axis=0), up.mean(axis=0))
-    assert len(set(looks.tolist())) >= 2, np.bincount(looks)
+    assert set(looks.tolist()) <= {1, 2} and np.mean(looks == 2) > 0.5, np.bincount(looks)
 
 
 def test_a_met_target_adds_no_renders_and_an_unmet_one_adds_fresh_sets():
-    """blob2d's x (rendering noise 2), seed 5: θ* = 0.35 meets precision 0.11 at the pilot (reached 0.097),
-    θ* = 0.75 does not (0.124). θ* = 0.35 gets no render in any fresh set (replicate index ≥ R0) and costs exactly
-    its pilot on top of θ* = 0.75 alone: 3 sets × (θ* + the offsets θ* ± ξ, which are also the first FD stencil +
-    the stencil at ξ/2) = 15 renders; θ* = 0.75 is reported from fresh sets only (the reason names their count)."""
+    """blob2d's x (rendering noise 2), seed 5: θ* = 0.35 meets precision 0.15 at the pilot (reached 0.133 with its
+    ends at 1 − α/20), θ* = 0.75 does not (0.173). θ* = 0.35 gets no render in any fresh set (replicate index ≥ R0)
+    and costs exactly its pilot on top of θ* = 0.75 alone: 3 sets × (θ* + the offsets θ* ± ξ, which are also the
+    first FD stencil + the stencil at ξ/2) = 15 renders; θ* = 0.75 is reported from fresh sets only (the reason
+    names their count)."""
     m, R0 = _blob(2.0), 3
     svc = lambda bank: BoundService(bank, [nb.noise.AWGN(0.3)])  # noqa: E731
     both = RenderBank(m, seed=5)
-    a, b = svc(both).at([[0.35], [0.75]], 16, replicates=R0, precision=0.11, **BLOB)
+    a, b = svc(both).at([[0.35], [0.75]], 16, replicates=R0, precision=0.15, **BLOB)
     assert a.precision.met and a.precision.looks == 1 and a.precision.fresh_sets == 0
     assert not any(both.request([0.35], 16, "bounds", True, r) in both._memo for r in range(R0, R0 + 64))
-    assert b.precision.looks > 1 and b.precision.fresh_sets >= 3
+    assert b.precision.looks > 1 and b.precision.fresh_sets >= 4
     assert both.request([0.75], 16, "bounds", True, R0) in both._memo
     assert f"from {b.precision.fresh_sets} replicates" in b.bounds["hcr"].reason
     alone = RenderBank(m, seed=5)
-    (b1,) = svc(alone).at([[0.75]], 16, replicates=R0, precision=0.11, **BLOB)
+    (b1,) = svc(alone).at([[0.75]], 16, replicates=R0, precision=0.15, **BLOB)
     assert both.renders == alone.renders + R0 * (1 + 2 + 2)
     assert (b1.bounds["hcr"].lower, b1.precision.fresh_sets) == (b.bounds["hcr"].lower, b.precision.fresh_sets)
 
 
 def test_each_theta_is_held_to_its_own_target():
-    """The same two θ* as above (pilot reached 0.097 at 0.35 and 0.124 at 0.75) with a target each, [0.08, 0.2]:
+    """The same two θ* as above (pilot reached 0.133 at 0.35 and 0.173 at 0.75) with a target each, [0.08, 0.2]:
     0.75 meets its 0.2 at the pilot and gets no fresh set, 0.35 misses its 0.08 and gets fresh sets; each record
     carries its own target, and each θ*'s bounds and record are those of a call for it alone with its target as a
     scalar (the sets of one θ* do not depend on the other's)."""
@@ -150,7 +149,7 @@ def test_each_theta_is_held_to_its_own_target():
     a, b = svc(RenderBank(m, seed=5)).at([[0.35], [0.75]], 16, replicates=R0, precision=[0.08, 0.2], **BLOB)
     assert (a.precision.target, b.precision.target) == (0.08, 0.2)
     assert b.precision.met and b.precision.looks == 1 and b.precision.fresh_sets == 0
-    assert a.precision.looks > 1 and a.precision.fresh_sets >= 3
+    assert a.precision.looks > 1 and a.precision.fresh_sets >= 4
     for pt, theta, p in ((a, 0.35, 0.08), (b, 0.75, 0.2)):
         (alone,) = svc(RenderBank(m, seed=5)).at([[theta]], 16, replicates=R0, precision=p, **BLOB)
         assert [(k, v.lower, v.point, v.upper) for k, v in pt.bounds.items()] == [
@@ -160,21 +159,21 @@ def test_each_theta_is_held_to_its_own_target():
 
 
 def test_a_dear_theta_over_the_budget_does_not_stop_the_looks_of_a_cheap_one():
-    """The θ* above with targets ±8 % (0.35) and ±3 % (0.75, many more sets): over budgets between the pilot's
-    cost and what both spend unbounded, the call never spends more than its budget, and at some budget 0.35 meets
-    its target at a second look while 0.75's second look is left out with a note saying its worst case would exceed
-    the budget (measured: 0.98e6 pixel-samples and above; the rule before let one look too dear for the budget stop
-    every θ*'s looks, and 0.35 went unmet there)."""
+    """The θ* above with targets ±8 % (0.35) and ±3 % (0.75, many more sets), 3 looks: over budgets between the
+    pilot's cost and what both spend unbounded, the call never spends more than its budget, and at some budget 0.35
+    meets its target while 0.75's second fresh look is left out with a note saying its worst case would exceed the
+    budget (the rule before let one look too dear for the budget stop every θ*'s looks). 0.35 now meets at its first
+    fresh look (its plan aims at 0.8 × the target), so the look where 0.75 is left out is one 0.35 no longer needs."""
     m, R0 = _blob(2.0), 3
     run = lambda budget: BoundService(RenderBank(m, seed=5), [nb.noise.AWGN(0.3)]).at(  # noqa: E731
-        [[0.35], [0.75]], 16, replicates=R0, precision=[0.08, 0.03], budget=budget, **BLOB)
+        [[0.35], [0.75]], 16, replicates=R0, precision=[0.08, 0.03], budget=budget, looks=3, **BLOB)
     pilot = run(1)[0].precision.pixel_samples
     full = run(None)[0].precision.pixel_samples
     split = []
     for budget in np.geomspace(pilot * 1.2, full, 8)[:-1].astype(int):
         a, b = run(int(budget))
         assert a.precision.pixel_samples <= budget
-        if a.precision.met and a.precision.looks == 3 and "would exceed the budget" in b.precision.note:
+        if a.precision.met and "would exceed the budget" in b.precision.note:
             split.append(budget)
             assert not b.precision.met
     assert split, "no budget admitted the cheap θ*'s look without the dear one's"
@@ -183,9 +182,9 @@ def test_a_dear_theta_over_the_budget_does_not_stop_the_looks_of_a_cheap_one():
 def test_a_look_halves_its_step_beyond_the_pilots_where_the_pilot_saw_an_edge():
     """edge1d 1 mm from a pixel boundary (rendering noise 1, seed 1, AWGN σ = 0.05), ξ = 32 mm, at most 6 halvings,
     ±20 %: the pilot sees F rise from 32 to 16 mm (the edge) and stops at 8 mm, its check passing there from 3 sets;
-    the fresh look starts at 16 mm, finds F still rising to 8 mm (F(ξ/2)/F(ξ) = 1.1 ± 0.001) and halves on to
-    4 mm, past the pilot's finest step, where its check passes: the CRLB's lower end is a confidence limit. A look
-    limited to the pilot's steps ends at 8 mm with that end labelled "not a confidence limit"."""
+    the fresh look starts at 16 mm and halves on past the pilot's finest step until its check passes (measured: its
+    4 sets pass at 1 mm): the CRLB's lower end is a confidence limit. A look limited to the pilot's steps ends at
+    8 mm with that end labelled "not a confidence limit"."""
     kw = dict(replicates=3, test_grid=5, offsets=0, fd_step=0.032, max_halvings=6)
 
     def service():
@@ -195,7 +194,8 @@ def test_a_look_halves_its_step_beyond_the_pilots_where_the_pilot_saw_an_edge():
     assert pilot.bounds["crlb"].reason.endswith("at ξ = 0.016")  # its last check: 16 → 8 mm
     (pt,) = service().at([[0.501]], 16, precision=0.2, **kw)
     crlb = pt.bounds["crlb"]
-    assert pt.precision.fresh_sets > 0 and crlb.reason.endswith("at ξ = 0.008") and not crlb.lower_note, crlb.reason
+    step = float(crlb.reason.rsplit("at ξ = ", 1)[1])
+    assert pt.precision.fresh_sets > 0 and step < 0.008 and not crlb.lower_note, crlb.reason
 
 
 @pytest.mark.parametrize("precision, match", [([0.1, 0.2, 0.3], "one target or one per θ"),
@@ -254,18 +254,18 @@ def test_the_budget_caps_the_pixel_samples_and_the_report_says_what_more_would_c
 
 
 def test_the_budget_is_never_exceeded_and_a_smaller_one_plans_fewer_sets():
-    """blob2d's x, precision 0.06, seed 1, budgets 1, 2, 4 and 8 million pixel-samples: what is spent (the bank's
-    renders × 16 spp × 576 px) stays within each; the smaller budgets cap the plan (fewer fresh sets, target unmet,
-    the next look refused with its worst-case cost), the larger ones meet it."""
+    """blob2d's x, precision 0.06, seed 1, budgets 0.5, 0.6, 0.7 and 2 million pixel-samples: what is spent (the
+    bank's renders × 16 spp × 576 px) stays within each; the smaller budgets cap the plan (fewer fresh sets: measured
+    4, 6, 8 against the 16 planned; target unmet, with the predicted cost to finish), the largest meets it."""
     spent, fresh, met = [], [], []
-    for budget in (10**6, 2 * 10**6, 4 * 10**6, 8 * 10**6):
+    for budget in (5 * 10**5, 6 * 10**5, 7 * 10**5, 2 * 10**6):
         bank = RenderBank(_blob(), seed=1)
         (pt,) = BoundService(bank, [nb.noise.AWGN(0.3)]).at([[0.45]], 16, precision=0.06, budget=budget, **BLOB)
         assert bank.renders * 16 * 576 == pt.precision.pixel_samples <= budget
         spent.append(pt.precision.pixel_samples)
         fresh.append(pt.precision.fresh_sets)
         met.append(pt.precision.met)
-        assert met[-1] or ("exceed the budget" in pt.precision.note and pt.precision.extra_pixel_samples > 0)
+        assert met[-1] or pt.precision.extra_pixel_samples > 0
     assert fresh == sorted(fresh) and fresh[0] < fresh[-1] and not met[0] and met[-1]
 
 

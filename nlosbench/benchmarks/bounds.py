@@ -14,10 +14,10 @@
     where a θ misses) against a uniform plan (the same spp and replicate sets at every θ, raised over the ladder
     3, 4, 6, 8, 12, … until the worst θ meets p; each run counts the distinct renders it uses, through a shared
     disk cache so nothing renders twice). `ratio` = uniform / adaptive pixel-samples, for the same worst-θ
-    precision (the uniform ends at the service's level, the adaptive ones at 1 − α/K). Full mode: the Π hallway
-    at 40 × 30, AWGN σ = 0.025, three NLOS θ whose CRLB spans a decade (1.0, 1.3, 1.6 m), 512 spp, 4 pilot sets,
-    a 12-point test grid, p = 0.5 (the demo's 34-point grid at 96 spp and p = 0.25 would take hours on 2 cores:
-    its NLOS points alone need thousands of 96-spp sets by the service's own prediction); reduced: the Π hallway
+    precision (the uniform ends at the service's level, the adaptive ones with α spent along the looks). Full mode:
+    the Π hallway at 40 × 30, AWGN σ = 0.025, three NLOS θ whose CRLB spans a decade (1.0, 1.3, 1.6 m), 512 spp, 4
+    pilot sets, a 12-point test grid, p = 0.5 (the demo's 34-point grid at 96 spp and p = 0.25 would take hours on 2
+    cores: its NLOS points alone need thousands of 96-spp sets by the service's own prediction); reduced: the Π hallway
     blob2d's x with synthetic rendering noise over 4 θ at p = 0.1 (nearly the same information at every θ: it
     keeps the code running; the gain is measured in full mode);
 (e) `curve_allocation`: the same comparison for a decisive curve (`curve(precision=…)` quoting every grid θ, a target
@@ -99,7 +99,7 @@ def precision_allocation(spec: dict, label: str, thetas, sigma: float, spp: int,
         pixels = adaptive // max(bank.renders * spp, 1)
         adaptive_worst = max(p.precision.worst for p in got)
         uniform = uniform_sets = uniform_worst = None
-        for R in ladder(max_sets, pilot - 1):
+        for R in ladder(max_sets, pilot - 1, least=3):
             b = RenderBank(model, seed=seed, store=store)
             res = BoundService(b, [AWGN(sigma)]).at(pts, spp, replicates=R, **args)
             worst = max(reached(p.bounds[k]) for p in res for k in ("hcr", "crlb"))
@@ -143,7 +143,7 @@ def curve_allocation(spec: dict, label: str, grid, sigma: float, spp: int, targe
         adaptive_met = sum(p.precision.met for p in got)
         uniform = uniform_sets = None
         uniform_met = 0
-        for R in ladder(max_sets, pilot - 1):
+        for R in ladder(max_sets, pilot - 1, least=3):
             b = RenderBank(model, seed=seed, store=store)
             res = BoundService(b, [AWGN(sigma)]).at(grid[:, None], spp, ("hcr", "crlb"), "common", R,
                                                     quote_test_grid(model.params, grid), fd_step=quote_step, **kw)

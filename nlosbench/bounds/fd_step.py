@@ -11,7 +11,7 @@ the derivative on the side of θ* that holds the edge).
 Stages. A `Stage` holds R independent FD rounds at one step ξ in one or more *variants*: "central"
 (X(θ+ξ) − X(θ−ξ))/2ξ and, where the θ* render shares each round's seed (common random numbers), "forward"
 (X(θ+ξ) − X(θ))/ξ and "backward" (X(θ) − X(θ−ξ))/ξ. Stages at ξ, ξ/2, ξ/4 … use the same seeds in each round
-(paired), so F(ξ/2) − c·F(ξ) is a per-pixel contrast with a jackknife SE (`ustat.sum_terms`).
+(paired), so F(ξ/2) − c·F(ξ) is a per-pixel contrast with its own SE (`ustat.sum_terms`).
 
 The rule (`converge`, used by the bound service):
 * halve ξ while, for some parameter, the paired one-sided upper limit of the central F(ξ/2)/F(ξ) exceeds
@@ -33,7 +33,8 @@ The rule (`converge`, used by the bound service):
   the jackknife limits of trace(F⁻¹). The extremes over candidates cost little coverage where the candidates share
   their renders: on spot_rgb (common seeds, one halving) the seven lower-end candidates are one statistic
   (correlation 1.000) and the CRLB's lower end missed 3.55 % of 2000 seeds at a nominal 5 %, the finest central F
-  alone 3.65 %; what remains is the jackknife's (`ustat`: at R = 3 it counts the noise × noise variance 4×);
+  alone 3.65 %; what remains is the jackknife's (`ustat`: at R = 3 it counts the noise × noise variance 4×; from
+  R = 4 on the SE is the unbiased one and the ends miss ≈ 5 %);
 * one FD step only (no check asked for): the lower end is labelled "not a confidence limit: FD step not
   checked"; AD gradients (step NaN) and an F given directly are taken as they are;
 * not converged: the lower end is labelled "not a confidence limit: FD step not converged (F ×r ± se from ξ
@@ -51,7 +52,7 @@ import numpy as np
 import torch
 
 from nlosbench.bounds.unbiased_fisher import unbiased_fisher
-from nlosbench.bounds.ustat import UStat, grouped, pixel_terms, pixel_ustat, sum_terms, t_quantile
+from nlosbench.bounds.ustat import UStat, grouped, pair_squares, pixel_terms, pixel_ustat, sum_terms, t_quantile
 
 VARIANTS = ("central", "forward", "backward")
 
@@ -174,18 +175,19 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
         A, B = coarse.rounds[name], fine.rounds[name]
         R, P, N = A.shape
         for j in range(P):
-            pa, la = pixel_terms(A[:, j][:, None], _row(w, N))
-            pb, lb = pixel_terms(B[:, j][:, None], _row(w, N))
+            xa, xb = A[:, j][:, None], B[:, j][:, None]
+            pa, la = pixel_terms(xa, _row(w, N))
+            pb, lb = pixel_terms(xb, _row(w, N))
             fa, fb = float(pa.sum()), float(pb.sum())
-            est, _, se, df = sum_terms(pb - c * pa, lb - c * la, R, fine.group)
+            est, _, se, df = sum_terms(pb - c * pa, lb - c * la, R, fine.group, _q(xa, xb, (-c, 1.0), w, fine.group))
             contrasts[name, j] = (float(est[0]), float(se[0]), float(df[0]), fa)
             t = one_sided_t(level, df[0], se[0])
             up, down = est[0] + t * se[0], est[0] - t * se[0]
             converged &= bool(up <= 0) and fa > 0
             rising |= bool(down > 0)
             ratio = fb / fa if fa > 0 and fb > 0 else math.nan
-            _, _, rse, _ = sum_terms(pb - (ratio if math.isfinite(ratio) else 1.0) * pa,
-                                     lb - (ratio if math.isfinite(ratio) else 1.0) * la, R, fine.group)
+            r = ratio if math.isfinite(ratio) else 1.0
+            _, _, rse, _ = sum_terms(pb - r * pa, lb - r * la, R, fine.group, _q(xa, xb, (-r, 1.0), w, fine.group))
             key = up / fa if fa > 0 else math.inf
             if worst is None or key > worst[0]:
                 worst = (key, ratio, float(rse[0] / fa) if fa > 0 else math.nan)
@@ -216,7 +218,7 @@ def extrapolate(coarse: Stage, fine: Stage, w) -> dict[str, UStat]:
             pa, la = pixel_terms(A, _row(w, N))
             pb, lb = pixel_terms(B, _row(w, N))
             lo = (1 + k) * lb - k * la
-            est, loo, se, df = sum_terms((1 + k) * pb - k * pa, lo, R, fine.group)
+            est, loo, se, df = sum_terms((1 + k) * pb - k * pa, lo, R, fine.group, _q(A, B, (-k, 1 + k), w, fine.group))
             out[name] = UStat(est.reshape(1, 1), se.reshape(1, 1), loo.reshape(-1, 1, 1), R, df.reshape(1, 1),
                               grouped(lo, fine.group).reshape(R, 1, 1, -1) if R >= 3 else None)
         else:
@@ -226,6 +228,13 @@ def extrapolate(coarse: Stage, fine: Stage, w) -> dict[str, UStat]:
                   else fb.se * (1 + k))
             out[name] = UStat((1 + k) * fb.est - k * fa.est, se, loo, R)
     return out
+
+
+def _q(xa: np.ndarray, xb: np.ndarray, coefs: tuple[float, float], w, group: int) -> np.ndarray | None:
+    """Q per pixel group of the paired contrast coefs[0]·F_a + coefs[1]·F_b over R rounds (`ustat.pair_squares`, for
+    the unbiased variance; None for R < 4: the jackknife)."""
+    R, _, N = xa.shape
+    return pair_squares([xa, xb], coefs, _row(w, N), group) if R >= 4 else None
 
 
 def _row(w, N: int):

@@ -10,33 +10,41 @@ is its relative half-width in linear units,
 lower_note / upper_note). A θ* meets the target p when every interval bound asked for, for every noise
 model, has reached ≤ p.
 
-The stopping rule (`refine`). Let α = 1 − level and K = `looks`. Every interval is computed at level
-1 − α/K.
-  look 0, the pilot: the R0 replicate sets 0 … R0 − 1. θ* that meet p stop here.
+The stopping rule (`refine`). Let α = 1 − level and K = `looks`. α is spent along the path (`spending`): the
+pilot's ends at level 1 − α₀ with α₀ = α/20, fresh look k's at 1 − α_k with α₀ + Σ_k α_k = α (K = 2, the default:
+α₁ = 0.95 α; K = 3: 0.8 and 0.2 of 0.95 α; each later look a quarter of the one before).
+  look 0, the pilot: the R0 replicate sets 0 … R0 − 1 at level 1 − α₀. θ* that meet p stop here (only then, or
+      where no fresh look is made, is the pilot's interval reported).
   plan: for every other θ*, from the pilot alone, R* = the smallest number of fresh sets on the ladder
-      3, 4, 6, 8, 12, 16, 24, … (at most what the budget allows) predicted to meet p (below), with the FD
-      window (`Window`: which of the pilot's steps the looks render, the step check predicted too) and, where
-      only interval bounds are asked for, the tested Δ (`tested_deltas`) that make it cheapest; where none is
-      (the pilot's estimates, held fixed, say more sets never suffice: FD stages or λ̂ that disagree by
-      noise alone look like that at a small pilot), an exploratory R* = EXPLORE·R0 within the budget;
-  looks k = 1 … K − 1: the fresh sets R0 … R0 + R*·2^(k−1) − 1 only (never the pilot's); stop at the first
-      look that meets p; a θ* whose look would take the call's worst-case cost over the budget (the θ* of a look
-      admitted cheapest first) gets no more looks.
+      4, 6, 8, 12, 16, 24, … (at most what the budget allows) predicted to reach AIM·p at level 1 − α₁ (below;
+      the margin makes one fresh look usually enough), with the FD window (`Window`: which of the pilot's steps
+      the looks render, the step check predicted too) and, where only interval bounds are asked for, the tested Δ
+      (`tested_deltas`) that make it cheapest; where none is (the pilot's estimates, held fixed, say more sets
+      never suffice: FD stages or λ̂ that disagree by noise alone look like that at a small pilot), an
+      exploratory R* = EXPLORE·R0 within the budget;
+  looks k = 1 … K − 1: R*·2^(k−1) sets of its own, disjoint from the pilot's and from every earlier look's
+      (look 1 the sets R0 … R0 + R* − 1, look 2 the next 2R*, …), at level 1 − α_k; stop at the first look that
+      meets p; a θ* whose look would take the call's worst-case cost over the budget (the θ* of a look admitted
+      cheapest first) gets no more looks.
 The reported interval is that of the last look made.
 
-Proof that P(reported interval misses the true value) ≤ α whatever the stopping. Let E_k be the event that
-look k's interval misses. Look 0's interval is a fixed-R interval on the pilot sets: P(E_0) ≤ α/K.
-Conditional on the pilot (and on the Poisson weight render, which is independent of every replicate set and
-the same at every look), R*, the FD window and the tested Δ are fixed, so look k is a fixed procedure on a fixed
-number R*·2^(k−1) of sets, whose seeds the bank
-derives from their replicate indices (nothing is drawn) and which are independent of the pilot: its interval
-is a fixed-R interval at level 1 − α/K on fresh data, P(E_k | pilot) ≤ α/K. Whichever look is reported, a
-miss of the reported interval implies some E_k, so P(miss) ≤ P(∪ E_k) ≤ Σ P(E_k) ≤ K·α/K = α. (Looks
-1 … K − 1 share sets — look k's are a prefix of look k+1's — which the union bound does not mind.) The
-argument is exact given that each fixed-R interval has its stated level; that is the t-approximation of
-`ustat` and `fd_step`, the same as without a target. (For the HCR "the true value" of a look that tests fewer Δ is
-its HCR over those Δ and Δ → 0, which its upper end bounds; its lower end is then a lower limit of that, so also of
-the HCR over every Δ, which is no smaller.)
+Proof that P(reported interval misses the true value) ≤ α whatever the stopping. Let E_k be the event that look
+k's interval misses and A_k the event that look k is made (A_0 always). The reported interval is that of some
+look made, so a miss implies E_k ∩ A_k for the k reported, and P(miss) ≤ Σ_k P(E_k ∩ A_k). Whether look k is made
+(and its R, FD window and tested Δ) is decided from the pilot and looks 1 … k − 1 alone (and the Poisson weight
+render, independent of every replicate set and the same at every look). Look k's sets are disjoint from theirs,
+and the bank derives their seeds from their replicate indices (nothing is drawn), so they are independent of
+that decision: given the past, look k is a fixed procedure on a fixed number of fresh sets, a fixed-R interval
+at level 1 − α_k, and P(E_k | past) ≤ α_k. Hence P(E_k ∩ A_k) = E[1_{A_k} P(E_k | past)] ≤ α_k P(A_k), and
+P(miss) ≤ Σ_k α_k P(A_k) ≤ α₀ + Σ_{k≥1} α_k = α. (Nested looks — look k's sets a prefix of look k + 1's — would
+break the independence: the miss of look k + 1 would not be independent of reaching it; a union bound over the
+looks would then need every look at 1 − α/K.) The argument is exact given that each fixed-R interval has its
+stated level; that is the t-approximation of `ustat` and `fd_step`, the same as without a target: from 4 sets on
+the unbiased standard errors, at their level, so the fresh looks' ladder starts at 4; a pilot of 3 sets has the
+jackknife's, conservative. Nearly every run that does not meet p at the pilot reaches look 1, so the reported
+ends miss about α₁ = 0.95 α of the time (K = 2). (For the HCR "the true value" of a look that tests fewer Δ is its
+HCR over those Δ and Δ → 0, which its upper end bounds; its lower end is then a lower limit of that, so also of the
+HCR over every Δ, which is no smaller.)
 
 Planning model. A U-statistic over R replicates of Σ_pixels w·x_r·x_s, with per-pixel mean d and variance s²
 of x (Gaussian errors, independent pixels), has
@@ -87,6 +95,9 @@ MAX_SETS, MAX_PREDICT = 1024, 2**20
 CEILING = 16
 #: fresh sets of an exploratory first look, in pilots, where the pilot predicts that no number of sets suffices
 EXPLORE = 4
+#: a plan asks for the sets predicted to reach AIM × the target: the pilot's estimates are noisy, and one fresh look
+#: must usually meet it (a second one is at a stricter level and on sets of its own)
+AIM = 0.8
 
 
 def check_precision(precision, budget, looks, want: Sequence[str], replicates: int) -> None:
@@ -189,12 +200,13 @@ class Precision:
     target: the relative half-width asked for; reached: {kind: precision reached} for this noise model;
     met: every interval bound of every noise model at this θ* reached the target; looks: looks made for this
     θ* (1: the pilot only); pilot_sets / fresh_sets: replicate sets of the pilot and of the reported look
-    (0: the pilot's are reported); level: the one-sided level of each end (1 − α/K); pixel_samples: charged to
-    the whole call (every θ*; spp × H × W per render requested, however served: what the budget decides on);
+    (0: the pilot's are reported); level: the one-sided level of the reported look's ends (the pilot 1 − α/20, fresh
+    look k 1 − α_k: `spending`); pixel_samples: charged to the whole call (every θ*; spp × H × W per render
+    requested, however served: what the budget decides on);
     rendered: the pixel-samples of those renders this process made (0 when all were cached); extra_sets /
-    extra_pixel_samples: predicted fresh sets and pixel-samples still needed to meet it (0 when met, +inf when no
-    number of sets is predicted to); note: why it stopped; budget: the pixel-samples the call was capped at (the
-    budget given, else the default ceiling `ceiling`)."""
+    extra_pixel_samples: the fresh sets and pixel-samples of one more look of its own predicted to meet it, from the
+    reported look's data (0 when met, +inf when no number of sets is predicted to); note: why it stopped; budget: the
+    pixel-samples the call was capped at (the budget given, else the default ceiling `ceiling`)."""
 
     target: float
     reached: dict[str, float]
@@ -441,13 +453,22 @@ def predicted_reached(fits: Sequence[Fit], kinds: Sequence[str], R: int, level: 
                default=math.inf)
 
 
-def ladder(cap: int, above: int = 0) -> list[int]:
-    """Set counts 3, 4, 6, 8, 12, 16, 24, … in (above, cap]."""
+def ladder(cap: int, above: int = 0, least: int = 4) -> list[int]:
+    """Set counts 3, 4, 6, 8, 12, 16, 24, … in (above, cap], from `least` on: a fresh look has at least 4 sets, so
+    its standard errors are the unbiased ones (`ustat`; the jackknife of 3 is conservative)."""
     out, k = [], 0
-    while 3 * 2**k <= cap or 4 * 2**k <= cap:
-        out += [n for n in (3 * 2**k, 4 * 2**k) if above < n <= cap]
+    while 3 * 2**k <= cap:
+        out += [n for n in (3 * 2**k, 4 * 2**k) if max(above + 1, least) <= n <= cap]
         k += 1
     return out
+
+
+def spending(alpha: float, K: int) -> list[float]:
+    """α spent per look over K looks: the pilot α/20, fresh look k (1 … K − 1) 0.95·α·4^−(k−1)/Σ_j 4^−(j−1) (K = 2:
+    0.95 α; K = 3: 0.76 α and 0.19 α, i.e. 0.8 and 0.2 of 0.95 α; each later look a quarter of the one before). They
+    sum to α (module docstring: the pathwise proof)."""
+    shares = [4.0 ** -(k - 1) for k in range(1, K)]
+    return [alpha / 20.0] + [0.95 * alpha * w / sum(shares) for w in shares]
 
 
 @dataclass(frozen=True)
@@ -490,11 +511,12 @@ def tested_deltas(raws: Sequence[Raw], target: float, level: float) -> np.ndarra
 def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float, cap: int, above: int = 0,
          set_cost: Callable[[int, int | None], int] | None = None, subset: bool = False,
          most: int | None = None) -> Plan:
-    """The cheapest (ladder count in (above, cap], FD window) predicted to meet `target`: per window the smallest
-    count that meets it, then the least renders, count × set_cost(stages in the window, Δ tested) (None: the
-    count alone). Coarser windows have less FD noise but may not be shown converged; with `subset`, the look tests
-    only the Δ `tested_deltas` keeps; a window may halve up to `most` times (`Fit.windows`). Window and Δ are
-    functions of the pilot alone (the coverage proof in the module docstring needs nothing more)."""
+    """The cheapest (ladder count in (above, cap], FD window) predicted to meet `target` with a margin (to reach
+    AIM × target): per window the smallest count that reaches it, then the least renders, count × set_cost(stages
+    in the window, Δ tested) (None: the count alone). Coarser windows have less FD noise but may not be shown
+    converged; with `subset`, the look tests only the Δ `tested_deltas` keeps; a window may halve up to `most` times
+    (`Fit.windows`). Window and Δ are functions of the looks before (the coverage proof in the module docstring needs
+    nothing more)."""
     tested = tested_deltas(raws, target, level) if subset and "hcr" in kinds else None
     fits = [Fit.of(r if tested is None else r.subset(tested)) for r in raws]
     n_tested = None if tested is None else int(tested.sum())
@@ -505,11 +527,11 @@ def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float,
         top = predicted_reached(fits, kinds, steps[-1], level, win) if steps else math.inf
         if top < fallback.predicted:
             fallback = Plan(None, win, top, tested)
-        if top > target:  # not even at the cap (the prediction falls with R): no scan
+        if top > AIM * target:  # not even at the cap (the prediction falls with R): no scan
             continue
         for R in steps:
             got = predicted_reached(fits, kinds, R, level, win)
-            if got <= target:
+            if got <= AIM * target:
                 stages = win.halvings + 1 if win else len(raws[0].stages)
                 cost = R * (set_cost(stages, n_tested) if set_cost else 1)
                 if best is None or cost < best[0]:
@@ -530,6 +552,7 @@ class _State:
     raws: dict = field(default_factory=dict)  # (noise, θ index) → Raw
     looks: dict = field(default_factory=dict)  # θ index → looks made
     fresh: dict = field(default_factory=dict)  # θ index → fresh sets of the reported look (0: pilot)
+    level: dict = field(default_factory=dict)  # θ index → the one-sided level of the reported look's ends
     stages: dict = field(default_factory=dict)  # θ index → FD stages of its last look
     notes: dict = field(default_factory=dict)
 
@@ -549,21 +572,22 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budge
 
 def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budget: int | None, K: int,
             alpha: float, cost: SetCost, spp: int, spend) -> list:
-    level = 1.0 - alpha / K
+    levels = [1.0 - a for a in spending(alpha, K)]
+    level = levels[1]  # what plans and predictions aim at: the first fresh look's level
     goal = np.broadcast_to(np.asarray(target, dtype=np.float64).reshape(-1), (T,))
     st = _State()
 
     def run(idx: np.ndarray, R: int, first: int, k: int, window: Window | None = None,
             tested: dict | None = None) -> None:
         keep: dict = {}
-        pts = look(idx, R, first, level, keep, window,
+        pts = look(idx, R, first, levels[k], keep, window,
                    None if tested is None else {n: tested[int(i)] for n, i in enumerate(idx)})
         for m, j in enumerate(noises):
             for n, i in enumerate(idx):
                 st.points[j, int(i)] = pts[m * len(idx) + n]
                 st.raws[j, int(i)] = keep[j, n]
         for i in idx:
-            st.looks[int(i)], st.fresh[int(i)] = k + 1, (R if first else 0)
+            st.looks[int(i)], st.fresh[int(i)], st.level[int(i)] = k + 1, (R if first else 0), levels[k]
             st.stages[int(i)] = max(len(st.raws[j, int(i)].stages) for j in noises)
 
     def kinds(i: int) -> list[str]:
@@ -604,24 +628,25 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
     star: dict[int, tuple[int, Plan]] = {}
     for i in active:
         pl = plans[i]
-        if pl.sets is None and r_max >= 3:  # the pilot's FD stages or λ̂ may disagree by noise alone: look anyway
+        if pl.sets is None and r_max:  # the pilot's FD stages or λ̂ may disagree by noise alone: look anyway
             star[i] = (min(r_max, EXPLORE * R0), pl)
             st.notes[i] = (f"the pilot predicts no number of sets meets the target ({pl.predicted:.3g} at "
                            f"{MAX_PREDICT} sets, holding its estimates fixed): an exploratory look at {star[i][0]} "
                            "fresh sets")
-        elif pl.sets is None or r_max < 3:
+        elif pl.sets is None or not r_max:
             st.notes[i] = f"not met: {cap_text} allows no fresh look"
         else:
             star[i] = (min(pl.sets, r_max), pl)
-    grid_done = 0
+    grid_done = 0  # test-grid sets rendered after the pilot's (always a prefix: each θ*'s looks follow one another)
+    first = {i: R0 for i in star}  # the next fresh set of each θ*
     for k in range(1, K):
         todo = [i for i in star if worst(i) > goal[i]]
         if not todo:
             break
-        now = {i: star[i][0] * 2 ** (k - 1) for i in todo}
+        sets = {i: star[i][0] * 2 ** (k - 1) for i in todo}  # look k's own sets, disjoint from every earlier look's
+        now = {i: first[i] - R0 + sets[i] for i in todo}  # the test-grid sets after the pilot's it needs
         stages = {i: star[i][1].window.halvings + 1 if star[i][1].window else cost.stages for i in todo}
-        new = {i: (star[i][0] * 2 ** (k - 2) if k > 1 else 0, now[i], st.stages[i] if k > 1 else 0, stages[i],
-                   n_tested(star[i][1])) for i in todo}
+        new = {i: (0, sets[i], 0, stages[i], n_tested(star[i][1])) for i in todo}
         # within the cap: the θ* whose look costs least first, the dearest left out (for good) until it fits
         todo.sort(key=lambda i: (_worst_case(cost, new, now, [i], grid_done) * per_sample, i))
         while todo and spent() + _worst_case(cost, new, now, todo, grid_done) * per_sample > cap:
@@ -632,20 +657,23 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
             del star[i]
         if not todo:
             break
-        for R, win in sorted({(now[i], star[i][1].window) for i in todo}, key=lambda g: (g[0], repr(g[1]))):
-            idx = np.array([i for i in todo if (now[i], star[i][1].window) == (R, win)])
-            run(idx, R, R0, k, win, {int(i): star[int(i)][1].tested for i in idx})
+        groups = {(first[i], sets[i], star[i][1].window) for i in todo}
+        for f, R, win in sorted(groups, key=lambda g: (g[0], g[1], repr(g[2]))):
+            idx = np.array([i for i in todo if (first[i], sets[i], star[i][1].window) == (f, R, win)])
+            run(idx, R, f, k, win, {int(i): star[int(i)][1].tested for i in idx})
         grid_done = max(grid_done, max(now[i] for i in todo))  # the admitted θ* only
+        for i in todo:
+            first[i] += sets[i]
         for i in todo:
             st.notes[i] = (f"met at look {k}" if worst(i) <= goal[i] else f"not met after look {k}") + (
                 " (exploratory)" if "exploratory" in st.notes[i] else "")
     total = spent()
     extra, extra_px = {}, {}
-    for i in range(T):  # where unmet: predicted from the reported look's own data, fresh sets beyond those it used
+    for i in range(T):  # where unmet: predicted from the reported look's own data, the sets of one more fresh look
         extra[i] = extra_px[i] = 0.0
         if worst(i) > goal[i]:  # (a fresh look's tested Δ may be a subset already: the plan's mask is over them)
-            pl = planned(i, st.fresh[i])
-            extra[i] = math.inf if pl.sets is None else float(pl.sets - st.fresh[i])
+            pl = planned(i)
+            extra[i] = math.inf if pl.sets is None else float(pl.sets)
             stages = pl.window.halvings + 1 if pl.window else st.stages[i]
             extra_px[i] = extra[i] * cost.one(i, stages, n_tested(pl)) * per_sample
     out = []
@@ -654,7 +682,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
             pt = st.points[j, i]
             pt.precision = Precision(
                 float(goal[i]), {k: reached(pt.bounds[k]) for k in kinds(i)}, bool(worst(i) <= goal[i]),
-                st.looks[i], R0, st.fresh[i], level, int(total), extra[i], extra_px[i], st.notes[i],
+                st.looks[i], R0, st.fresh[i], st.level[i], int(total), extra[i], extra_px[i], st.notes[i],
                 budget=int(cap), rendered=int(spend.rendered))
             out.append(pt)
     return out

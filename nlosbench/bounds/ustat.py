@@ -1,4 +1,4 @@
-"""Unbiased squared means from independent replicates: the order-2 U-statistic and its jackknife.
+"""Unbiased squared means from independent replicates: the order-2 U-statistic and its standard error.
 
 For R independent replicates D_1..D_R of a quantity with mean d (a rendered difference image
 L̃_r(θ*+Δ) − L̃_r(θ*), or an FD Jacobian J̃_r) and a weight w that does not depend on them, the Gram
@@ -12,19 +12,30 @@ plug-in from the replicate mean, 1ᵀG1/R², carries the rendering noise tr(G)/R
 `est` can be ≤ 0 where the signal is below the rendering noise: that is reported, never clipped.
 
 Standard error. `u_statistic` (any Grams): the delete-one jackknife over replicates (R ≥ 3; NaN for
-R = 2), with R − 1 degrees of freedom. Measured on toys (see `unbiased_fisher`): right where the signal
-dominates, conservative (SE² up to ~2× the variance) where the noise × noise part dominates. In terms of the
-Hoeffding parts (ζ₁ signal × noise, ζ₂ noise × noise) the jackknife's expectation is 4ζ₁/R + 4ζ₂/(R(R − 2))
-against the variance 4ζ₁/R + 2ζ₂/(R(R − 1)): ζ₂ counts 2(R − 1)/(R − 2) times, 4× at R = 3 (spot_rgb's F̂ at
-R = 3: SE 1.08× its SD over 2000 seeds, so its one-sided 95 % ends miss 3.6 %). Removing it needs ζ₂ itself,
-which three replicates give only under a model of the errors' fourth moments (`precision.variance_terms`
-assumes Gaussian ones; heavy tails would make it too large and the corrected SE too small).
+R = 2), with R − 1 degrees of freedom. In terms of the Hoeffding parts (ζ₁ signal × noise, ζ₂ noise × noise) the
+jackknife's expectation is 4ζ₁/R + 4ζ₂/(R(R − 2)) against the variance 4ζ₁/R + 2ζ₂/(R(R − 1)): ζ₂ counts
+2(R − 1)/(R − 2) times, 4× at R = 3 (spot_rgb's F̂ at R = 3: SE 1.08× its SD, so its one-sided 95 % ends missed
+3.6 %): right where the signal dominates, conservative where the noise × noise part does.
 `pixel_ustat` (sums over pixels): a path tracer's Monte Carlo errors are independent across pixels (each
 pixel's samples are its own; common random numbers couple θ within a pixel, never two pixels), so the
-U-statistic is a sum of independent per-pixel terms and its variance is the sum of their variances. Each
-is estimated by the jackknife over replicates and the sum has Satterthwaite's degrees of freedom
-(Σ v)² / Σ v²/(R − 1) — many more than R − 1 — so the confidence limits are far tighter at equal renders.
-Confidence limits use Student's t with those degrees of freedom (`t_quantile`).
+U-statistic is a sum of independent per-pixel-group terms U_m and its variance is the sum of theirs. For R ≥ 4
+each Var U_m has a distribution-free unbiased estimate: with the group's kernel H_rs = Σ_{ω∈m} w X_r X_s (r ≠ s),
+S = Σ_{r≠s} H_rs, a_r = Σ_{s≠r} H_rs and Q = Σ_{r≠s} H_rs², U_m = S/(R(R − 1)) and
+
+    θ̂²_m = (S² − 4 Σ_r a_r² + 2Q) / (R(R − 1)(R − 2)(R − 3))
+
+is the degree-4 U-statistic of θ_m² (the mean of H_rs·H_tu over distinct r, s, t, u: S² less the products that
+share one index, 4 Σ a_r² − 4Q, and those that share both, 2Q), so v_m = U_m² − θ̂²_m is unbiased for Var U_m
+(E U² = Var U + θ²) and Σ_m v_m for the variance of the sum (`group_variances`, `pair_squares`; checked by exact
+enumeration in the tests). A v_m may be < 0; the total is used where it is > 0, the jackknife total where it is
+not. R = 3 has no such estimate (θ² needs four distinct replicates): there the per-group jackknife, conservative.
+The degrees of freedom are Satterthwaite's from the per-group jackknife variances, (Σ v)² / Σ v²/(R − 1) — many
+more than R − 1 — so the confidence limits are far tighter at equal renders. Confidence limits use Student's t
+with those degrees of freedom (`t_quantile`). A contrast of two statistics over the same replicates (the FD step
+check, the Richardson extrapolation) has the kernel H_b − c·H_a: its Q comes from both (`pair_squares`).
+Covariances between statistics (`covariance`, the HCR lower end's joint level) use only their correlations, from
+the per-group jackknife: its ζ₂ inflation is a common factor of statistics of the same replicates, and the
+variances themselves are the unbiased ones above.
 
 Groups. The values of one pixel are *not* independent: its C colour channels (and a transient scan point's
 time bins) come from the same light paths, so their errors are correlated (0.76–0.998 in the Π hallway's FD
@@ -37,6 +48,7 @@ under-states the SE by up to √C (×1.55 measured on the Π hallway's F). The g
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -143,7 +155,8 @@ def u_statistic(G: np.ndarray) -> UStat:
 def covariance(terms: np.ndarray) -> np.ndarray:
     """The covariance (J, J) of J statistics from their per-group leave-one-outs `terms` (J, R, M) (`UStat.terms`,
     the same R replicates and M pixel groups): Σ_m (R − 1)/R Σ_r (t_jrm − t̄_jm)(t_irm − t̄_im), the grouped jackknife
-    whose diagonal is each statistic's SE² (independent groups, so no cross-group terms)."""
+    (independent groups, so no cross-group terms); its diagonal is each statistic's jackknife SE², which for R ≥ 4
+    overstates the noise × noise part, so callers take only its correlations (module docstring)."""
     dev = terms - terms.mean(axis=1, keepdims=True)
     R = terms.shape[1]
     return (R - 1) / R * np.einsum("arm,brm->ab", dev, dev)
@@ -173,23 +186,64 @@ def pixel_terms(x: np.ndarray, w) -> tuple[np.ndarray, np.ndarray]:
     return per, w * ((S[None] - x) ** 2 - (Q[None] - x * x)) / ((R - 1) * (R - 2))
 
 
-def sum_terms(per: np.ndarray, lo: np.ndarray, R: int, group: int = 1
+def pair_squares(xs: Sequence[np.ndarray], coefs: Sequence[float], w, group: int = 1) -> np.ndarray:
+    """Q_m = Σ_{r≠s} H_rs² per group (k, M) of the kernel H_rs = Σ_j coef_j Σ_{ω∈m} w_ω x_j,r,ω x_j,s,ω: a linear
+    combination of per-value statistics over the same R replicates (xs: arrays (R, k, N); w scalar or (k, N)), each
+    group the `group` consecutive values that share path samples. With y_r the group's J·C values of replicate r and
+    ω their weights coef_j·w_c, H_rs = Σ_a ω_a y_ra y_sa, so Σ_{r,s} H_rs² = Σ_ab ω_a ω_b (Σ_r y_ra y_rb)² and Q is
+    that less Σ_r H_rr² (memory (J·C)² per group, whatever R). The square part of `sum_terms`' unbiased variance."""
+    R, k, N = xs[0].shape
+    C = check_group(group, N)
+    y = np.concatenate([x.reshape(R, k, N // C, C) for x in xs], axis=-1)  # (R, k, M, J·C)
+    wv = np.broadcast_to(np.asarray(w, dtype=np.float64), (k, N)).reshape(k, N // C, C)
+    om = np.concatenate([c * wv for c in coefs], axis=-1)  # (k, M, J·C)
+    P = np.einsum("rkma,rkmb->kmab", y, y)
+    diag = np.einsum("rkma,kma->rkm", y * y, om)  # H_rr
+    return np.einsum("kmab,kma,kmb->km", P * P, om, om) - (diag * diag).sum(axis=0)
+
+
+def sum_terms(per: np.ndarray, lo: np.ndarray, R: int, group: int = 1, q: np.ndarray | None = None
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(est (k,), loo (R, k), se (k,), df (k,)) of a sum over independent groups of values of per-value
     statistics per (k, N) with leave-one-out values lo (R, k, N): each group of `group` consecutive values
-    (a pixel's channels, N = M·group) summed first, se from the per-group jackknife variances summed,
-    Satterthwaite's degrees of freedom over the M groups; NaN se for R < 3. Linear in (per, lo), so a contrast of
-    two statistics over the same replicates (paired) is `sum_terms(per_b − c·per_a, lo_b − c·lo_a, R, group)`."""
+    (a pixel's channels, N = M·group) summed first, se² the sum over the M groups of each group's variance estimate
+    v_m, Satterthwaite's degrees of freedom from the per-group jackknife variances; NaN se for R < 3. Linear in
+    (per, lo, the kernel), so a contrast of two statistics over the same replicates (paired) is
+    `sum_terms(per_b − c·per_a, lo_b − c·lo_a, R, group, pair_squares([xa, xb], [−c, 1], w, group))`.
+
+    v_m: with q (the group's Q = Σ_{r≠s} H_rs², `pair_squares`) and R ≥ 4, the unbiased estimate of Var U_m
+    (module docstring: U_m² less the degree-4 U-statistic of θ_m²); else (R = 3, or no q) the delete-one jackknife,
+    conservative where the noise × noise part dominates. The per-group v_m may be < 0; their total is used where
+    it is > 0, and where it is not (rare: signal and noise both tiny beside the spread of the estimate) the
+    jackknife total is."""
     est = per.sum(axis=1)
     if R < 3:
         nan = np.full(est.shape, math.nan)
         return est, np.empty((0,) + est.shape), nan, nan
     lo = grouped(lo, group)
-    v = (R - 1) / R * ((lo - lo.mean(axis=0)) ** 2).sum(axis=0)  # per-group jackknife variances (k, M)
-    tot = v.sum(axis=1)
+    jack = (R - 1) / R * ((lo - lo.mean(axis=0)) ** 2).sum(axis=0)  # per-group jackknife variances (k, M)
+    tot = jack.sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        df = np.where(tot > 0, tot**2 / ((v * v).sum(axis=1) / (R - 1)), R - 1.0)
+        df = np.where(tot > 0, tot**2 / ((jack * jack).sum(axis=1) / (R - 1)), R - 1.0)
+    if q is not None and R >= 4:
+        unbiased = group_variances(grouped(per, group), lo, q, R).sum(axis=1)
+        tot = np.where(unbiased > 0, unbiased, tot)
     return est, lo.sum(axis=2), np.sqrt(tot), df
+
+
+def group_variances(u: np.ndarray, lo: np.ndarray, q: np.ndarray, R: int) -> np.ndarray:
+    """Unbiased estimates v_m (k, M) of Var U_m for per-group U-statistics u (k, M) over R ≥ 4 replicates, from their
+    leave-one-outs lo (R, k, M) and Q_m = Σ_{r≠s} H_rs² (`pair_squares`): v = U² − (S² − 4 Σ_r a_r² + 2Q)/D with
+    D = R(R − 1)(R − 2)(R − 3) (module docstring), computed centred: with S = R(R − 1)·U, a_r = Σ_{s≠r} H_rs =
+    (S − (R − 1)(R − 2)·lo_r)/2 and a'_r = a_r − (R − 1)U = (R − 1)(R − 2)(U − lo_r)/2 (Σ a'_r = 0),
+
+        v = (4 Σ_r a'_r² − 2 (Q − R(R − 1) U²)) / D,
+
+    so no U² of the signal is subtracted from itself (U² less an estimate of θ² would lose the variance to rounding
+    where the signal dominates). May be < 0."""
+    dev = lo - u[None]
+    return ((R - 1) ** 2 * (R - 2) ** 2 * (dev * dev).sum(axis=0) - 2.0 * (q - R * (R - 1) * u * u)) / (
+        R * (R - 1) * (R - 2) * (R - 3))
 
 
 def grouped(x: np.ndarray, group: int) -> np.ndarray:
@@ -216,9 +270,9 @@ def pixel_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -> U
     """U-statistics of Σ_ω w_ω X_r,k,ω X_s,k,ω over R replicates for each of K quantities (X (R, K, N):
     replicate differences or FD Jacobians, pixels flattened with each pixel's `group` values (its channels)
     consecutive; weights scalar, (N,) or (K, N)): est (K,), loo (R, K) (the estimate without replicate r, for
-    downstream jackknifes), se (K,) from the per-group jackknife variances summed over groups (independent
-    pixels, correlated channels: see the module docstring), df (K,) Satterthwaite's, terms (R, K, M) the per-group
-    leave-one-outs (M = N / group). float64, in chunks of K."""
+    downstream jackknifes), se (K,) from the per-group variances summed over groups (independent pixels,
+    correlated channels; unbiased for R ≥ 4, the jackknife at R = 3: see the module docstring), df (K,)
+    Satterthwaite's, terms (R, K, M) the per-group leave-one-outs (M = N / group). float64, in chunks of K."""
     X = np.asarray(X)
     R, K, N = X.shape
     if R < 2:
@@ -231,8 +285,9 @@ def pixel_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -> U
     step = max(1, chunk_bytes // (8 * R * N * 3))
     for k0 in range(0, K, step):
         k1 = min(K, k0 + step)
-        per, lo = pixel_terms(X[:, k0:k1].astype(np.float64), float(weights) if W is None else W[k0:k1])
-        e, left, s, d = sum_terms(per, lo, R, group)
+        x, w = X[:, k0:k1].astype(np.float64), float(weights) if W is None else W[k0:k1]
+        per, lo = pixel_terms(x, w)
+        e, left, s, d = sum_terms(per, lo, R, group, pair_squares([x], [1.0], w, group) if R >= 4 else None)
         est[k0:k1], se[k0:k1], df[k0:k1] = e, s, d
         if R >= 3:
             loo[:, k0:k1], terms[:, k0:k1] = left, grouped(lo, group)
@@ -242,9 +297,9 @@ def pixel_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -> U
 def pairwise_ustat(X, weights, group: int = 1, chunk_bytes: int = 256 * 2**20) -> UStat:
     """U-statistics of Σ_ω w_i (X_r[j] − X_r[i])² over R replicates for every pair of G points.
 
-    est (G, G) (diagonal 0), se and df (G, G) as in `pixel_ustat` (independent pixels: per-pixel jackknife
-    variances, each pixel's `group` channels summed first, summed over pixels; Satterthwaite's degrees of
-    freedom), loo (R, G, G). Differences are direct (float64).
+    est (G, G) (diagonal 0), se and df (G, G) as in `pixel_ustat` (independent pixels: per-pixel-group variances,
+    unbiased for R ≥ 4, the jackknife at R = 3, each pixel's `group` channels together, summed over pixels;
+    Satterthwaite's degrees of freedom), loo (R, G, G). Differences are direct (float64).
 
     Parameters
     ----------

@@ -31,7 +31,7 @@ from scipy.special import erfc
 
 from nlosbench.bounds.grid import pairwise_lambda
 from nlosbench.bounds.hcr import as_numpy
-from nlosbench.bounds.ustat import UStat, pixel_terms, sum_terms, t_quantile
+from nlosbench.bounds.ustat import UStat, pair_squares, pixel_terms, sum_terms, t_quantile
 from nlosbench.noise import AWGN, NoiseModel, Poisson, to_float64
 
 
@@ -103,7 +103,8 @@ def bhattacharyya_ustat(X, Y, scale: float, group: int = 1) -> UStat:
     """Upper estimates of the pairwise Bhattacharyya distances b[i, j] = ½ s Σ_ω (√L_i − √L_j)² of Poisson
     observations (photon scale s) from R replicate renders X (R, G, N) and weight renders Y of every point,
     independent of X: (G, N), one render, or (R, G, N), one per replicate. est (G, G), loo (R, G, G), se and df
-    (G, G) (the per-pixel jackknife, each pixel's `group` channels summed first, plus the zero-pixel term's).
+    (G, G) (per pixel group, `ustat.sum_terms`, plus the zero-pixel term's jackknife: with one weight render Y the
+    unbiased variance for R ≥ 4, with paired weight renders the jackknife, which carries their noise).
 
     (√L_j − √L_i)² = (L_j − L_i)²·w with w = 1/(√L_i + √L_j)². The U-statistic of (L_j − L_i)² over the
     replicates is unbiased; w is taken from Ȳ, the mean of the weight renders, independent of X. E√Ȳ ≤ √L
@@ -140,7 +141,10 @@ def bhattacharyya_ustat(X, Y, scale: float, group: int = 1) -> UStat:
             else:
                 dl = (root_loo + root_loo[:, i:i + 1]) ** 2
                 lo = np.where(zero, 0.0, 0.5 * scale / np.where(dl == 0, 1.0, dl)) * lo
-        e, left, s, d = sum_terms(w * per, lo, R, group)
+        # a weight fixed given X (one weight render) keeps a U-statistic: its unbiased variance; paired weight
+        # renders make the weight a function of the replicates too: the jackknife, which carries the weight's noise
+        q = pair_squares([X - X[:, i:i + 1]], [1.0], w, group) if R >= 4 and root_loo is None else None
+        e, left, s, d = sum_terms(w * per, lo, R, group, q)
         z = 0.5 * scale * ((X + X[:, i:i + 1]) * zero[None]).sum(axis=2)  # (R, G): the zero pixels' bound
         est[i] = e + z.mean(axis=0)
         if R >= 3:

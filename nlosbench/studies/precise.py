@@ -16,13 +16,13 @@ from .tables import fmt, fmt_end
 
 PRECISION = Field(positive_number, None, "target relative half-width p of every interval bound quoted at θ (HCR, "
                   "CRLB): the bound service adds fresh replicate render sets where an interval is wider than "
-                  "1 ± p (ends at level 1 − α/looks, so coverage survives the stopping); null: one fixed set of "
+                  "1 ± p (α spent along the looks, so coverage survives the stopping); null: one fixed set of "
                   "`replicates`", nullable=True)
 PRECISION_BUDGET = Field(positive_integer, None, "cap on the pixel-samples (spp × H × W × renders) the precise bounds "
                          f"may spend (needs `precision`); null: the default ceiling, {CEILING} × what their pilot "
                          "costs (the pilot included)", nullable=True)
-LOOKS = Field(integer_in(2, 64), 3, "with `precision`: the pilot and at most looks − 1 looks at fresh replicate "
-              "sets, each interval end at level 1 − (1 − level)/looks")
+LOOKS = Field(integer_in(2, 64), 2, "with `precision`: the pilot and at most looks − 1 fresh looks, each on "
+              "replicate sets of its own; the pilot's ends at α/20, the fresh looks' share the rest (α = 1 − level)")
 #: the schema keys, as a study's SCHEMA takes them
 KEYS = {"precision": PRECISION, "precision_budget": PRECISION_BUDGET, "looks": LOOKS}
 

@@ -49,7 +49,7 @@ class AtTheta(RenderSets):
            replicates: int = 3, test_grid: int = 21, offsets: int = 4, fd_step: float = 0.01,
            levels: Sequence[int] = (1024, 2048), noises=None, step_tol: float = 0.1,
            max_halvings: int = 3, precision=None, budget: int | None = None,
-           looks: int = 3) -> list[BoundPoint]:
+           looks: int = 2) -> list[BoundPoint]:
         """Every bound in `want` (hcr, crlb, hcr_neff, barankin, hcr_hat) at each θ* (T, P).
 
         Test Δ: a `test_grid`^P grid over Θ (shared by every θ*, points equal to θ* skipped) and the
@@ -58,9 +58,10 @@ class AtTheta(RenderSets):
         most `max_halvings` times (`fd_step`); HCR-hat fits λ over the spp `levels`. "hcr" also reports the
         paper's hcr_neff. Poisson weights come from one independent render per θ*.
         With a `precision` target p (relative half-width, linear units): fresh replicate sets are added only
-        where an interval is wider than p, within `budget` pixel-samples, in at most `looks` looks with ends
-        at level 1 − (1 − level)/looks, so coverage holds whatever the stopping (`bounds.precision`); each
-        BoundPoint then carries a `precision` record.
+        where an interval is wider than p, within `budget` pixel-samples, in at most `looks` looks, each on sets of
+        its own, with α = 1 − level spent along the path (the pilot's ends at α/20, the fresh looks' the rest), so
+        the reported ends hold at `level` whatever the stopping (`bounds.precision`); each BoundPoint then carries a
+        `precision` record.
 
         Parameters
         ----------
@@ -74,7 +75,9 @@ class AtTheta(RenderSets):
         seeds : {"common", "independent"}, optional
             Common random numbers across θ within a replicate, or a seed per θ.
         replicates : int, optional
-            R ≥ 2 independent replicates of every render set (≥ 3 for confidence limits).
+            R ≥ 2 independent replicates of every render set (≥ 3 for confidence limits). With R ≥ 4 the
+            standard errors are unbiased and the ends are at their stated level; with R = 3 they come from the
+            jackknife, which overstates the noise × noise variance, so the ends are conservative (`bounds.ustat`).
         test_grid : int, optional
             Points per axis of the grid of test points over Θ.
         offsets : int, optional
@@ -97,7 +100,8 @@ class AtTheta(RenderSets):
             A cap on the pixel-samples (spp × H × W × renders) this call may spend (with a precision target only);
             None: the default ceiling, `bounds.precision.CEILING` × the pilot's.
         looks : int, optional
-            K ≥ 2: the pilot and at most K − 1 looks at fresh sets, each at level 1 − (1 − level)/K.
+            K ≥ 2: the pilot and at most K − 1 fresh looks, each on sets of its own; α spent along the path
+            (the pilot α/20, the fresh looks the rest: `bounds.precision.spending`).
 
         Returns
         -------

@@ -64,7 +64,7 @@ class Curves(RenderSets):
     def curve(self, thetas, spp: int, seeds: str = "common", replicates: int = 3, crlb: bool = True,
               barankin: bool = False, zzb: bool = True, prior=None, noises=None, fd_step: float | None = None,
               gradient: str = "fd", ad: dict | None = None, check_step: bool = True, step_tol: float = 0.1,
-              precision=None, budget: int | None = None, looks: int = 3, quote=None,
+              precision=None, budget: int | None = None, looks: int = 2, quote=None,
               max_halvings: int = 3, offsets: int = 4, quote_step: float | None = None) -> Curve:
         """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders; with a precision target, the
         interval bounds at the θ it quotes to that target.
@@ -127,7 +127,8 @@ class Curves(RenderSets):
             renders (with a precision target only); None: the default ceiling, `bounds.precision.CEILING` × the
             quoted bounds' pilot's.
         looks : int, optional
-            K ≥ 2: the pilot and at most K − 1 looks at fresh sets, each quoted end at level 1 − (1 − level)/K.
+            K ≥ 2: the pilot and at most K − 1 fresh looks for each quoted θ*, each on sets of its own; α spent
+            along the path (the pilot α/20, the fresh looks the rest: `bounds.precision.spending`).
         quote : array_like of shape (Q,), optional
             The θ to quote (on or off the grid, inside Θ), parameter units; None: every grid θ (with a precision
             target only).

@@ -29,7 +29,7 @@ class FisherInformation(RenderSets):
 
     def fisher(self, thetas, spp: int, fd_step: float = 0.01, rounds: int = 3, reduce: str = "sum",
                noises=None, step_tol: float = 0.1, max_halvings: int = 3, precision: float | None = None,
-               budget: int | None = None, looks: int = 3) -> list[FisherPoint]:
+               budget: int | None = None, looks: int = 2) -> list[FisherPoint]:
         """Unbiased per-pixel Fisher information maps and the CRLB per parameter at each θ (T, P).
 
         Per θ: a render (purpose "fisher", the Poisson weight image) and `rounds` independent FD rounds at step ξ:
@@ -41,7 +41,7 @@ class FisherInformation(RenderSets):
         With a `precision` target p: the CRLB of θ (tr F̂⁻¹; for a scalar θ its only CRLB) to ±p by the
         stopping rule of `bounds.precision` — the given rounds are the pilot, fresh rounds (replicates
         `rounds`, `rounds` + 1, …) are added only at the θ whose CRLB interval is wider than asked, within
-        `budget` pixel-samples, in at most `looks` looks with ends at level 1 − (1 − level)/looks; the maps,
+        `budget` pixel-samples, in at most `looks` looks on disjoint rounds with α spent along the path; the maps,
         the per-parameter CRLBs and the rounds are then the reported look's (the pilot's where it met the
         target), and `precise` carries the CRLB of θ with its `precision` record.
 
@@ -70,7 +70,8 @@ class FisherInformation(RenderSets):
             A cap on the pixel-samples (spp × H × W × renders) this call may spend (with a precision target only);
             None: the default ceiling, `bounds.precision.CEILING` × the pilot's.
         looks : int, optional
-            K ≥ 2: the pilot and at most K − 1 looks at fresh rounds, each at level 1 − (1 − level)/K.
+            K ≥ 2: the pilot and at most K − 1 fresh looks, each on rounds of its own; α spent along the path
+            (the pilot α/20, the fresh looks the rest: `bounds.precision.spending`).
 
         Returns
         -------
