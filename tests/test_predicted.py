@@ -9,7 +9,7 @@ Agreement: for n = 60 trials and Gaussian errors (n − 1)·Var̂ / Var ~ χ² w
 degrees of freedom (Satterthwaite over the two components; Σ the predicted covariance), so at 99 % (two-sided)
 the measured variance lies in [χ²_{0.005,ν}/ν, χ²_{0.995,ν}/ν] ≈ [0.70, 1.36] × the prediction. The summary's
 verdict (`montecarlo.variance_verdict`, the verdicts module's one-sided tests at 95 %) says "as predicted".
-Measured var / predicted at n = 60 (n = 120 or 240 in brackets, from a scratch run): Gauss–Newton 1.11 at 50 spp
+Measured var / predicted at n = 60 (n = 120 or 240 in brackets, from a separate run): Gauss–Newton 1.11 at 50 spp
 (fit-render penalty 2.1×) [1.06 at n = 240], 1.14 at 5000 spp (penalty 1.01) [1.12 at 240]; Adam 1.02 at 4 spp
 (penalty 2.2×) [0.95 at 120], 1.14 at 5000 spp (penalty 1.00) [1.11 at 120]. Noisy FD Jacobians (independent
 seeds on ± ξ, ξ = 1 mm, 1000 spp: one pair's F̂ = 21 F), Gauss–Newton for 20 iterations: 0.86 (the start's error
@@ -228,7 +228,7 @@ def test_pi_hallway_los_at_the_demo_settings_agrees_with_the_prediction(tmp_path
     AWGN σ = 0.025, 8 clean images of 256 spp, profile start over the 34-point bank grid of 3 × 96 spp, then
     Gauss–Newton on 32-spp renders for 3 iterations with CRN FD Jacobians at ξ = 3 cm), 48 trials.
 
-    What the prediction needs here, measured on 64 such trials (a scratch run; its first 48 are this test's)
+    What the prediction needs here, measured on 64 such trials (a separate run; its first 48 are this test's)
     against ê from a fine 2048-spp grid of renders around θ*: (1) a pixel's colour channels share its light paths
     (their errors correlate at 0.99), so a render's error projected on J has 2.8× the variance of independent
     channels: Σ_render per pixel is a 3 × 3 block; (2) the fits step with the 3-cm secant J while the image moves
