@@ -2,7 +2,6 @@
 each docstring says what it simulates. Analytic toys (`edge1d`) where a Mitsuba scene is not essential,
 the Π hallway at 16 × 12, max_depth 3 where it is (viewpoints, long renders). Subprocesses for Ctrl-C,
 kill -9 and the lock."""
-import contextlib
 import json
 import os
 import re
@@ -951,13 +950,8 @@ def test_an_interrupt_inside_mitsubas_variant_import_is_not_a_variant_diagnosis(
 def scheduler():
     """A Dask scheduler in this process with no worker (skipped without dask.distributed, the 'dask' extra)."""
     distributed = pytest.importorskip("distributed", reason="dask.distributed is not installed (the 'dask' extra)")
-    cluster = distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=None)
-    try:
+    with distributed.LocalCluster(n_workers=0, processes=False, protocol="tcp", dashboard_address=None) as cluster:
         yield cluster
-    finally:
-        # a test that closed the scheduler leaves its worker retrying to reach it: don't wait 30 s for that
-        with contextlib.suppress(TimeoutError):
-            cluster.close(timeout=3)
 
 
 def test_a_dask_scheduler_without_workers_gives_up_after_worker_timeout(tmp_path, capsys, scheduler):
