@@ -460,7 +460,7 @@ class DaskExecutor(_Workers):
                 self._check_workers()
                 pending = list(left)
                 for fut in done:
-                    yield self._result(fut.result())
+                    yield self._result(self._fetch(fut, poll))
         except (CancelledError, OSError) as e:  # a cancelled future or a closed comm: lost, unless still connected
             if client.status == "running":
                 raise
@@ -471,6 +471,16 @@ class DaskExecutor(_Workers):
         finally:
             if client.status == "running":
                 client.cancel([f for f in pending if not f.done()])
+
+    def _fetch(self, fut, poll: float):
+        """The result of a finished future, checking the workers every `poll` seconds while it waits: a worker lost
+        after it finished a task takes the result with it, the task goes back to waiting (the scheduler recomputes
+        it elsewhere), and with no worker left a plain `result()` would wait for ever."""
+        while True:
+            try:
+                return fut.result(timeout=poll)
+            except _TIMEOUTS:
+                self._check_workers()
 
     def close(self) -> None:
         if self._client is not None:

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+import types
 import warnings
 from pathlib import Path
 
@@ -1273,6 +1274,26 @@ def test_poisson_noise_with_analytic_rendering_noise_is_refused_unless_clipped(t
     assert rc == 0, err
     model = nb.scenes.get("blob2d", render_noise=2.0, width=0.15, render_noise_clip=True)
     assert min(float(model.render([0.5, 0.5], 16, s).min()) for s in range(4)) == 0.0
+
+
+def test_a_finished_dask_result_lost_with_its_worker_does_not_wait_for_ever():
+    """A future that `wait` returned as finished whose worker then leaves (the scheduler puts the task back to
+    waiting, "lose already computed task(s)": seen as a run that hung in the all-workers-lost test above) and no
+    worker left: fetching its result gives up after `worker_timeout` with `WorkersLost` instead of blocking."""
+    pytest.importorskip("distributed", reason="dask.distributed is not installed (the 'dask' extra)")
+    from nlosbench.executors import DaskExecutor, WorkersLost
+
+    class Waiting:  # a future whose task went back to waiting
+        def result(self, timeout=None):
+            time.sleep(timeout)
+            raise TimeoutError
+
+    ex = DaskExecutor({}, address="tcp://127.0.0.1:1", worker_timeout=0.3)
+    ex._client = types.SimpleNamespace(nthreads=dict, scheduler=types.SimpleNamespace(address="tcp://127.0.0.1:1"))
+    t0 = time.perf_counter()
+    with pytest.raises(WorkersLost, match="no Dask worker left at the scheduler tcp://127.0.0.1:1 for 0.3 s"):
+        ex._fetch(Waiting(), 0.05)
+    assert 0.3 <= time.perf_counter() - t0 < 5
 
 
 def test_a_lost_dask_scheduler_is_one_line_naming_it_with_the_details_in_dask_log(tmp_path, capsys, scheduler,

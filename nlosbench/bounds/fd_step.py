@@ -52,7 +52,7 @@ import numpy as np
 import torch
 
 from nlosbench.bounds.unbiased_fisher import unbiased_fisher
-from nlosbench.bounds.ustat import UStat, grouped, pair_squares, pixel_terms, pixel_ustat, sum_terms, t_quantile
+from nlosbench.bounds.ustat import UStat, grouped, limits, pair_squares, pixel_terms, pixel_ustat, sum_terms, t_quantile
 
 VARIANTS = ("central", "forward", "backward")
 
@@ -157,7 +157,7 @@ def fisher_stat(J: np.ndarray, w, group: int = 1) -> UStat:
     if P == 1:
         u = pixel_ustat(J.reshape(R, 1, N), w, group)
         return UStat(u.est.reshape(1, 1), u.se.reshape(1, 1), u.loo.reshape(-1, 1, 1), R, u.df.reshape(1, 1),
-                     None if u.terms is None else u.terms.reshape(R, 1, 1, -1))
+                     None if u.terms is None else u.terms.reshape(R, 1, 1, -1), u.noise.reshape(1, 1))
     wide = np.broadcast_to(np.asarray(w, dtype=np.float64), (N,)).copy()
     fi = unbiased_fisher(torch.from_numpy(J), torch.from_numpy(wide))
     return UStat(fi.F, fi.se, fi.leave_one_out, R)
@@ -179,7 +179,7 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
             pa, la = pixel_terms(xa, _row(w, N))
             pb, lb = pixel_terms(xb, _row(w, N))
             fa, fb = float(pa.sum()), float(pb.sum())
-            est, _, se, df = sum_terms(pb - c * pa, lb - c * la, R, fine.group, _q(xa, xb, (-c, 1.0), w, fine.group))
+            est, _, se, df, _ = sum_terms(pb - c * pa, lb - c * la, R, fine.group, _q(xa, xb, (-c, 1.0), w, fine.group))
             contrasts[name, j] = (float(est[0]), float(se[0]), float(df[0]), fa)
             t = one_sided_t(level, df[0], se[0])
             up, down = est[0] + t * se[0], est[0] - t * se[0]
@@ -187,7 +187,7 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
             rising |= bool(down > 0)
             ratio = fb / fa if fa > 0 and fb > 0 else math.nan
             r = ratio if math.isfinite(ratio) else 1.0
-            _, _, rse, _ = sum_terms(pb - r * pa, lb - r * la, R, fine.group, _q(xa, xb, (-r, 1.0), w, fine.group))
+            _, _, rse, _, _ = sum_terms(pb - r * pa, lb - r * la, R, fine.group, _q(xa, xb, (-r, 1.0), w, fine.group))
             key = up / fa if fa > 0 else math.inf
             if worst is None or key > worst[0]:
                 worst = (key, ratio, float(rse[0] / fa) if fa > 0 else math.nan)
@@ -218,7 +218,8 @@ def extrapolate(coarse: Stage, fine: Stage, w) -> dict[str, UStat]:
             pa, la = pixel_terms(A, _row(w, N))
             pb, lb = pixel_terms(B, _row(w, N))
             lo = (1 + k) * lb - k * la
-            est, loo, se, df = sum_terms((1 + k) * pb - k * pa, lo, R, fine.group, _q(A, B, (-k, 1 + k), w, fine.group))
+            q = _q(A, B, (-k, 1 + k), w, fine.group)
+            est, loo, se, df, _ = sum_terms((1 + k) * pb - k * pa, lo, R, fine.group, q)
             out[name] = UStat(est.reshape(1, 1), se.reshape(1, 1), loo.reshape(-1, 1, 1), R, df.reshape(1, 1),
                               grouped(lo, fine.group).reshape(R, 1, 1, -1) if R >= 3 else None)
         else:
@@ -320,9 +321,10 @@ def _ends(us: list[UStat], level: float, index: int | None = None) -> tuple[np.n
     `us` ((value, value) without SE); a scalar θ's 1/F at once over every UStat (a t quantile per call, not per F)."""
     if index in (None, 0) and all(u.est.shape == (1, 1) for u in us):
         est, se, df = (np.array([float(getattr(u, k)[0, 0]) for u in us]) for k in ("est", "se", "dof"))
+        noise = np.array([math.nan if u.noise is None else float(u.noise[0, 0]) for u in us])
         t = np.where(se == 0, 0.0, np.nan_to_num(t_quantile(level, df), nan=np.inf))  # `one_sided_t`, vectorised
+        lo, hi = limits(est, se, t, noise)  # score-type where the noise part is known
         with np.errstate(divide="ignore", invalid="ignore"):
-            hi, lo = est + t * se, est - t * se
             value = np.where(est > 0, 1.0 / est, np.where(np.isnan(est), np.nan, np.inf))  # `trace_inv`
             few = np.array([u.replicates < 3 for u in us])
             return (np.where(few, value, np.where(hi > 0, 1.0 / hi, np.inf)),

@@ -62,7 +62,7 @@ from scipy.special import ndtr, ndtri
 
 from nlosbench.bounds.fd_step import StepFisher, crlb_term, lower_candidates, single
 from nlosbench.bounds.hcr import LN10, log_expm1
-from nlosbench.bounds.ustat import UStat, covariance, t_quantile
+from nlosbench.bounds.ustat import UStat, covariance, limits, t_quantile
 
 #: the share of α that screens which terms could reach the sup (the module docstring's α₁ / α)
 SCREEN = 0.05
@@ -291,8 +291,9 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat | StepFisher, level: float = 
     term = crlb_term(sf, level if estimate_only else p)  # its lower end for the lower end (the joint level)
     upper_term = crlb_term(sf, level)  # its upper end for the upper end (one term: see the module docstring)
 
-    lam_hi = np.where(valid, lam.est + t * np.nan_to_num(lam.se), -np.inf)
-    lam_lo = np.where(valid, lam.est - t1 * np.nan_to_num(lam.se), -np.inf)
+    se = np.nan_to_num(lam.se)
+    lam_hi = np.where(valid, limits(lam.est, se, t, lam.noise)[1], -np.inf)  # score-type where known (`limits`)
+    lam_lo = np.where(valid, limits(lam.est, se, t1, lam.noise)[0], -np.inf)
     lam_pt = np.where(valid, lam.est, -np.inf)
     unresolved = valid & ~(lam_lo > 0)
 

@@ -97,7 +97,7 @@ def pixel_fisher_terms(J, weight, reduce: str = "sum") -> PixelTerms:
     if m == 2:
         var = est * est
     else:
-        _, _, se, _ = sum_terms(est[:, None], scale * lo.sum(axis=1)[:, :, None], m)  # each pixel its own sum
+        _, _, se, _, _ = sum_terms(est[:, None], scale * lo.sum(axis=1)[:, :, None], m)  # each pixel its own sum
         var = se * se
     return PixelTerms(est.reshape(H, W), var.reshape(H, W), m)
 

@@ -78,7 +78,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -161,7 +161,7 @@ class Raw:
         """The same look with only the tested Δ of `mask` (K,)."""
         lam = self.lam
         lam = UStat(lam.est[mask], lam.se[mask], lam.loo[:, mask] if lam.loo.size else lam.loo, lam.replicates,
-                    np.array(lam.dof[mask]))
+                    np.array(lam.dof[mask]), noise=None if lam.noise is None else lam.noise[mask])
         return Raw(self.D[:, mask], lam, self.sf, self.stages, self.w, self.deltas[mask], self.lower, self.upper,
                    self.pixels, self.group)
 
@@ -284,7 +284,8 @@ def _predict_ustat(u: UStat, ab: tuple[np.ndarray, np.ndarray], R: int) -> UStat
     R0, (a, b) = u.replicates, ab
     if u.est.ndim == 1 or u.est.shape == (1, 1):
         se = np.sqrt(np.maximum(_var(a, b, R), 0.0)).reshape(u.est.shape)
-        return UStat(u.est, se, np.empty((0,) + u.est.shape), R, u.dof * (R - 1.0) / (R0 - 1.0))
+        noise = None if u.noise is None else (np.asarray(b, dtype=np.float64) / (R * (R - 1.0))).reshape(u.est.shape)
+        return UStat(u.est, se, np.empty((0,) + u.est.shape), R, u.dof * (R - 1.0) / (R0 - 1.0), noise=noise)
     return _rescale(u, _se_ratio(ab, R0, R), R)
 
 
@@ -374,7 +375,7 @@ class Fit:
             for name, u in sf.stats[k].items():
                 if scalar and abs(float(u.est[0, 0] - ref.est[0, 0])) <= t0 * math.hypot(float(u.se[0, 0]),
                                                                                       float(ref.se[0, 0])):
-                    u = UStat(ref.est, u.se, u.loo, u.replicates, u.df)
+                    u = replace(u, est=ref.est)
                 out[name] = _predict_ustat(u, self.stages[k][name], R)
             return out
 
@@ -399,7 +400,7 @@ class Fit:
                 rising |= bool(est - t * se_r > 0)
             extra = {name: _rescale(u, ratio[name], R) for name, u in h.extrapolated.items() if name in ratio}
             if scalar and not h.rising:  # the stages agree within the noise: the extrapolation adds nothing
-                extra = {name: UStat(ref.est, u.se, u.loo, u.replicates, u.df) for name, u in extra.items()}
+                extra = {name: replace(u, est=ref.est) for name, u in extra.items()}
             halvings.append(Halving(h.step, h.ratio, h.se * float(np.max(ratio.get("central", [1.0]))), converged,
                                     rising, {}, extra))
             if converged:
@@ -431,7 +432,7 @@ class Fit:
             D = raw.deltas.reshape(len(raw.deltas), -1)
             quad = np.einsum("kp,pq,kq->k", D, raw.sf.final.est, D)
             lam = _predict_ustat(raw.lam, self.lam, R)
-            lam = UStat(np.where(raw.lam.est > 0, raw.lam.est, quad), lam.se, lam.loo, lam.replicates, lam.df)
+            lam = replace(lam, est=np.where(raw.lam.est > 0, raw.lam.est, quad))
             iv = hcr_interval(lam, raw.deltas, pred, level, raw.lower, raw.upper)
             out["hcr"] = (iv.lower, iv.point, iv.upper, iv.lower_note)
         return out

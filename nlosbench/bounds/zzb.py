@@ -144,7 +144,7 @@ def bhattacharyya_ustat(X, Y, scale: float, group: int = 1) -> UStat:
         # a weight fixed given X (one weight render) keeps a U-statistic: its unbiased variance; paired weight
         # renders make the weight a function of the replicates too: the jackknife, which carries the weight's noise
         q = pair_squares([X - X[:, i:i + 1]], [1.0], w, group) if R >= 4 and root_loo is None else None
-        e, left, s, d = sum_terms(w * per, lo, R, group, q)
+        e, left, s, d, _ = sum_terms(w * per, lo, R, group, q)
         z = 0.5 * scale * ((X + X[:, i:i + 1]) * zero[None]).sum(axis=2)  # (R, G): the zero pixels' bound
         est[i] = e + z.mean(axis=0)
         if R >= 3:
