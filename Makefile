@@ -8,7 +8,7 @@ OWN_SCENE ?= runs/own_scene
 # -W --keep-going: every warning is an error, all reported; -n: every cross-reference must resolve
 SPHINX := $(PY) -m sphinx -W --keep-going -n -q
 
-.PHONY: setup demo test lint docs docs-check docs-build bench bench-gpu clean
+.PHONY: setup demo test test-slow lint docs docs-check docs-build bench bench-gpu clean
 
 setup:
 	@bash scripts/setup.sh
@@ -20,12 +20,18 @@ demo: setup
 
 # the suite on TEST_WORKERS processes (pytest-xdist); with --dist loadgroup tests/conftest.py schedules: a file with
 # module-scoped fixtures runs in one process (made once; the own-scene run is written by one process), other tests
-# go one by one to whichever process is free. The 20 slowest are listed: all of `make test` has 12 min on 2 cores
+# go one by one to whichever process is free. The 20 slowest are listed: all of `make test` has 12 min on 2 cores.
+# `make test` leaves out the tests marked `slow` (coverage over 1000 seeds, every shipped config's smoke run, the
+# estimator-efficiency and prediction checks at the demo's settings); `make test-slow` runs only those; CI runs both
 TEST_WORKERS ?= 2
+PYTEST := $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=20
 
 test: setup lint
-	NLOSBENCH_OWN_SCENE_OUT=$(OWN_SCENE) $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=20
+	NLOSBENCH_OWN_SCENE_OUT=$(OWN_SCENE) $(PYTEST) -m "not slow"
 	@$(MAKE) --no-print-directory docs-check
+
+test-slow: setup
+	$(PYTEST) -m slow
 
 # the modules whose docstrings hold `>>>` examples (tests/test_api_docs.py checks that none is left out)
 DOCTESTS := nlosbench/api.py nlosbench/bank.py nlosbench/noise.py nlosbench/params.py nlosbench/forward \

@@ -114,6 +114,7 @@ def _ends(seed: int) -> list[float]:
     return out + [z.lower, z.point, z.upper]
 
 
+@pytest.mark.slow
 def test_every_end_covers_the_exact_bound_on_a_channel_shared_toy():
     """spot_rgb as above, `at` at 4 replicates (test grid 3, one axis offset, ξ = 2 mm, one halving) without and
     with a ±25 % precision target, and the ZZB over a 9-point grid (R = 3), 1000 seeds: every one-sided 95 % end

@@ -36,7 +36,6 @@ def own_scene(tmp_path_factory):
     return out, proc.stdout
 
 
-@pytest.mark.slow
 def test_own_scene_writes_its_spec_checks_it_and_runs_every_step(own_scene):
     out, stdout = own_scene
     assert (out / "scene" / "room.xml").is_file() and (out / "scene" / "room.yaml").is_file()
@@ -53,7 +52,6 @@ def test_own_scene_writes_its_spec_checks_it_and_runs_every_step(own_scene):
         assert (out / "run" / f).is_file(), f
 
 
-@pytest.mark.slow
 def test_own_scene_bounds_are_finite_and_consistent(own_scene):
     out, stdout = own_scene
     b = rows(out / "run" / "00-bounds" / "bounds.csv")
@@ -77,7 +75,6 @@ def test_own_scene_bounds_are_finite_and_consistent(own_scene):
     assert "Ziv–Zakai bound on the Bayesian MSE" in stdout and "HCR lower end over Θ" in stdout
 
 
-@pytest.mark.slow
 def test_own_scene_estimators_have_mse_rows_against_the_bounds(own_scene):
     out, stdout = own_scene
     local = rows(out / "run" / "02-trials" / "summary.csv")

@@ -117,7 +117,8 @@ def test_same_config_same_numbers_on_any_executor(tmp_path):
 SHIPPED = sorted((Path(__file__).parents[1] / "configs").glob("*.yaml"))
 
 
-@pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
+@pytest.mark.parametrize("path", [p if p.stem == "quick" else pytest.param(p, marks=pytest.mark.slow) for p in SHIPPED],
+                         ids=[p.stem for p in SHIPPED])  # the demo's config in `make test`, the others `make test-slow`
 def test_every_shipped_config_runs_in_smoke_mode(tmp_path, path):
     """`--smoke` shrinks image, grids, spp and trials but runs every study through the same code path."""
     cfg = config.load(path, smoke=True)

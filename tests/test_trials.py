@@ -37,6 +37,7 @@ def make_ctx(run_dir: Path, scene: dict, block: dict, noise=None, seed: int = 0,
     return RunContext.create(cfg, Path(run_dir), resume=resume, quiet=True), cfg["studies"][0]
 
 
+@pytest.mark.slow
 def test_mle_adam_is_efficient_on_blob2d_at_high_snr(tmp_path):
     """240 trials at one θ*, AWGN σ = 0.02 (peak SNR 50), uniform random starts in Θ: the MSE of
     mle-adam (exact AD gradients) is within [0.75, 1.35] × CRLB. With 240 trials the MSE's relative
