@@ -21,8 +21,9 @@ demo: setup
 # the suite on TEST_WORKERS processes (pytest-xdist); with --dist loadgroup tests/conftest.py schedules: a file with
 # module-scoped fixtures runs in one process (made once; the own-scene run is written by one process), other tests
 # go one by one to whichever process is free. The 20 slowest are listed: all of `make test` has 12 min on 2 cores.
-# `make test` leaves out the tests marked `slow` (coverage over 1000 seeds, every shipped config's smoke run, the
-# estimator-efficiency and prediction checks at the demo's settings); `make test-slow` runs only those; CI runs both
+# `make test` leaves out the tests marked `slow` (coverage over 1000 seeds and the stopping rule's over many,
+# every shipped config's smoke run but the demo's, estimator efficiency and the prediction at the demo's settings,
+# the longest signal, kill and resume tests); `make test-slow` runs only those; CI runs both
 TEST_WORKERS ?= 2
 PYTEST := $(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadgroup --durations=20
 

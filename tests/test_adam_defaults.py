@@ -3,6 +3,7 @@ unimodal problems: the same observations, the same starts near θ*, the same FD 
 spp per render (gauss-newton at spp = AUTO_SPP; its other options default). Pixel-samples are Σ spp × H × W over
 a fit's renders (`Estimate.samples`, from the model's counters)."""
 import numpy as np
+import pytest
 import torch
 
 import nlosbench as nb
@@ -43,6 +44,7 @@ def _ratios(res) -> tuple[float, float, list[str]]:
     return float(adam[0].mean() / gn[0].mean()), float(adam[1].sum() / gn[1].sum()), list(adam[2])
 
 
+@pytest.mark.slow
 def test_adam_defaults_match_gauss_newton_on_blob2d_with_rendering_noise():
     """blob2d (width 0.15, synthetic rendering noise 0.5: per-pixel render variance 0.25·L/spp, at 128 spp up to 0.9
     × the AWGN variance, at the peak), AWGN σ = 0.05, θ* = (0.45, 0.58), 24 trials (seed 31), starts within ±5 % of
@@ -63,6 +65,7 @@ def test_adam_defaults_match_gauss_newton_on_blob2d_with_rendering_noise():
     assert res["mle-adam"][0].mean() <= 1.6 * bound, (res["mle-adam"][0].mean(), bound)
 
 
+@pytest.mark.slow
 def test_adam_defaults_match_gauss_newton_on_cornell_ball():
     """The Mitsuba scene cornell_ball at 16 × 16 px (max_depth 3), θ = (ball_x, ball_red) at (0.1, 0.6), AWGN
     σ = 0.05, observations from 1024-spp renders, 8 trials (seed 37), starts within ±5 % of Θ's width, FD step

@@ -62,7 +62,8 @@ needs_dask = pytest.mark.skipif(not HAS_DASK, reason="dask.distributed is not in
 
 
 @pytest.mark.parametrize("make", [lambda: LocalPoolExecutor(BLOB, workers=2),
-                                  pytest.param(lambda: DaskExecutor(BLOB, workers=2), marks=needs_dask)],
+                                  pytest.param(lambda: DaskExecutor(BLOB, workers=2),
+                                               marks=[needs_dask, pytest.mark.slow])],
                          ids=["pool", "dask"])
 def test_trials_through_workers_match_a_serial_run(tmp_path, make):
     model, trials = _trials()

@@ -500,6 +500,7 @@ def test_a_second_ctrl_c_stops_at_once(tmp_path):
 
 
 @linux
+@pytest.mark.slow
 def test_kill_9_of_the_main_process_leaves_no_worker(tmp_path):
     """Row 10. kill -9 of `nlosbench run` while its 2 pool workers render (the first renders are back, so
     both have started): every worker exits within seconds (each watches its parent), and the folder's lock
@@ -857,6 +858,7 @@ def _signal_lane(cfg: Path, tmp: Path, name: str) -> list[tuple]:
 
 
 @linux
+@pytest.mark.slow
 def test_sigint_sigterm_and_sighup_at_any_moment_end_with_one_line(tmp_path):
     """SIGINT (Ctrl-C), SIGTERM and SIGHUP sent to `python -m nlosbench run` (a Π-hallway bounds study with one
     pool worker) at moments spread from its start — the import of torch and nlosbench, Dr.Jit's and Mitsuba's

@@ -26,6 +26,7 @@ def _exact_crlb(x: float) -> float:
     return SIGMA**2 / float((J**2).sum())
 
 
+@pytest.mark.slow
 def test_both_ends_cover_the_exact_crlb_whatever_the_stopping():
     """blob2d's x (rendering noise 4 at 16 spp, AWGN σ = 0.3), θ = 0.45 and 0.75 per run, precision 0.25 (K = 2
     looks: the pilot's ends at one-sided 1 − 0.05/20, the fresh look's at 1 − 0.95·0.05), 100 seeds: 200 (θ, seed)

@@ -240,6 +240,7 @@ def test_pi_hallway_image_change_is_far_larger_in_los(pi):
     assert change(0.7, 1) > 5 * change(1.3, 1)
 
 
+@pytest.mark.slow
 def test_pi_hallway_information_jumps_at_the_corner_and_lives_on_corridor_b_near_it():
     """The paper's findings on the calibrated Π hallway (40 × 30, depth 8, AWGN σ = 0.025), from unbiased
     per-pixel Fisher information (3 FD rounds at 512 spp, ξ = 1 cm, no step halving: the step check is not the

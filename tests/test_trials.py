@@ -57,6 +57,7 @@ def test_mle_adam_is_efficient_on_blob2d_at_high_snr(tmp_path):
     assert row["mse_se"] / row["mse"] < 0.1  # the bootstrap SE agrees with the χ² estimate above
 
 
+@pytest.mark.slow
 def test_edge1d_mse_respects_hcr_and_far_above_is_flagged(tmp_path):
     """edge1d (hard shadow edge), AWGN σ = 0.1, 80 trials per θ* at 2 θ*. Each near-efficient
     estimator (grid-search, mle-adam) has MSE ≥ HCR − 3 SE (bootstrap SE over the 80 trials);
@@ -151,6 +152,7 @@ def _summary_without_timing(res: dict) -> list[dict]:
     return [{k: v for k, v in r.items() if k not in TIMING} for r in res["summary"]]
 
 
+@pytest.mark.slow
 def test_killed_run_resumes_to_the_same_summary(tmp_path):
     """A real subprocess is SIGKILLed after a few trials; resuming finishes only the missing trials
     and gives exactly the summary of an uninterrupted run (wall times aside). The blob2d model here

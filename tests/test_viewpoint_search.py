@@ -30,6 +30,7 @@ def bowl(X: np.ndarray) -> np.ndarray:
     return -1.0 + 30.0 * ((np.asarray(X).reshape(-1, 2) - OPTIMUM) ** 2).sum(axis=1)
 
 
+@pytest.mark.slow
 def test_search_finds_the_minimum_of_a_noisy_bowl_in_most_replays():
     """The bowl above, each evaluation with Gaussian noise of SD 0.15 in log10 (a score known to ±40 %), told to
     the search as its SE. 20 seeded replays of 8 evaluations (4 Sobol, then 4 single-view batches); a replay
