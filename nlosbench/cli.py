@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import NoReturn
 
-from .interrupts import STOPPING, Interrupted, signum_of
+from .interrupts import STOPPING, Interrupted, interrupt_in, signum_of
 from .records import RecordError
 from .schema import ConfigError
 from .variant import VariantError
@@ -390,9 +390,7 @@ def main(argv: list[str] | None = None) -> int:
 
                 run_all(args.names, reduced=args.reduced)
     except KeyboardInterrupt as e:
-        signum = signum_of(e)
-        name = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
-        return _fail(128 + signum, f"interrupted{name}", resume)
+        return _interrupted(e, resume)
     except (ConfigError, RecordError) as e:  # input the user can fix (a damaged record log included)
         return _fail(BAD_INPUT, str(e))
     except FileNotFoundError as e:
@@ -411,8 +409,18 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError as e:  # an optional dependency that is not installed (dask for executor: dask)
         return _fail(ENVIRONMENT, str(e), resume)
     except Exception as e:  # noqa: BLE001 - not caused by the input: a bug, reported with its traceback kept
+        stop = interrupt_in(e)  # a Ctrl-C that Dr.Jit re-raised as its own error (a frozen function, a symbolic loop)
+        if stop is not None:
+            return _interrupted(stop, resume)
         return _fail(INTERNAL, _internal(e, prepared.dir if prepared is not None else None), resume)
     return OK
+
+
+def _interrupted(e: KeyboardInterrupt, resume) -> int:
+    """Exit 128 + the signal, with the line "interrupted" (naming a signal other than SIGINT) and how to resume."""
+    signum = signum_of(e)
+    name = "" if signum == signal.SIGINT else f" ({signal.Signals(signum).name})"
+    return _fail(128 + signum, f"interrupted{name}", resume)
 
 
 def _quiet_stdout() -> None:

@@ -1,6 +1,8 @@
 """The frozen render path (`drjit.freeze`d `mi.render`, nlosbench/forward/passes.py): same images as the
 traced path, one recording per pass spp, the θ → scene update (geometry included) stays correct, the
 switch turns it off."""
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -128,3 +130,25 @@ def test_a_failing_recording_falls_back_to_traced_with_a_warning(cornell, monkey
     import mitsuba as mi
 
     assert np.array_equal(np.asarray(img), np.asarray(mi.render(cornell.scene, spp=8, seed=5)))
+
+
+def test_ctrl_c_inside_the_frozen_render_is_a_keyboard_interrupt_not_a_fallback(cornell):
+    """Dr.Jit re-raises what a frozen function's recording raised as a RuntimeError caused by it; a Ctrl-C there
+    (a real `drjit.freeze` whose body raises KeyboardInterrupt) comes out as KeyboardInterrupt and leaves the
+    frozen path on. Before, it was taken for a failed recording: a warning, and the render went on traced (a
+    Ctrl-C test then waited a minute for a render that no longer stopped)."""
+    import drjit as dr
+
+    renderer = passes.FrozenRender(True, label="scene 'x'")
+
+    def interrupted(scene, seed, spp):
+        raise KeyboardInterrupt
+
+    renderer._frozen = dr.freeze(interrupted)
+    cornell._apply(np.asarray(THETAS[0], dtype=np.float64))
+    renderer(cornell.scene, 8, 4)  # the first render of a scene is traced (see FrozenRender)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(KeyboardInterrupt):
+            renderer(cornell.scene, 8, 5)
+    assert renderer.enabled

@@ -415,6 +415,30 @@ def test_an_internal_error_mid_run_is_exit_3_with_the_traceback_in_the_run_folde
     assert "Traceback" in (out / "error.log").read_text()
 
 
+def test_a_ctrl_c_that_dr_jit_re_raised_as_its_own_error_is_an_interrupt(tmp_path, monkeypatch):
+    """A Ctrl-C inside a Dr.Jit call (a frozen function, a symbolic loop) comes back as a RuntimeError caused by the
+    KeyboardInterrupt (here a real `drjit.freeze` whose body raises it, called by a study): exit 130, one line
+    "interrupted" with how to resume, not "internal error (a bug ...)"."""
+    import drjit as dr
+
+    from nlosbench.studies import bounds
+
+    def body(x):
+        raise KeyboardInterrupt
+
+    def interrupted(ctx, cfg):
+        from drjit.llvm.ad import Float
+
+        dr.freeze(body)(Float(1.0))
+
+    monkeypatch.setattr(bounds, "run", interrupted)
+    cfg, out = tmp_path / "c.yaml", tmp_path / "run"
+    cfg.write_text(yaml.safe_dump(TINY))
+    rc, _, err = cli("run", cfg, "--out", out, "--quiet")
+    assert rc == 130 and len(err.strip().splitlines()) == 1, err
+    assert err.startswith("nlosbench: error: interrupted") and "--resume" in err and "internal" not in err, err
+
+
 def test_an_internal_error_before_the_run_folder_exists_goes_to_a_temporary_file(tmp_path, monkeypatch):
     """An internal error while checking (no run folder yet): exit 3, the traceback in a temporary file named
     on the line, --out not created."""

@@ -53,6 +53,8 @@ from __future__ import annotations
 import os
 import warnings
 
+from .. import interrupts
+
 WAVEFRONT_LIMIT = 2 ** 32
 #: pixel-samples per pass by Dr.Jit backend (see the module docstring for how they were chosen)
 PASS_SAMPLES = {"llvm": 2 ** 20, "cuda": 2 ** 30}
@@ -137,6 +139,9 @@ class FrozenRender:
             dr.eval(img)
             return img
         except Exception as e:  # noqa: BLE001 - any recording failure: render traced from now on
+            interrupt = interrupts.interrupt_in(e)
+            if interrupt is not None:  # Ctrl-C inside the frozen call: Dr.Jit wraps it in a RuntimeError
+                raise interrupt from None
             self.enabled = False
             self._frozen.clear()
             warnings.warn(f"{self.label}: the frozen render failed ({type(e).__name__}: {e}); rendering traced "
