@@ -140,6 +140,7 @@ def test_every_end_covers_the_exact_bound_on_a_channel_shared_toy():
     assert all(FEWEST_MISSES <= m <= MOST_MISSES for pair in misses.values() for m in pair), misses
 
 
+@pytest.mark.slow
 def test_the_zzb_lower_end_carries_a_noisy_weight_render():
     """Poisson (0.05 photons per unit radiance) on spot_rgb (background 1, rendering noise 1 at 16 spp), R = 4
     replicates; the weight renders at 4 spp (4× the replicates' noise variance), one per replicate set, paired with
