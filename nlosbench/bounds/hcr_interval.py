@@ -10,7 +10,7 @@ the CRLB term, from an unbiased Fisher information at an FD step shown converged
 Inputs are U-statistics over R independent replicates (`ustat`): λ̂(Δ_k) from the replicate differences
 L̃_r(θ*+Δ_k) − L̃_r(θ*) (each replicate may use common random numbers across θ), and F̂ from R FD
 Jacobians (a `StepFisher`: every FD stage tried), each with its SE and degrees of freedom. With one-sided
-Student-t limits at level 1 − α:
+Student-t limits at level 1 − α (score-type where the noise × noise part of the SE is known, R ≥ 4: `ustat.limits`):
 
   lower end (the bound to quote): max over Δ of f(λ_U(Δ)) and the CRLB term's lower end (F's largest upper
       limit over the FD stages and variants, `fd_step.lower_candidates`), every limit at one per-term level p
