@@ -111,3 +111,17 @@ def test_score_limits_miss_at_their_level_on_either_side_where_wald_limits_tilt(
     assert 155 <= int((hi < truth).sum()) <= 245 and 155 <= int((lo > truth).sum()) <= 245
     wald_hi, wald_lo = int((u.est + t * u.se < truth).sum()), int((u.est - t * u.se > truth).sum())
     assert wald_hi > 1.3 * wald_lo
+
+
+@pytest.mark.parametrize("R, C, J", [(4, 3, 1), (5, 2, 2), (6, 400, 1), (3, 5, 2)])
+def test_pair_squares_equals_the_kernel_written_out_on_either_route(R, C, J):
+    """Q_m = Σ_{r≠s} H_rs² per group from `pair_squares` against H_rs = Σ_a ω_a y_ra y_sa written out: both routes
+    (the (J·C)² moments where R ≥ J·C, the R × R kernel where R < J·C, a transient scan point's 400 bins) to 1e-12."""
+    rng = np.random.default_rng(R * 100 + C)
+    xs = [rng.normal(size=(R, 2, 7 * C)) for _ in range(J)]
+    w, coefs = rng.uniform(0.5, 2.0, size=(2, 7 * C)), list(rng.normal(size=J))
+    y = np.concatenate([x.reshape(R, 2, 7, C) for x in xs], axis=-1)
+    om = np.concatenate([c * w.reshape(2, 7, C) for c in coefs], axis=-1)
+    H = np.einsum("rkma,skma,kma->kmrs", y, y, om)
+    exact = sum(H[..., r, s] ** 2 for r in range(R) for s in range(R) if r != s)
+    assert np.allclose(pair_squares(xs, coefs, w, C), exact, rtol=1e-12, atol=0)

@@ -195,12 +195,18 @@ def pair_squares(xs: Sequence[np.ndarray], coefs: Sequence[float], w, group: int
     combination of per-value statistics over the same R replicates (xs: arrays (R, k, N); w scalar or (k, N)), each
     group the `group` consecutive values that share path samples. With y_r the group's J·C values of replicate r and
     ω their weights coef_j·w_c, H_rs = Σ_a ω_a y_ra y_sa, so Σ_{r,s} H_rs² = Σ_ab ω_a ω_b (Σ_r y_ra y_rb)² and Q is
-    that less Σ_r H_rr² (memory (J·C)² per group, whatever R). The square part of `sum_terms`' unbiased variance."""
+    that less Σ_r H_rr² (memory (J·C)² per group, whatever R). Where R < J·C (a transient scan point's hundreds of
+    time bins) the R × R kernel itself is cheaper: Q = Σ_{r≠s} H_rs² directly (memory R² per group). The square part
+    of `sum_terms`' unbiased variance."""
     R, k, N = xs[0].shape
     C = check_group(group, N)
     y = np.concatenate([x.reshape(R, k, N // C, C) for x in xs], axis=-1)  # (R, k, M, J·C)
     wv = np.broadcast_to(np.asarray(w, dtype=np.float64), (k, N)).reshape(k, N // C, C)
     om = np.concatenate([c * wv for c in coefs], axis=-1)  # (k, M, J·C)
+    if R < y.shape[-1]:
+        H = np.einsum("rkma,skma->kmrs", y * om, y)  # (k, M, R, R)
+        off = ~np.eye(R, dtype=bool)
+        return (H * H)[..., off].sum(axis=-1)
     P = np.einsum("rkma,rkmb->kmab", y, y)
     diag = np.einsum("rkma,kma->rkm", y * y, om)  # H_rr
     return np.einsum("kmab,kma,kmb->km", P * P, om, om) - (diag * diag).sum(axis=0)
