@@ -327,6 +327,26 @@ def bias_test(E: np.ndarray, clusters: np.ndarray, level: float = 0.95, shared: 
             "biased": bool(math.isfinite(tmax) and tmax > q), "clusters": int(len(ids)), "truth_in_se": in_se}
 
 
+POINT_NOTE = "a plug-in point estimate"
+ESTIMATE_NOTE = "a point estimate: fewer than 3 replicate sets"
+
+
+def bound_entry(row: dict, kind: str) -> dict:
+    """One bound's cells of a CSV row (`Bound.columns`) as `montecarlo.summarize` takes them: {log10, lower,
+    upper, point, level, flags (a tuple), lower_note, upper_note} (ends, point, level and notes where present;
+    point and level make the joint limit of MSE / bound, `montecarlo.ratio_upper`). A bound without ends
+    (hcr_neff, hcr_hat, barankin: plug-in point estimates) gets `POINT_NOTE` on both ends, one flagged
+    `estimate-only` (its ends are its point estimate) `ESTIMATE_NOTE`: no verdict is a test against them."""
+    ends, point = ({e: float(row[f"{kind}_{e}"]) for e in keys if row.get(f"{kind}_{e}") not in (None, "")}
+                   for keys in (("lower", "upper"), ("point", "level")))
+    notes = {e: str(row[f"{kind}_{e}"]) for e in ("lower_note", "upper_note") if row.get(f"{kind}_{e}")}
+    flags = tuple(f for f in str(row.get(f"{kind}_flags") or "").split(",") if f)
+    if not ends or "estimate-only" in flags:
+        note = ESTIMATE_NOTE if ends else POINT_NOTE
+        notes = {"lower_note": note, "upper_note": note}
+    return {"log10": float(row[f"log10_{kind}"]), **ends, **point, "flags": flags, **notes}
+
+
 def summarize(
     records: Sequence[dict],
     names: Sequence[str],

@@ -226,7 +226,8 @@ def test_point_bounds_are_not_tested_nor_counted():
     """Through the trials study's bound rows: a bound without ends (hcr_neff, a plug-in point estimate) or whose
     ends are its estimate (flag estimate-only: R < 3) gets no test and no share of the Bonferroni correction; the
     CRLB with its ends does."""
-    from nlosbench.studies.trials import ESTIMATE_NOTE, POINT_NOTE, bounds_map
+    from nlosbench.montecarlo import ESTIMATE_NOTE, POINT_NOTE
+    from nlosbench.studies.trials import bounds_map
 
     row = {"noise_index": 0, "theta_index": 0, "log10_hcr_neff": -3.0, "hcr_neff_flags": "", "hcr_neff_point": -3.0,
            "log10_crlb": -2.0, "crlb_lower": -2.2, "crlb_upper": -1.8, "crlb_point": -2.0, "crlb_level": 0.95,
