@@ -40,6 +40,10 @@ def test_study_bounds_and_ratio_match_the_closed_forms(tmp_path):
     rms_sum = 1 / np.sqrt(toy.fisher(t, summed=True)[2, 2])
     assert float(rows[f"transient {SB:g} ps"]["rms_bound"]) == pytest.approx(rms_tr, rel=0.01)
     assert float(rows["time-summed"]["rms_bound"]) == pytest.approx(rms_sum, rel=0.01)
+    # the HCR over the study's test Δ: for this Gaussian shift family every Δ term lies below the Δ → 0 one, so the
+    # exact HCR is the closed-form CRLB (χ²(Δ) ≥ F Δ² here: Δ²/(exp χ² − 1) < 1/F)
+    for label, want in ((f"transient {SB:g} ps", rms_tr), ("time-summed", rms_sum)):
+        assert float(rows[label]["rms_hcr"]) == pytest.approx(want, rel=0.01), label
     (ratio,) = [r for r in read_csv(study / "ratios.csv") if r["summed"] == "time-summed"]
     assert float(ratio["ratio"]) == pytest.approx(rms_sum / rms_tr, rel=0.02)
     assert float(ratio["ratio_lower"]) <= float(ratio["ratio"]) <= float(ratio["ratio_upper"])

@@ -15,7 +15,8 @@ return, `wall_return` times the mean signal per scan point, which carries no inf
 
 Each detector is a `Detected` model over the same renders (the same bank seed: every detector sees the same
 rendering noise) and its CRLB comes from the bound service (unbiased FD Fisher information over `replicates` rounds,
-the step halved until F settles, one-sided limits at the run's level). The ratio √(CRLB_summed / CRLB_transient)
+the step halved until F settles, one-sided limits at the run's level), with the HCR interval over test points
+Δ = ±ξ, ±2ξ and a 3-point grid over Θ (`HCR_GRID`, `HCR_OFFSETS`) beside it. The ratio √(CRLB_summed / CRLB_transient)
 has a lower limit √(lower_summed / upper_transient) and an upper one the other way, each at level 1 − 2(1 − level)
 (Bonferroni over the two ends used: valid however the two bounds' errors are correlated).
 
@@ -85,6 +86,10 @@ SCHEMA = {
     "mle_halfwidth": Field(float, 3e-3, "the MLE's lattice spans ± this around a pilot draw's backprojection "
                            "estimate (parameter units; at least 2 lattice steps)"),
 }
+
+#: the HCR's test points: a grid of this many points over Θ and the axis offsets ±ξ·2^k, k < HCR_OFFSETS (ξ the
+#: first FD step); with the Δ → 0 term (the CRLB's) the HCR bounds unbiased estimators over these Δ
+HCR_GRID, HCR_OFFSETS = 3, 2
 
 #: the MLE's surrogate: independent lattice sets, half-width of its window (lattice points) and polynomial degree
 MLE_SETS, MLE_WINDOW, MLE_DEGREE = 2, 2, 3
@@ -180,11 +185,12 @@ def _mle_points(cfg: dict) -> int:
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
-    """A reference render, then per detector a weight render and 2·R FD renders per parameter and step tried (at
-    most 1 + max_halvings steps), for the parameter alone and, with nuisance parameters, for all of them; and the
-    MLE's lattice, `MLE_SETS` sets at `mle_spp`."""
+    """A reference render, then per detector a weight render, the HCR's R test renders per test point and 2·R FD
+    renders per parameter and step tried (at most 1 + max_halvings steps), for the parameter alone and, with
+    nuisance parameters, for all of them; and the MLE's lattice, `MLE_SETS` sets at `mle_spp`."""
     fd = 2 * cfg["replicates"] * (1 + cfg["max_halvings"])
-    per = 1 + fd + ((1 + fd * (1 + len(cfg["nuisance"]))) if cfg["nuisance"] else 0)
+    hcr = cfg["replicates"] * (HCR_GRID + 2 * HCR_OFFSETS)  # the HCR's test renders (at most: θ* may be a grid point)
+    per = 1 + fd + hcr + ((1 + fd * (1 + len(cfg["nuisance"]))) if cfg["nuisance"] else 0)
     n = len(p.detectors) * per
     lattice = MLE_SETS * _mle_points(cfg)
     px = pixels(ctx.model)
@@ -222,14 +228,17 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         model = Detected(sub, det)
         bank = RenderBank(model, seed=ctx.seed)
         (pt,) = BoundService(bank, [Poisson(1.0)], ctx.bounds.level).at(
-            [t_star], cfg["spp"], ("crlb",), "common", cfg["replicates"], fd_step=cfg["fd_step"],
-            max_halvings=cfg["max_halvings"])
-        b = pt.bounds["crlb"]
+            [t_star], cfg["spp"], ("crlb", "hcr"), "common", cfg["replicates"], test_grid=HCR_GRID,
+            offsets=HCR_OFFSETS, fd_step=cfg["fd_step"], max_halvings=cfg["max_halvings"])
+        b, hcr = pt.bounds["crlb"], pt.bounds["hcr"]
         renders += bank.renders
         row = {"detector": label, "jitter_ps": det.jitter_ps if det.timing else "", "timing": det.timing,
                "wall_return": det.wall_return, "log10_crlb": b.point, "crlb_lower": b.lower, "crlb_upper": b.upper,
                "rms_bound": _rms(b.point), "rms_lower": _rms(b.lower), "rms_upper": _rms(b.upper),
-               "lower_note": b.lower_note, "flags": ",".join(b.flags), "how": b.reason, "renders": bank.renders}
+               "lower_note": b.lower_note, "flags": ",".join(b.flags), "how": b.reason,
+               "log10_hcr": hcr.point, "hcr_lower": hcr.lower, "hcr_upper": hcr.upper, "rms_hcr": _rms(hcr.point),
+               "rms_hcr_lower": _rms(hcr.lower), "rms_hcr_upper": _rms(hcr.upper), "hcr_lower_note": hcr.lower_note,
+               "hcr_upper_note": hcr.upper_note, "hcr_terms": hcr.terms, "renders": bank.renders}
         if cfg["nuisance"]:
             row.update(_nuisance(ctx, cfg, p, det))
             renders += row["nuisance_renders"]
@@ -458,6 +467,13 @@ def report(study_dir: Path, results: dict) -> str:
                   "| transient | against | ratio of RMS bounds | lower limit | upper limit |", "|---|---|---|---|---|"]
         lines += [f"| {r['transient']} | {r['summed']} | {_num(r['ratio_nuisance'])} | "
                   f"{_num(r['ratio_nuisance_lower'])} | {_num(r['ratio_nuisance_upper'])} |" for r in ratios]
+    if any(r.get("log10_hcr") not in (None, "") for r in rows):
+        lines += ["", f"The HCR (unbiased estimators; test points Δ = ±ξ, ±2ξ and a {HCR_GRID}-point grid over Θ, "
+                      "with the Δ → 0 term): √HCR and its ends beside √CRLB.", "",
+                  f"| detector | √HCR [{u}] | ends [{u}] | √CRLB [{u}] | set by |", "|---|---|---|---|---|"]
+        lines += [f"| {r['detector']} | {_num(r['rms_hcr'])} | [{_num(r['rms_hcr_lower'])}"
+                  f"{' †' if r.get('hcr_lower_note') else ''}, {_num(r['rms_hcr_upper'])}] | {_num(r['rms_bound'])} | "
+                  f"{r.get('hcr_terms') or '–'} |" for r in rows]
     mle = results.get("mle")
     if mle:
         lines += ["", f"Maximum likelihood on the Poisson likelihood of the counts (`surrogate`: a per-bin cubic over "
@@ -475,6 +491,8 @@ def report(study_dir: Path, results: dict) -> str:
                          f"{_num(r['mle_mse_over_crlb'])} [≤ {_num(r['mle_mse_over_crlb_upper'])}] | "
                          f"{_num(r['mle_bias'])} ± {_num(r['mle_bias_se'])} ({_num(r['mle_bias_p'])}) | "
                          f"{r['mle_vs_crlb']} | {r['mle_status']} |")
-    if any(r.get("lower_note") for r in rows):
-        lines += ["", "† not a confidence limit: the FD step did not converge (bounds.csv says why)."]
+    if any(r.get("lower_note") or r.get("hcr_lower_note") for r in rows):
+        lines += ["", "† not a confidence limit (bounds.csv says why)."]
+    if any(r.get("hcr_upper") not in (None, "") and float(r["hcr_upper"]) == math.inf for r in rows):
+        lines += ["", "∞: an open end (a test point's term is not resolved)."]
     return "\n".join(lines)
