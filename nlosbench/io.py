@@ -62,16 +62,19 @@ def save_figure(fig, path: str | Path, **savefig) -> Path:
 
 
 def _as_hwc(array) -> np.ndarray:
+    """(H, W, C) float32 of an image (H, W), (H, W, C) or (H, W, *S) (the trailing axes flattened into channels,
+    C-ordered: a transient image (scan_y, scan_x, T, C) gives T·C channels, bin-major)."""
     a = np.asarray(array.detach().cpu() if hasattr(array, "detach") else array, dtype=np.float32)
     if a.ndim == 2:
         a = a[..., None]
-    if a.ndim != 3:
-        raise ValueError(f"expected an image (H, W) or (H, W, C), got shape {a.shape}")
-    return a
+    if a.ndim < 3:
+        raise ValueError(f"expected an image (H, W), (H, W, C) or (H, W, *S), got shape {a.shape}")
+    return a.reshape(*a.shape[:2], -1)
 
 
 def write_exr(path: str | Path, array) -> Path:
-    """Write an image (H, W) or (H, W, C) as float32 EXR (atomically); 1 channel → Y, 3 → RGB, else C0..Cn."""
+    """Write an image (H, W), (H, W, C) or (H, W, *S) (trailing axes flattened into channels) as float32 EXR
+    (atomically); 1 channel → Y, 3 → RGB, else C0..Cn."""
     import OpenEXR
 
     a = _as_hwc(array)
