@@ -208,7 +208,10 @@ def fisher_figure(out: Path, labels: list[str], names: list[str], where: dict[st
     for r, label in enumerate(labels):
         at = f"{label}, {(where or {}).get(label, 'θ not recorded')}"
         rgb = read_exr(out / f"{label}_rgb.exr")
-        axes[r, 0].imshow(np.clip(rgb / max(np.percentile(rgb, 99), 1e-12), 0, 1) ** (1 / 2.2))
+        if rgb.shape[-1] != 3:  # one channel, or a transient image's T·C values per scan point: their sum, in grey
+            rgb = rgb.sum(axis=-1)
+        axes[r, 0].imshow(np.clip(rgb / max(np.percentile(rgb, 99), 1e-12), 0, 1) ** (1 / 2.2),
+                          cmap="gray" if rgb.ndim == 2 else None)
         axes[r, 0].set_title(f"{at}\nrender (tone-mapped)", fontsize=8)
         for c, name in enumerate(names, start=1):
             fi = read_exr(out / f"{label}_noise0_fisher_{name}.exr")[..., 0].astype(np.float64)

@@ -130,7 +130,8 @@ class FisherInformation(RenderSets):
             for j, noise in sel.items():
                 w, flags = weights[j][i]
                 ws[j] = to_float64(w).expand(L.shape)
-                m = unbiased_fisher(Jf, ws[j]).pixel_map  # (P, H, W, C)
+                m = unbiased_fisher(Jf, ws[j]).pixel_map  # (P, H, W, *S): S = (C,), or (T, C) for a transient image
+                m = m.reshape(*m.shape[:3], -1)  # a pixel's (scan point's) values together
                 maps[j] = m.sum(axis=-1) if reduce == "sum" else m.mean(axis=-1)
                 sf = converge(stages[i], wflat[j][i], self.level, step_tol, spp)
                 joint = crlb_bound(sf, self.level, flags)  # the CRLB of θ, tr F̂⁻¹: for a scalar θ its only one
