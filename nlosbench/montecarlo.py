@@ -153,43 +153,31 @@ def run_trial(model: ForwardModel, trial: Trial) -> dict:
     rec["init"] = init.tolist()
     problem = Problem(model, trial.noise, trial.setting.gradient, derive(trial.seed, "problem"), trial.bank,
                       () if trial.grid is None else (trial.grid,))
-    before, t0 = model.stats.snapshot(), time.perf_counter()
-    try:
-        est = _estimator(trial.setting).fit(
-            problem, y, init, np.random.default_rng(derive(trial.seed, "trial-fit", i, k)), trial.budget
-        )
-    except Exception as e:  # noqa: BLE001 - a failed fit is a result: counted and shown in the summary
-        used = model.stats.since(before)
-        rec.update(
-            theta_hat=None,
-            error=f"{type(e).__name__}: {e}",
-            converged=False,
-            status="failed",
-            reason="failed",
-            iterations=0,
-            renders=used.renders,
-            grad_passes=used.grad_passes,
-            samples=used.samples,
-            seconds=time.perf_counter() - t0,
-            final_loss=None,
-        )
-        return rec
-    rec.update(
-        theta_hat=est.theta.tolist(),
-        error=None,
-        converged=est.converged,
-        status=est.status,
-        reason=est.reason,
-        iterations=est.iterations,
-        renders=est.renders,
-        grad_passes=est.grad_passes,
-        samples=est.samples,
-        seconds=est.seconds,
-        final_loss=est.final_loss,
-    )
-    if trial.keep_trace:
+    fields, est = fit_record(_estimator(trial.setting), problem, y, init,
+                             np.random.default_rng(derive(trial.seed, "trial-fit", i, k)), trial.budget)
+    rec.update(fields)
+    if trial.keep_trace and est is not None:
         rec["trace"] = est.trace
     return rec
+
+
+def fit_record(estimator: estimators.Estimator, problem: Problem, y: torch.Tensor, init=None,
+               rng: np.random.Generator | None = None, budget: Budget = Budget()) -> tuple[dict, object | None]:
+    """Fit y and return a trial record's fit fields (θ̂ or the error, status, iterations, cost) and the fit (None when
+    it raised: a failed fit is a result, counted and shown in the summary, its cost read from the model's stats)."""
+    model = problem.model
+    before, t0 = model.stats.snapshot(), time.perf_counter()
+    try:
+        est = estimator.fit(problem, y, init, rng, budget)
+    except Exception as e:  # noqa: BLE001 - a failed fit is a result: counted and shown in the summary
+        used = model.stats.since(before)
+        return {"theta_hat": None, "error": f"{type(e).__name__}: {e}", "converged": False, "status": "failed",
+                "reason": "failed", "iterations": 0, "renders": used.renders, "grad_passes": used.grad_passes,
+                "samples": used.samples, "seconds": time.perf_counter() - t0, "final_loss": None}, None
+    return {"theta_hat": est.theta.tolist(), "error": None, "converged": est.converged, "status": est.status,
+            "reason": est.reason, "iterations": est.iterations, "renders": est.renders,
+            "grad_passes": est.grad_passes, "samples": est.samples, "seconds": est.seconds,
+            "final_loss": est.final_loss}, est
 
 
 def read_log(path: Path) -> list[dict]:

@@ -36,7 +36,6 @@ MSE limits, the joint upper limit of MSE / CRLB, the bias test and the verdict).
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -51,7 +50,7 @@ from ..estimators.surrogate import Surrogate
 from ..forward.detector import STEP_FRACTION, Detected, Detector, max_fd_step, ps_to_m
 from ..forward.transient import confocal_geometry, position_map
 from ..io import read_csv, write_csv
-from ..montecarlo import bound_entry, summarize
+from ..montecarlo import bound_entry, fit_record, summarize
 from ..noise import Poisson
 from ..schema import MAX_HALVINGS, ConfigError, Field
 from ..seeds import derive
@@ -151,11 +150,11 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     if cfg["mle_spp"] and cfg["mle_halfwidth"] < MLE_WINDOW * cfg["mle_step"]:
         raise ConfigError(f"{sid}.mle_halfwidth", f"expected at least {MLE_WINDOW} lattice steps "
                           f"({MLE_WINDOW * cfg['mle_step']:g}: the cubic's window), got {cfg['mle_halfwidth']:g}")
-    if cfg["mle_spp"] and 2 * cfg["mle_halfwidth"] > float(m.params.upper[m.params.index(cfg["param"])]
-                                                          - m.params.lower[m.params.index(cfg["param"])]):
+    index = m.params.index(cfg["param"])
+    if cfg["mle_spp"] and 2 * cfg["mle_halfwidth"] > float(m.params.upper[index] - m.params.lower[index]):
         raise ConfigError(f"{sid}.mle_halfwidth", f"the lattice ({2 * cfg['mle_halfwidth']:g} wide) does not fit "
                           f"in Θ of {cfg['param']!r}")
-    return Plan(theta, m.params.index(cfg["param"]), _detectors(cfg))
+    return Plan(theta, index, _detectors(cfg))
 
 
 def _own_sigma(m) -> float:
@@ -372,17 +371,10 @@ def _trials(ctx: RunContext, cfg: dict, p: Plan, model: Detected, det: Detector,
 
 
 def _mle_fit(est: Surrogate, problem: Problem, y: torch.Tensor, t: float, k: int, seed: int) -> dict:
-    """One MLE fit as a `montecarlo.summarize` record (a fit that raises is kept, with its error)."""
-    rec = {"noise": 0, "theta_index": 0, "trial": k, "estimator": "mle", "name": est.name, "theta_true": [t],
-           "cluster": 0, "renders": 0, "grad_passes": 0, "iterations": 0}
-    t0 = time.perf_counter()
-    try:
-        fit = est.fit(problem, y, rng=np.random.default_rng(seed))
-    except Exception as e:  # noqa: BLE001 - a failed fit is a result: counted in the summary
-        return {**rec, "theta_hat": None, "error": f"{type(e).__name__}: {e}", "converged": False,
-                "status": "failed", "seconds": time.perf_counter() - t0}
-    return {**rec, "theta_hat": fit.theta.tolist(), "error": None, "converged": fit.converged, "status": fit.status,
-            "iterations": fit.iterations, "samples": fit.samples, "seconds": fit.seconds}
+    """One MLE fit as a `montecarlo.summarize` record (`montecarlo.fit_record`: a fit that raises is kept)."""
+    fields, _ = fit_record(est, problem, y, rng=np.random.default_rng(seed))
+    return {"noise": 0, "theta_index": 0, "trial": k, "estimator": "mle", "name": est.name, "theta_true": [t],
+            "cluster": 0, **fields}
 
 
 def _figure(out: Path, rows: list[dict], ratios: list[dict], param: str) -> None:
