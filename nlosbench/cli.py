@@ -24,7 +24,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import NoReturn
 
-from .interrupts import STOPPING, Interrupted, interrupt_in, signum_of
+from .interrupts import STOPPING, Interrupted, deferred, interrupt_in, signum_of
 from .records import RecordError
 from .schema import ConfigError
 from .variant import VariantError
@@ -346,7 +346,9 @@ def main(argv: list[str] | None = None) -> int:
     prepared = None  # the checked run (its folder gets error.log after an internal error)
     try:
         with _one_line_warnings(), _interrupts(keep=argv is None):  # first: before torch or Mitsuba is imported
-            args = build_parser().parse_args(argv)
+            with deferred():  # the parser imports torch (pybind11: an exception raised inside aborts the process)
+                parser = build_parser()
+            args = parser.parse_args(argv)
             if args.command == "run":
                 from .experiment.runner import prepare
 

@@ -3,9 +3,10 @@ terminal closed) — and holding them back around native work that must not be c
 
 The `nlosbench` command turns each into an `Interrupted` exception (a KeyboardInterrupt that remembers its signal:
 exit 128 + signal number). Python runs a signal handler between bytecodes of the main thread, which may be in the
-middle of importing a C extension (Mitsuba, Dr.Jit) or of a callback from Mitsuba's scene loader: an exception
+middle of importing a C extension (torch, Mitsuba, Dr.Jit) or of a callback from Mitsuba's scene loader: an exception
 raised there can leave the extension half-initialised, be wrapped into another error by the binding, or abort the
-interpreter (`Fatal Python error: PyThreadState_Get`). `deferred()` holds such a signal until the block ends, then
+interpreter (`Fatal Python error: PyThreadState_Get`; torch's import: `terminate called after throwing an
+instance of 'pybind11::error_already_set'`). `deferred()` holds such a signal until the block ends, then
 raises it; a second one during the block acts at once (the signal's default action), so nothing can hang.
 """
 from __future__ import annotations
