@@ -21,9 +21,13 @@ look unconverged), only Monte Carlo noise. Each error has joint confidence limit
 paired by index (set k of a setting and of the reference share their seeds where the spp does, so a
 change of depth, pruning or gradient is compared on the same samples and their common noise cancels),
 Bonferroni over every value in the aggregate. A value is within tolerance when its upper limit is
-(resolved), outside when its lower limit exceeds it. The reference's own noise, the relative half-width
-of its bounds' confidence intervals, says how well the reference itself is known: converged when
-≤ tolerance / 2; the report says when it is not and how many replicates would make it so.
+(resolved), outside when its lower limit exceeds it. The reference's own noise, the Monte Carlo noise of its
+point estimates (`nlosbench.tradeoff.jackknife_noise`: one-sided t limits of a jackknife over the sets), says
+how well the reference itself is known: converged when ≤ tolerance / 2; the report says when it is not and how
+many replicates would make it so. Its bounds' confidence intervals can be wider: a CRLB end spans the FD
+variants too (central, forward and backward differences at the step), which an edge crossing a pixel within
+the step parts, and replicates do not shrink that spread; every setting's point is the central difference,
+so the spread does not enter the errors, and the report says so when it is the wider.
 Recommendation per knob: the cheapest value resolved within `tolerance` (`nlosbench.tradeoff.recommend`);
 overall: the per-knob choices together, without every element whose removal is within tolerance, computed
 once more (`verify`) for their actual error and speed-up. Depth sufficiency: the max_depth points over the
@@ -65,6 +69,7 @@ from ..tradeoff import (
     check_tolerance,
     decisive,
     error_limits,
+    jackknife_noise,
     recommend,
     relative_error,
     settled,
@@ -126,9 +131,10 @@ class Setting:
 @dataclass
 class _Bounds:
     """One noise model's bounds at one setting over the θ grid: log10 point estimates of the HCR and CRLB
-    (G,), the same without each replicate set (G, R; R = 0 below 3 replicates), their noise (relative
-    confidence half-widths, (G,); NaN where fewer than 3 replicates give no interval), CRLB flags, and how
-    many HCR sups sit at the smallest grid Δ (grid-limited)."""
+    (G,), the same without each replicate set (G, R; R = 0 below 3 replicates), the points' Monte Carlo noise
+    (`jackknife_noise`, (G,)) and their intervals' relative half-widths (`bound_noise`, (G,); both NaN where
+    fewer than 3 replicates give no interval), CRLB flags, and how many HCR sups sit at the smallest grid Δ
+    (grid-limited)."""
 
     hcr: np.ndarray
     crlb: np.ndarray
@@ -136,6 +142,8 @@ class _Bounds:
     crlb_loo: np.ndarray
     hcr_noise: np.ndarray
     crlb_noise: np.ndarray
+    hcr_width: np.ndarray
+    crlb_width: np.ndarray
     flags: list[str]
     sup_at_smallest: int
 
@@ -218,9 +226,11 @@ class _Sweep:
         for j, noise in enumerate(self.ctx.noises):
             pts = [pt for pt in points if pt.noise_index == j]
             hcr, crlb = [pt.bounds["hcr"] for pt in pts], [pt.bounds["crlb"] for pt in pts]
-            out[str(noise)] = _Bounds(np.array([b.point for b in hcr]), np.array([b.point for b in crlb]),
-                                      np.stack([b.loo for b in hcr]), np.stack([b.loo for b in crlb]),
-                                      np.array([bound_noise(b) for b in hcr]), np.array([bound_noise(b) for b in crlb]),
+            kinds = (hcr, crlb)
+            pts_ = [np.array([b.point for b in bs]) for bs in kinds]
+            loos = [np.stack([b.loo for b in bs]) for bs in kinds]
+            noise_ = [jackknife_noise(p_, lo, self.cfg["level"]) for p_, lo in zip(pts_, loos, strict=True)]
+            out[str(noise)] = _Bounds(*pts_, *loos, *noise_, *(np.array([bound_noise(b) for b in bs]) for bs in kinds),
                                       [b.reason for b in crlb],
                                       sum("sup-at-smallest-delta" in pt.bounds["hcr"].flags for pt in pts))
         return out, cost
@@ -349,10 +359,11 @@ def _limits(res: dict, ref: dict, cfg: dict, mask: np.ndarray | None = None) -> 
     return aggregate(lo, cfg["aggregate"]), aggregate(hi, cfg["aggregate"])
 
 
-def _reference_noise(ref: dict, how: str) -> float:
-    """The reference's own noise (relative confidence half-widths of its bounds, aggregated); NaN when a
-    bound has no interval (fewer than 3 replicates)."""
-    noise = np.concatenate([getattr(ref[n], k) for n in ref for k in ("hcr_noise", "crlb_noise")])
+def _reference_noise(ref: dict, how: str, what: str = "noise") -> float:
+    """The reference's own noise, aggregated over noise models, θ and both kinds: `what` "noise", the Monte
+    Carlo noise of its point estimates; "width", its bounds' intervals' relative half-widths (which span the FD
+    variants too); NaN without intervals (fewer than 3 replicates)."""
+    noise = np.concatenate([getattr(ref[n], f"{k}_{what}") for n in ref for k in ("hcr", "crlb")])
     return math.nan if np.isnan(noise).any() else aggregate(noise, how)
 
 
@@ -439,9 +450,10 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         # every setting's renders, each model's own (the run's count sees only the scene it loaded); warm-ups excluded
         "renders": sum(c.renders for _, c in sweep.done.values()),
         "reference_sup_at_smallest_delta": sum(r.sup_at_smallest for r in ref_res.values()),
-        # the reference's own Monte Carlo noise (relative confidence half-width, aggregated): converged when
-        # an error at the tolerance is resolved
+        # the reference's own Monte Carlo noise (its points' relative one-sided limits, aggregated): converged
+        # when an error at the tolerance is resolved; its intervals' half-widths (FD variants' spread included)
         "reference_noise": ref_noise,
+        "reference_interval": _reference_noise(ref_res, how, "width"),
         "reference_converged": bool(ref_noise <= tol / 2),
         "replicates": cfg["replicates"],
         "level": cfg["level"],
@@ -567,13 +579,25 @@ def _convergence(results: dict) -> str:
         return head + ("is unknown: confidence limits need replicates >= 3. **Caution:** errors below may be noise.")
     level = f"{results['level']:.0%} one-sided limits"
     if results["reference_converged"]:
-        return head + f"is ±{_pct(noise)} ({level}): converged (≤ tolerance / 2 = {_pct(tol / 2)})."
+        return head + f"is ±{_pct(noise)} ({level}): converged (≤ tolerance / 2 = {_pct(tol / 2)})." + _spread(results)
     need = math.ceil(R * (noise / (tol / 2)) ** 2) if math.isfinite(noise) else None
     more = f"about {need} replicates (or {need / R:.3g}× the spp)" if need else "resolved bounds (an open end)"
     return head + (f"is ±{_pct(noise)} ({level}), more than tolerance / 2 = {_pct(tol / 2)}. **Caution:** the "
                    "reference is not converged: the errors' limits below still compare each setting with the "
                    f"reference on the same render sets, but the reference bound itself is that uncertain; {more} "
-                   "would converge it.")
+                   "would converge it." + _spread(results))
+
+
+def _spread(results: dict) -> str:
+    """A sentence when the reference's intervals are wider than its points' noise (the FD variants' spread):
+    what that spread is and that more replicates would not remove it; "" otherwise (or for an older run)."""
+    width, noise, tol = results.get("reference_interval", math.nan), results["reference_noise"], results["tolerance"]
+    if not (width > max(noise, tol / 2)):  # NaN-safe: no sentence without both
+        return ""
+    return (f" Its bounds' confidence intervals are wider, ±{_pct(width)}: a CRLB end also spans the FD variants "
+            "(central, forward and backward differences at the step), whose spread is not Monte Carlo noise but how "
+            "far those derivatives differ (an edge that crosses a pixel within the step parts them); more replicates "
+            "do not shrink it, and the errors compare central differences only, so it does not enter them.")
 
 
 def report(study_dir: Path, results: dict) -> str:
