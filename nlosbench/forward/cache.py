@@ -29,7 +29,7 @@ import torch
 from ..io import atomic
 from .keys import RenderKey, canonical, render_key
 
-__all__ = ["CacheWarning", "RenderCache", "RenderKey", "render_key"]
+__all__ = ["CacheWarning", "MemoryCache", "RenderCache", "RenderKey", "render_key"]
 
 _MAGIC = b"NLOSRC02"
 
@@ -159,6 +159,41 @@ class RenderCache:
         except OSError as e:
             self._warn("write", f"render cache {self.root}: cannot write ({_why(e)}); renders go on without "
                                 "being cached")
+
+
+class MemoryCache:
+    """Renders kept in memory for one piece of work (the same get / put as `RenderCache`, nothing written):
+    several views of the same renders (detectors of one transient capture) render each once. Holds images up to
+    `max_bytes` in all, then stores no more (a later request of an image it did not keep renders again).
+
+    Examples
+    --------
+    >>> model = nb.scenes.get("blob2d")
+    >>> model.cache = nb.forward.cache.MemoryCache()
+    >>> a = model.render([0.5, 0.5], spp=4, seed=0); b = model.render([0.5, 0.5], spp=4, seed=0)
+    >>> model.stats.renders, bool((a == b).all())
+    (1, True)
+    """
+
+    def __init__(self, max_bytes: int = 2 << 30):
+        self.max_bytes, self.bytes, self.hits = int(max_bytes), 0, 0
+        self._images: dict[str, torch.Tensor] = {}
+
+    def get(self, key: RenderKey) -> torch.Tensor | None:
+        """The image stored under `key` (a copy: callers may write to it), or None."""
+        img = self._images.get(key.hex)
+        if img is None:
+            return None
+        self.hits += 1
+        return img.clone()
+
+    def put(self, key: RenderKey, image: torch.Tensor, **meta) -> None:
+        """Keep a float32 copy of `image` under `key` while the budget allows (`meta` is not kept)."""
+        img = image.detach().cpu().to(torch.float32).clone()
+        size = img.numel() * 4
+        if key.hex not in self._images and self.bytes + size <= self.max_bytes:
+            self._images[key.hex] = img
+            self.bytes += size
 
 
 def _decode(raw: bytes) -> tuple[tuple[torch.Tensor, dict, dict] | None, str]:

@@ -20,6 +20,15 @@ the step halved until F settles, one-sided limits at the run's level), with the 
 has a lower limit √(lower_summed / upper_transient) and an upper one the other way, each at level 1 − 2(1 − level)
 (Bonferroni over the two ends used: valid however the two bounds' errors are correlated).
 
+With `zzb_halfwidth` > 0, each detector also has the Ziv–Zakai bound on the Bayesian MSE of any estimator, biased or
+not, with the parameter uniform on θ* ± `zzb_halfwidth` (`zzb_points` grid points, the bound service's `curve`:
+Poisson P_e from the Bhattacharyya distance, `bounds.zzb`): where the prior is a few RMS CRLBs wide it shows the
+threshold region the CRLB cannot (a capture too weak to tell positions apart gives the prior's variance).
+
+Every detector reads the same raw renders (one laser, one scene: the detector acts after rendering), kept in memory
+for the study (`forward.cache.MemoryCache`, unless the model has a render cache of its own), so each is rendered
+once; a detector's `renders` in bounds.csv are the renders its bounds made that no detector before it had.
+
 Trials: the reference render through each transient detector is the mean (its own rendering noise, at
 reference_spp, is part of the "truth"); `trials` Poisson draws of it are localised by backprojection (`voxel`
 metres, parabolic refinement); the fit on the mean itself is the localiser's discretisation error, reported apart
@@ -47,6 +56,7 @@ from ..bounds import BoundService
 from ..estimators import BankGrid, Problem
 from ..estimators.backprojection import Backprojection
 from ..estimators.surrogate import Surrogate
+from ..forward.cache import MemoryCache
 from ..forward.detector import STEP_FRACTION, Detected, Detector, max_fd_step, ps_to_m
 from ..forward.transient import confocal_geometry, position_map
 from ..io import read_csv, write_csv
@@ -84,6 +94,10 @@ SCHEMA = {
     "mle_step": Field(float, 2.5e-4, "lattice spacing of the MLE's per-bin cubic (parameter units)"),
     "mle_halfwidth": Field(float, 3e-3, "the MLE's lattice spans ± this around a pilot draw's backprojection "
                            "estimate (parameter units; at least 2 lattice steps)"),
+    "zzb_halfwidth": Field(float, 0.0, "the Ziv–Zakai bound's prior: `param` uniform on θ* ± this (parameter units, "
+                           "inside Θ; 0: no ZZB)"),
+    "zzb_points": Field(int, 21, "grid points over the ZZB's prior (odd: θ* is one), each rendered in `replicates` "
+                        "common-seed sets at `spp` and once for the Poisson weight"),
 }
 
 #: the HCR's test points: a grid of this many points over Θ and the axis offsets ±ξ·2^k, k < HCR_OFFSETS (ξ the
@@ -154,6 +168,17 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     if cfg["mle_spp"] and 2 * cfg["mle_halfwidth"] > float(m.params.upper[index] - m.params.lower[index]):
         raise ConfigError(f"{sid}.mle_halfwidth", f"the lattice ({2 * cfg['mle_halfwidth']:g} wide) does not fit "
                           f"in Θ of {cfg['param']!r}")
+    hw = cfg["zzb_halfwidth"]
+    if not (math.isfinite(hw) and hw >= 0):
+        raise ConfigError(f"{sid}.zzb_halfwidth", f"expected a finite number >= 0, got {hw}")
+    if hw:
+        if cfg["zzb_points"] < 3 or cfg["zzb_points"] % 2 == 0:
+            raise ConfigError(f"{sid}.zzb_points", f"expected an odd integer >= 3 (θ* the middle one), got "
+                              f"{cfg['zzb_points']}")
+        lo, hi = float(m.params.lower[index]), float(m.params.upper[index])
+        if not (lo <= theta[index] - hw and theta[index] + hw <= hi):
+            raise ConfigError(f"{sid}.zzb_halfwidth", f"the prior θ* ± {hw:g} = [{theta[index] - hw:g}, "
+                              f"{theta[index] + hw:g}] leaves Θ of {cfg['param']!r}, [{lo:g}, {hi:g}]")
     return Plan(theta, index, _detectors(cfg))
 
 
@@ -184,13 +209,15 @@ def _mle_points(cfg: dict) -> int:
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
-    """A reference render, then per detector a weight render, the HCR's R test renders per test point and 2·R FD
-    renders per parameter and step tried (at most 1 + max_halvings steps), for the parameter alone and, with
-    nuisance parameters, for all of them; and the MLE's lattice, `MLE_SETS` sets at `mle_spp`."""
+    """A reference render, then a weight render, the HCR's R test renders per test point and 2·R FD renders per
+    parameter and step tried (at most 1 + max_halvings steps), for the parameter alone and, with nuisance
+    parameters, for all of them; with a ZZB, 2·R renders per point of its grid (R sets and the Bhattacharyya
+    distance's R weight renders); and the MLE's lattice, `MLE_SETS`
+    sets at `mle_spp`. Every detector sees the same raw renders (`run` keeps them in memory), so they count once."""
     fd = 2 * cfg["replicates"] * (1 + cfg["max_halvings"])
     hcr = cfg["replicates"] * (HCR_GRID + 2 * HCR_OFFSETS)  # the HCR's test renders (at most: θ* may be a grid point)
-    per = 1 + fd + hcr + ((1 + fd * (1 + len(cfg["nuisance"]))) if cfg["nuisance"] else 0)
-    n = len(p.detectors) * per
+    zzb = 2 * cfg["replicates"] * cfg["zzb_points"] if cfg["zzb_halfwidth"] else 0
+    n = 1 + fd + hcr + ((1 + fd * (1 + len(cfg["nuisance"]))) if cfg["nuisance"] else 0) + zzb
     lattice = MLE_SETS * _mle_points(cfg)
     px = pixels(ctx.model)
     return Estimate(1 + n + lattice, px * (cfg["reference_spp"] + n * cfg["spp"] + lattice * cfg["mle_spp"]),
@@ -204,6 +231,20 @@ def _gain(ctx: RunContext, cfg: dict, p: Plan, bin_width: float, start: float) -
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:
+    """The study (module docstring); every detector reads the same raw renders, kept in memory for the study
+    unless the model has a render cache of its own. `renders` counts the renders made."""
+    m = ctx.model
+    before, kept = m.stats.renders, m.cache
+    if m.cache is None:
+        m.cache = MemoryCache()
+    try:
+        results = _run(ctx, cfg)
+    finally:
+        m.cache = kept
+    return {**results, "renders": m.stats.renders - before}
+
+
+def _run(ctx: RunContext, cfg: dict) -> dict:
     p, out = plan(ctx, cfg), ctx.study_dir(cfg)
     m = ctx.model
     points, edges = confocal_geometry(m)
@@ -218,19 +259,18 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                              jitter_ps=spec.get("jitter_ps", 0.0), timing=spec.get("timing", True),
                              wall_return=cfg["wall_return"] * signal_per_point if spec.get("wall") else 0.0))
             for label, spec in p.detectors]
-    rows, trial_rows, renders = [], [], ctx.bank.renders
+    rows, trial_rows = [], []
     mle = None
     if _mle_points(cfg):
         mle = _mle_lattice(ctx, cfg, sub, ref, next(d for _, d in dets if d.timing))
-        renders += mle[2]
     for label, det in dets:
         model = Detected(sub, det)
         bank = RenderBank(model, seed=ctx.seed)
-        (pt,) = BoundService(bank, [Poisson(1.0)], ctx.bounds.level).at(
+        svc = BoundService(bank, [Poisson(1.0)], ctx.bounds.level)
+        (pt,) = svc.at(
             [t_star], cfg["spp"], ("crlb", "hcr"), "common", cfg["replicates"], test_grid=HCR_GRID,
             offsets=HCR_OFFSETS, fd_step=cfg["fd_step"], max_halvings=cfg["max_halvings"])
         b, hcr = pt.bounds["crlb"], pt.bounds["hcr"]
-        renders += bank.renders
         row = {"detector": label, "jitter_ps": det.jitter_ps if det.timing else "", "timing": det.timing,
                "wall_return": det.wall_return, "log10_crlb": b.point, "crlb_lower": b.lower, "crlb_upper": b.upper,
                "rms_bound": _rms(b.point), "rms_lower": _rms(b.lower), "rms_upper": _rms(b.upper),
@@ -238,9 +278,10 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                "log10_hcr": hcr.point, "hcr_lower": hcr.lower, "hcr_upper": hcr.upper, "rms_hcr": _rms(hcr.point),
                "rms_hcr_lower": _rms(hcr.lower), "rms_hcr_upper": _rms(hcr.upper), "hcr_lower_note": hcr.lower_note,
                "hcr_upper_note": hcr.upper_note, "hcr_terms": hcr.terms, "renders": bank.renders}
+        if cfg["zzb_halfwidth"]:
+            row.update(_zzb(svc, cfg, p))
         if cfg["nuisance"]:
             row.update(_nuisance(ctx, cfg, p, det))
-            renders += row["nuisance_renders"]
         if det.timing and cfg["trials"]:
             row.update(_trials(ctx, cfg, p, model, det, ref, label, trial_rows, b, mle))
         rows.append(row)
@@ -267,7 +308,9 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     return {"param": cfg["param"], "nuisance": list(cfg["nuisance"]), "units": m.params.units[p.index],
             "theta": p.theta.tolist(),
             "photons": cfg["photons"], "gain": gain, "background": cfg["background"], "spp": cfg["spp"],
-            "replicates": cfg["replicates"], "level": ctx.bounds.level, "renders": renders,
+            "replicates": cfg["replicates"], "level": ctx.bounds.level,
+            "zzb": {"prior": [float(t_star[0] - cfg["zzb_halfwidth"]), float(t_star[0] + cfg["zzb_halfwidth"])],
+                    "points": cfg["zzb_points"]} if cfg["zzb_halfwidth"] else None,
             "ratios": [{k: v for k, v in r.items()} for r in ratios], "trials": cfg["trials"],
             "voxel": cfg["voxel"], "mle": None if mle is None else
             {"region": mle[0].region, "step": mle[0].step, "points": _mle_points(cfg), "spp": cfg["mle_spp"],
@@ -290,6 +333,20 @@ def _nuisance(ctx: RunContext, cfg: dict, p: Plan, det: Detector) -> dict:
     return {"nuisance": ",".join(cfg["nuisance"]), "log10_crlb_nuisance": b.point, "crlb_nuisance_lower": b.lower,
             "crlb_nuisance_upper": b.upper, "rms_nuisance": _rms(b.point), "rms_nuisance_lower": _rms(b.lower),
             "rms_nuisance_upper": _rms(b.upper), "nuisance_note": b.lower_note, "nuisance_renders": bank.renders}
+
+
+def _zzb(svc: BoundService, cfg: dict, p: Plan) -> dict:
+    """The Ziv–Zakai bound on the Bayesian MSE of `param` (any estimator) over its uniform prior θ* ± `zzb_halfwidth`
+    from the detector's bound service: a `zzb_points` grid in `replicates` common-seed sets (θ* shares the bounds'
+    renders), the Poisson P_e from the Bhattacharyya distance (`bounds.zzb`). log10 ends and RMS ends (parameter
+    units), the prior's RMS, and how far halving the grid spacing moves it."""
+    t = float(p.theta[p.index])
+    grid = np.linspace(t - cfg["zzb_halfwidth"], t + cfg["zzb_halfwidth"], cfg["zzb_points"])
+    z = svc.curve(grid, cfg["spp"], "common", cfg["replicates"], crlb=False, zzb=True).zzb[0]
+    return {"log10_zzb": z.point, "zzb_lower": z.lower, "zzb_upper": z.upper, "rms_zzb": _rms(z.point),
+            "rms_zzb_lower": _rms(z.lower), "rms_zzb_upper": _rms(z.upper), "rms_prior": _rms(
+                math.log10(z.extra["prior_variance"])), "zzb_halved": z.extra["halved"], "zzb_flags": ",".join(z.flags),
+            "zzb_reason": z.reason}
 
 
 def _rms(lg) -> float:
@@ -410,10 +467,12 @@ def _figure(out: Path, rows: list[dict], ratios: list[dict], param: str) -> None
 
 
 def smoke(block: dict) -> dict:
-    """The first jitter, 16 spp, 3 FD rounds, no halving, 2 trials, a 64-spp reference and MLE lattice."""
+    """The first jitter, 16 spp, 3 FD rounds, no halving, 2 trials, a 64-spp reference and MLE lattice, a 3-point
+    ZZB grid."""
     return {**block, "jitters_ps": list(block["jitters_ps"])[:1], "spp": 16, "replicates": 3,
             "max_halvings": 0, "reference_spp": 64, "trials": min(block["trials"], 2),
-            "mle_spp": min(block.get("mle_spp", SCHEMA["mle_spp"].default), 64)}
+            "mle_spp": min(block.get("mle_spp", SCHEMA["mle_spp"].default), 64),
+            "zzb_points": min(block.get("zzb_points", SCHEMA["zzb_points"].default), 3)}
 
 
 def _num(v) -> str:
@@ -483,6 +542,19 @@ def report(study_dir: Path, results: dict) -> str:
                          f"{_num(r['mle_mse_over_crlb'])} [≤ {_num(r['mle_mse_over_crlb_upper'])}] | "
                          f"{_num(r['mle_bias'])} ± {_num(r['mle_bias_se'])} ({_num(r['mle_bias_p'])}) | "
                          f"{r['mle_vs_crlb']} | {r['mle_status']} |")
+    zzb = results.get("zzb")
+    if zzb:
+        lo, hi = zzb["prior"]
+        lines += ["", "The Ziv–Zakai bound on the Bayesian MSE of any estimator, biased or not, with "
+                      f"`{results['param']}` uniform on [{lo:.6g}, {hi:.6g}] {u} ({zzb['points']} grid points, "
+                      "Poisson P_e from the Bhattacharyya distance): an average over that prior, not a bound at θ*. "
+                      "Its lower end is the bound to quote; √CRLB (at θ*, unbiased estimators) and the prior's own "
+                      "RMS beside it; ‡: halving the grid spacing moves it by more than 10 %.", "",
+                  f"| detector | √ZZB lower end [{u}] | point | upper end | √CRLB [{u}] | prior RMS [{u}] |",
+                  "|---|---|---|---|---|---|"]
+        lines += [f"| {r['detector']} | {_num(r['rms_zzb_lower'])}{' ‡' if 'grid-limited' in r['zzb_flags'] else ''} | "
+                  f"{_num(r['rms_zzb'])} | {_num(r['rms_zzb_upper'])} | {_num(r['rms_bound'])} | "
+                  f"{_num(r['rms_prior'])} |" for r in rows]
     if any(r.get("lower_note") or r.get("hcr_lower_note") for r in rows):
         lines += ["", "† not a confidence limit (bounds.csv says why)."]
     if any(r.get("hcr_upper") not in (None, "") and float(r["hcr_upper"]) == math.inf for r in rows):
