@@ -13,8 +13,12 @@ from nlosbench.forward.transient import Capture, Hidden
 
 
 def test_bad_set_ups_fail_in_one_line_before_anything_loads():
-    with pytest.raises(ValueError, match="exhaustive captures .* are not offered"):
-        Capture(capture_type="exhaustive")
+    with pytest.raises(ValueError, match=r"exhaustive capture of 64 × 64 laser points.* GiB per render"):
+        Capture(capture_type="exhaustive", scan=(64, 64), bins=512)
+    with pytest.raises(ValueError, match="laser_scan is for exhaustive captures"):
+        Capture(laser_scan=(2, 2))
+    assert Capture(capture_type="exhaustive", scan=(4, 2)).laser_scan == (4, 2)  # default: the scan grid
+    assert "laser_scan" not in Capture().as_dict()  # the other captures' content keys are unchanged
     with pytest.raises(ValueError, match="bin_width"):
         Capture(bin_width=0.0)
     with pytest.raises(ValueError, match="center z must be > 0"):
@@ -70,3 +74,31 @@ def test_a_detector_without_background_names_the_zero_bins(model):
         Detected(model, Detector(bin_width=0.01, start=1.2, jitter_ps=20.0)).render(t, 16, 0)
     seen = Detected(model, Detector(bin_width=0.01, start=1.2, jitter_ps=20.0, dark=0.01)).render(t, 16, 0)
     assert float(seen.min()) == pytest.approx(0.01)
+
+
+def test_an_exhaustive_capture_puts_each_laser_where_its_block_says():
+    """An exhaustive capture, 2 × 2 laser points × 3 × 3 detector points, a patch moved to (0.15, −0.1, 0.75) m:
+    image (2·3, 2·3, T, C), block (i, j) the laser on laser point (i, j); each (laser, detector) pair's mean optical
+    path is ‖l − c‖ + ‖p − c‖ within 1.5 bins (l, p from `Capture.scan_points`), so laser and detector grids sit
+    where the confocal one does; the same seed gives the same bits, and no two blocks are the same."""
+    if importlib.util.find_spec("mitransient") is None:
+        pytest.skip("the transient extra is not installed (pip install 'nlosbench[transient]')")
+    from nlosbench.forward.transient import TransientModel
+
+    cap = Capture(scan=(3, 3), laser_scan=(2, 2), bins=96, bin_width=0.01, start=1.2, capture_type="exhaustive")
+    params = [{"name": n, "kind": "translate", "object": "hidden", "axis": a, "lower": -0.2, "upper": 0.2,
+               "default": 0.0} for n, a in (("x", [1, 0, 0]), ("y", [0, 1, 0]))]
+    model = TransientModel("exhaustive", cap, [Hidden(center=(0.0, 0.0, 0.75), size=0.05)], params)
+    t = np.array([0.15, -0.1])
+    img = model.render(t, 512, 0)
+    assert img.shape[:3] == (6, 6, 96) and torch.equal(img, model.render(t, 512, 0))
+    L = img.double().numpy().sum(axis=-1).reshape(2, 3, 2, 3, 96).swapaxes(1, 2)  # (ly, lx, ny, nx, T)
+    centres = 0.5 * (cap.bin_edges()[1:] + cap.bin_edges()[:-1])
+    mean_path = (L * centres).sum(-1) / L.sum(-1)
+    c = np.array([0.15, -0.1, 0.75])
+    lasers = np.linalg.norm(cap.scan_points(cap.laser_scan) - c, axis=-1)  # (ly, lx)
+    detectors = np.linalg.norm(cap.scan_points() - c, axis=-1)  # (ny, nx)
+    expect = lasers[:, :, None, None] + detectors[None, None]
+    assert np.all(np.abs(mean_path - expect) < 1.5 * cap.bin_width), mean_path - expect
+    blocks = L.reshape(4, -1)
+    assert all(not np.array_equal(blocks[a], blocks[b]) for a in range(4) for b in range(a))

@@ -7,12 +7,16 @@ facing +z, where the hidden objects are; a scan grid of `scan` = (nx, ny) points
 t_accounts_first_and_last_bounces = False; paths that never leave the wall are discarded). Scan point (i, j)
 (row i, column j) sits at x = −w/2 + (j + ½)·w/nx, y = −h/2 + (i + ½)·h/ny (checked against renders: a patch
 at +x or +y arrives first at high j or high i). "confocal" scans laser and detector together; "single" keeps
-the laser on the wall's centre. Exhaustive captures (every laser × every detector point) are not offered: their
-images do not have the (scan_y, scan_x, T, C) shape the bounds use.
+the laser on the wall's centre. "exhaustive" aims the laser at every point of a laser grid `laser_scan` (lx, ly) in
+turn, detectors on the scan grid, one "single" capture per laser point, each from seeds of its own: the image is
+(ly·scan_y, lx·scan_x, T, C), block (i, j) the capture with the laser on laser point (i, j) (placed on the wall as
+the scan points are); a (laser, detector) pair is one "pixel". Its size is checked before anything loads
+(`EXHAUSTIVE_MAX_BYTES` per image, float64 while the passes add up): a larger one is refused naming its size.
 
-Images are (scan_y, scan_x, T, C) float32 in mitransient's units (radiance per bin; C = 3 in RGB variants, 1
-in mono ones); a scan point's T·C values come from the same paths (`channels`). What a detector sees (temporal
-response, gating, background, photon budget) is applied after rendering by `forward.detector.Detected`.
+Images are (scan_y, scan_x, T, C) float32 (exhaustive: (ly·scan_y, lx·scan_x, T, C)) in mitransient's units
+(radiance per bin; C = 3 in RGB variants, 1 in mono ones); a scan point's T·C values come from the same paths
+(`channels`). What a detector sees (temporal response, gating, background, photon budget) is applied after
+rendering by `forward.detector.Detected`.
 
 Renders follow `MitsubaModel` (whose θ writing, pass splitting and content key this class reuses): power-of-two
 passes with seeds derived from (seed, pass), θ written with `mi.traverse` + `params.update()`, no reload; the
@@ -35,6 +39,7 @@ from .. import interrupts
 from .. import variant as _variant
 from ..capture_io import CaptureFile, read_ytal
 from ..params import ParamSpace
+from ..seeds import derive
 from . import llvm_target as _llvm_target
 from .bindings import Binding, SceneBinder
 from .mitsuba_model import MitsubaModel
@@ -43,7 +48,9 @@ from .passes import FrozenRender, pass_samples
 
 #: the mitransient version the extra pins and the tests ran with
 MITRANSIENT_VERSION = "1.3.1"
-CAPTURE_TYPES = ("confocal", "single")
+CAPTURE_TYPES = ("confocal", "single", "exhaustive")
+#: the largest exhaustive image (bytes while its passes add up in float64: L·N·T·3·8) a render may build
+EXHAUSTIVE_MAX_BYTES = 2 << 30
 HIDDEN_TYPES = ("rectangle", "sphere", "obj")
 
 
@@ -88,10 +95,13 @@ class Capture:
     laser_origin, sensor_origin : [x, y, z]
         Where the laser and the detector stand (in front of the wall, z > 0 is the hidden side: use z > 0 only
         for a set-up that sees the wall past the occluder), metres.
-    capture_type : {"confocal", "single"}
-        Laser and detector scanned together, or the laser fixed on the wall's centre.
+    capture_type : {"confocal", "single", "exhaustive"}
+        Laser and detector scanned together, the laser fixed on the wall's centre, or the laser on every point of
+        `laser_scan` in turn (one single capture each).
     max_depth : int
         Path depth of the transient integrator (3: laser → wall → hidden → wall).
+    laser_scan : (int, int), optional
+        Exhaustive captures: laser points (lx, ly) over the wall (default: `scan`); None for the others.
     """
 
     scan: tuple = (16, 16)
@@ -103,6 +113,7 @@ class Capture:
     sensor_origin: tuple = (-0.5, 0.0, 0.25)
     capture_type: str = "confocal"
     max_depth: int = 3
+    laser_scan: tuple | None = None
 
     def __post_init__(self):
         for name, v in (("scan", self.scan), ("wall", self.wall)):
@@ -117,17 +128,30 @@ class Capture:
         if not (np.isfinite(self.start) and self.start >= 0):
             raise ValueError(f"capture start must be finite and >= 0 (metres of optical path), got {self.start!r}")
         if self.capture_type not in CAPTURE_TYPES:
-            hint = (": exhaustive captures (every laser × detector point) are not offered, their images are not "
-                    "(scan_y, scan_x, T, C)") if self.capture_type == "exhaustive" else ""
-            raise ValueError(f"capture_type must be one of {list(CAPTURE_TYPES)}, got {self.capture_type!r}{hint}")
+            raise ValueError(f"capture_type must be one of {list(CAPTURE_TYPES)}, got {self.capture_type!r}")
         object.__setattr__(self, "scan", (int(self.scan[0]), int(self.scan[1])))
+        if self.capture_type == "exhaustive":
+            lasers = self.scan if self.laser_scan is None else self.laser_scan
+            if not isinstance(lasers, (tuple, list)) or len(lasers) != 2 or any(
+                    isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1 for v in lasers):
+                raise ValueError(f"capture laser_scan must be a pair of positive integers (lx, ly), got {lasers!r}")
+            object.__setattr__(self, "laser_scan", (int(lasers[0]), int(lasers[1])))
+            size = int(np.prod(self.laser_scan)) * int(np.prod(self.scan)) * self.bins * 3 * 8
+            if size > EXHAUSTIVE_MAX_BYTES:
+                raise ValueError(f"an exhaustive capture of {self.laser_scan[0]} × {self.laser_scan[1]} laser points, "
+                                 f"{self.scan[0]} × {self.scan[1]} scan points and {self.bins} bins takes "
+                                 f"{size / 2**30:.3g} GiB per render (at most {EXHAUSTIVE_MAX_BYTES / 2**30:g}): use "
+                                 "fewer laser or scan points or bins")
+        elif self.laser_scan is not None:
+            raise ValueError(f"capture laser_scan is for exhaustive captures, not {self.capture_type!r} ones")
         object.__setattr__(self, "wall", (float(self.wall[0]), float(self.wall[1])))
         object.__setattr__(self, "laser_origin", _vec3(self.laser_origin, "laser_origin"))
         object.__setattr__(self, "sensor_origin", _vec3(self.sensor_origin, "sensor_origin"))
 
-    def scan_points(self) -> np.ndarray:
-        """Scan point positions (ny, nx, 3) on the wall, metres (z = 0)."""
-        (nx, ny), (w, h) = self.scan, self.wall
+    def scan_points(self, grid: tuple | None = None) -> np.ndarray:
+        """Scan point positions (ny, nx, 3) on the wall, metres (z = 0); of another grid (nx, ny) (e.g. the laser
+        points, `laser_scan`) placed the same way."""
+        (nx, ny), (w, h) = grid or self.scan, self.wall
         x = -w / 2 + (np.arange(nx) + 0.5) * w / nx
         y = -h / 2 + (np.arange(ny) + 0.5) * h / ny
         Y, X = np.meshgrid(y, x, indexing="ij")
@@ -138,7 +162,11 @@ class Capture:
         return self.start + self.bin_width * np.arange(self.bins + 1)
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """The fields (laser_scan only where it is set: the other captures' content keys stay as they were)."""
+        d = asdict(self)
+        if d["laser_scan"] is None:
+            del d["laser_scan"]
+        return d
 
     def to_file(self, image, scene_info: dict | None = None) -> CaptureFile:
         """A capture in y-tal's layout (`capture_io.CaptureFile`: write it with `capture_io.write_ytal`) of an image
@@ -264,7 +292,8 @@ class TransientModel(MitsubaModel):
         self.binder = SceneBinder(self._params, bindings)
         ForwardModel.__init__(self, name, ParamSpace([b.param for b in bindings]), cache)
         self.max_pass_samples = pass_samples(self.variant, max_pass_samples)
-        self.size = self.capture.scan  # (W, H): scan points, as a film's crop size
+        (nx, ny), (lx, ly) = self.capture.scan, self.capture.laser_scan or (1, 1)
+        self.size = (lx * nx, ly * ny)  # (W, H) of the image, as a film's crop size
         self.scene_file, self.defines, self.remove = None, {}, []
         self.ad_defaults, self._ad_cache, self._applied = {}, {}, None
         self._renderer = FrozenRender(False, label=f"scene {name!r}")
@@ -287,7 +316,8 @@ class TransientModel(MitsubaModel):
                                 "nlos_hidden_geometry_sampling_do_rroulette": False,
                                 "nlos_hidden_geometry_sampling_includes_relay_wall": False,
                                 "account_first_and_last_bounces": False, "discard_direct_paths": True,
-                                "max_depth": c.max_depth, "capture_type": c.capture_type, "temporal_filter": "box"},
+                                "max_depth": c.max_depth, "temporal_filter": "box",
+                                "capture_type": "single" if c.capture_type == "exhaustive" else c.capture_type},
                  "relay_wall": {"type": "rectangle", "to_world": T().scale([c.wall[0] / 2, c.wall[1] / 2, 1.0]),
                                 "bsdf": {"type": "diffuse", "reflectance": 1.0}, "nlos_sensor": sensor},
                  "laser": {"type": "projector", "irradiance": 100.0, "fov": 0.2,
@@ -323,18 +353,46 @@ class TransientModel(MitsubaModel):
         return self.capture.bins * (1 if "mono" in self.variant else 3)
 
     def _render(self, theta: np.ndarray, spp: int, seed: int) -> torch.Tensor:
-        """Image (scan_y, scan_x, T, C) float32: θ written, then the passes (traced), spp-weighted."""
+        """Image (scan_y, scan_x, T, C) float32: θ written, then the passes (traced), spp-weighted; exhaustive: a
+        capture per laser point (its seeds derived from (seed, laser index)), blocks (ly·scan_y, lx·scan_x, T, C)."""
+        self._apply(theta)
+        c = self.capture
+        if c.capture_type != "exhaustive":
+            return torch.from_numpy(self._capture(spp, seed).astype(np.float32))
+        import mitransient as mitr
+        import mitsuba as mi
+
+        (lx, ly), (nx, ny) = c.laser_scan, c.scan
+        wall = next(s for s in self.scene.shapes() if s.id() == "relay_wall")
+        blocks = []
+        for k, p in enumerate(c.scan_points(c.laser_scan).reshape(-1, 3)):
+            target = mi.Point3f(*(float(v) for v in p))
+            mitr.nlos.focus_emitter_at_relay_wall_3dpoint(target, wall, self.scene.emitters()[0])
+            blocks.append(self._capture(spp, derive(seed, "laser", k)))
+        img = np.stack(blocks).reshape(ly, lx, ny, nx, *blocks[0].shape[2:]).swapaxes(1, 2)
+        return torch.from_numpy(img.reshape(ly * ny, lx * nx, *blocks[0].shape[2:]).astype(np.float32))
+
+    def _capture(self, spp: int, seed: int) -> np.ndarray:
+        """One capture at the θ written: the passes (traced), spp-weighted, (scan_y, scan_x, T, C) float64. A
+        single or exhaustive capture renders on one thread: its film takes atomic adds from every scan point's
+        paths, whose order across threads changed the last bits (7e-9 on a 3 × 3 capture); one thread keeps the
+        same (θ, spp, seed) bit for bit, at the cost of the other cores."""
         import drjit as dr
 
-        self._apply(theta)
-        integrator = self.scene.integrator()
-        acc = None
-        for s, pass_seed in self._passes(spp, seed):
-            _, transient = integrator.render(self.scene, seed=pass_seed, spp=s)
-            dr.eval(transient)
-            x = np.asarray(transient, dtype=np.float64) * (s / spp)
-            acc = x if acc is None else acc + x
-        return torch.from_numpy(acc.astype(np.float32))
+        threads = dr.thread_count()
+        if self.capture.capture_type != "confocal":
+            dr.set_thread_count(1)
+        try:
+            integrator = self.scene.integrator()
+            acc = None
+            for s, pass_seed in self._passes(spp, seed):
+                _, transient = integrator.render(self.scene, seed=pass_seed, spp=s)
+                dr.eval(transient)
+                x = np.asarray(transient, dtype=np.float64) * (s / spp)
+                acc = x if acc is None else acc + x
+        finally:
+            dr.set_thread_count(threads)
+        return acc
 
     def jvp(self, theta, index: int, spp: int, seed: int, **ad) -> torch.Tensor:
         raise NotImplementedError("transient scenes have FD derivatives only (gradient 'fd'): mitransient's AD does "
