@@ -141,3 +141,21 @@ def test_bayesian_mse_of_the_mle_is_above_the_zzb():
     assert row["bayes_mse"] + 2 * row["bayes_mse_se"] >= z.value, (row["bayes_mse"], z.value)
     assert row["vs_zzb"] != "below"
     assert z.value < z.prior_variance  # the data say something: not the vacuous bound
+
+
+def test_an_upper_end_never_passes_the_no_information_value():
+    """Rendering noise far above the signal (a toy 3-point grid, 3 replicates, noise 30× the signal): the jackknife's
+    upper end would run off to metres², but the ZZB's lower sum can never exceed its value at P_e = ½ (no
+    information), which on a uniform prior is T²/12 less the sum's grid error; the upper end stops there, and the
+    exact ZZB (P_e from the noise-free λ) lies below it."""
+    t = np.linspace(0, 1, 3)
+    x = np.linspace(0, 1, 40)
+    L = 0.1 * np.exp(-((x[None] - t[:, None]) ** 2) / 0.02)
+    cap = integrate(a_of_h(np.full((3, 3), 0.5), t), 0.5)
+    assert 0 < cap <= 1 / 12
+    exact = integrate(a_of_h(pe_from_lambda(((L[:, None] - L[None]) ** 2).sum(-1)), t), 0.5)
+    g = np.random.default_rng(0)
+    uppers = [zzb_interval(pairwise_ustat(L[None] + 3.0 * g.normal(size=(3,) + L.shape), 1.0), t, "lambda").upper
+              for _ in range(50)]
+    assert max(uppers) <= math.log10(cap) + 1e-12 and exact <= cap
+    assert sum(u == pytest.approx(math.log10(cap)) for u in uppers) >= 10  # the cap is reached, not just respected

@@ -378,7 +378,8 @@ def zzb_interval(stat: UStat, thetas, kind: str, prior=None, level: float = 0.95
     3.0 %. (A band on every A(h) at once, Bonferroni over the h, was valid but far wider than needed: it missed
     0.3 %.) The point errs either way (above the exact ZZB in about half the runs) and may lie above the upper end
     where its bias exceeds t·SE (grid neighbours at λ ≈ 0, where P_e = Q(√λ/2) curves without bound, as in the
-    example: exact −2.226): the lower end, not the point, is the bound to quote.
+    example: exact −2.226): the lower end, not the point, is the bound to quote. The upper end is at most the
+    sum with P_e = ½ everywhere (no information: about the prior's variance), which the ZZB cannot exceed.
 
     Parameters
     ----------
@@ -440,6 +441,9 @@ def zzb_interval(stat: UStat, thetas, kind: str, prior=None, level: float = 0.95
         q = t_quantile(level, R - 1)
         centre = R * lo - (R - 1) * float(z_loo.mean()) if math.isfinite(se) and math.isfinite(lo) else math.nan
         lo, hi = (centre - q * se, centre + q * se) if math.isfinite(centre) else (-math.inf, math.inf)
+        # P_e ≤ ½ everywhere: the sum can never exceed its value at P_e = ½ (no information), so an upper end past
+        # it says nothing more and is that value (the prior's variance, less the lower sum's grid error)
+        hi = min(hi, log(integrate(a_of_h(np.full(np.shape(stat.est), 0.5), t, prior), delta)))
     _, _, prior_var = _prior(t, prior)
     how = "AWGN: P_e = Q(√λ/2)" if kind == "lambda" else "Poisson: P_e ≥ ½(1 − √(1 − ρ²))"
     return ZZBInterval(point=log(point), lower=lo, upper=hi, level=level, replicates=R,
