@@ -24,7 +24,7 @@ def test_study_bounds_and_ratio_match_the_closed_forms(tmp_path):
            "studies": [{"type": "time-of-flight", "param": "depth", "nuisance": ["albedo"], "photons": 1e5,
                         "jitters_ps": [SB],
                         "background": 0.5, "wall_return": 0.0, "spp": 4, "replicates": 3, "fd_step": 1e-3,
-                        "max_halvings": 1, "reference_spp": 4, "trials": 3, "voxel": 0.001}]}
+                        "max_halvings": 1, "reference_spp": 4, "trials": 3, "voxel": 0.001, "budgets": [1e3, 1e7]}]}
     path = tmp_path / "tof.yaml"
     path.write_text(yaml.safe_dump(cfg))
     assert main(["run", str(path), "--out", str(tmp_path / "run"), "--quiet"]) == 0
@@ -60,6 +60,15 @@ def test_study_bounds_and_ratio_match_the_closed_forms(tmp_path):
         assert float(r["rms_nuisance"]) == pytest.approx(want, rel=0.01), (label, r["rms_nuisance"], want)
         assert float(r["rms_nuisance_lower"]) <= float(r["rms_nuisance"]) <= float(r["rms_nuisance_upper"])
     assert float(ratio["ratio_nuisance"]) == pytest.approx(nu_sum / nu_tr, rel=0.02)
+    # other photon budgets from the same renders: each the toy's closed form at that budget (background unchanged,
+    # so the RMS bound does not simply scale as 1/√photons: at 1e3 photons the background weighs more)
+    budgets = {(r["detector"], float(r["photons"])): float(r["rms_bound"]) for r in read_csv(study / "budgets.csv")}
+    for n in (1e3, 1e5, 1e7):
+        at_n = TransientPoint(jitter_ps=sigma, background=0.5, photons=n * gain, **WINDOW)
+        F = at_n.fisher(at_n.params.default)[2, 2], at_n.fisher(at_n.params.default, summed=True)[2, 2]
+        assert budgets[f"transient {SB:g} ps", n] == pytest.approx(1 / np.sqrt(F[0]), rel=0.01), n
+        assert budgets["time-summed", n] == pytest.approx(1 / np.sqrt(F[1]), rel=0.01), n
+    assert budgets["time-summed", 1e3] / budgets["time-summed", 1e5] > 1.05 * 10  # the background's share grows
     assert "albedo unknown" in (tmp_path / "run" / "report.md").read_text()
 
 

@@ -20,6 +20,9 @@ the step halved until F settles, one-sided limits at the run's level), with the 
 has a lower limit √(lower_summed / upper_transient) and an upper one the other way, each at level 1 − 2(1 − level)
 (Bonferroni over the two ends used: valid however the two bounds' errors are correlated).
 
+With `budgets`, every detector's CRLB at other photon budgets too (budgets.csv, budgets.png): the same renders through
+the detector with its gain (and wall return) scaled to the budget, its background unchanged.
+
 With `zzb_halfwidth` > 0, each detector also has the Ziv–Zakai bound on the Bayesian MSE of any estimator, biased or
 not, with the parameter uniform on θ* ± `zzb_halfwidth` (`zzb_points` grid points, the bound service's `curve`:
 Poisson P_e from the Bhattacharyya distance, `bounds.zzb`): where the prior is a few RMS CRLBs wide it shows the
@@ -75,6 +78,9 @@ SCHEMA = {
     "nuisance": Field(list, [], "parameters also unknown (e.g. albedo): the CRLB of `param` from the full Fisher "
                       "matrix over it and these, (F⁻¹)_00, reported beside the known-parameter one", items=str),
     "photons": Field(float, 1e6, "expected signal photons per capture at θ* (the photon budget)"),
+    "budgets": Field(list, [], "other photon budgets (expected signal photons per capture) at which every "
+                     "detector's CRLB and the ratios are also given: the same renders through a detector of that gain "
+                     "(laser power × exposure), background unchanged", items=float),
     "jitters_ps": Field(list, [10.0, 30.0, 100.0], "Gaussian detector jitters (standard deviation, ps) of the "
                         "transient detectors", items=float),
     "background": Field(float, 0.01, "dark + ambient counts per bin and scan point (> 0)"),
@@ -139,6 +145,8 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         confocal_geometry(m)
     except ValueError as e:
         raise ConfigError(f"{sid}", f"needs a confocal transient scene: {e}") from None
+    if any(not (math.isfinite(b) and b > 0) for b in cfg["budgets"]) or len(set(cfg["budgets"])) != len(cfg["budgets"]):
+        raise ConfigError(f"{sid}.budgets", f"expected distinct finite photon budgets > 0, got {cfg['budgets']}")
     for key in ("photons", "background", "fd_step", "voxel", "mle_step", "mle_halfwidth"):
         if not (math.isfinite(cfg[key]) and cfg[key] > 0):
             raise ConfigError(f"{sid}.{key}", f"expected a finite number > 0, got {cfg[key]}")
@@ -250,15 +258,20 @@ def _run(ctx: RunContext, cfg: dict) -> dict:
     points, edges = confocal_geometry(m)
     w, start = float(edges[1] - edges[0]), float(edges[0])
     gain, ref = _gain(ctx, cfg, p, w, start)
-    signal_per_point = cfg["photons"] / (points.shape[0] * points.shape[1])
     free = [m.params.names[p.index]]
     fixed = {n: float(v) for n, v in zip(m.params.names, p.theta, strict=True) if n not in free}
     sub = m.restrict(free, fixed)
     t_star = p.theta[[p.index]]
-    dets = [(label, Detector(bin_width=w, start=start, gain=gain, dark=cfg["background"],
-                             jitter_ps=spec.get("jitter_ps", 0.0), timing=spec.get("timing", True),
-                             wall_return=cfg["wall_return"] * signal_per_point if spec.get("wall") else 0.0))
-            for label, spec in p.detectors]
+
+    def detectors(photons: float) -> list[tuple[str, Detector]]:
+        """The detectors at a photon budget: gain and wall return scale with it (laser power × exposure)."""
+        per_point = photons / (points.shape[0] * points.shape[1])
+        return [(label, Detector(bin_width=w, start=start, gain=gain * photons / cfg["photons"], dark=cfg["background"],
+                                 jitter_ps=spec.get("jitter_ps", 0.0), timing=spec.get("timing", True),
+                                 wall_return=cfg["wall_return"] * per_point if spec.get("wall") else 0.0))
+                for label, spec in p.detectors]
+
+    dets = detectors(cfg["photons"])
     rows, trial_rows = [], []
     mle = None
     if _mle_points(cfg):
@@ -285,6 +298,16 @@ def _run(ctx: RunContext, cfg: dict) -> dict:
         if det.timing and cfg["trials"]:
             row.update(_trials(ctx, cfg, p, model, det, ref, label, trial_rows, b, mle))
         rows.append(row)
+    budget_rows = [_budget_row(r, cfg["photons"]) for r in rows]
+    for photons in cfg["budgets"]:
+        for label, det in detectors(photons):
+            (pt,) = BoundService(RenderBank(Detected(sub, det), seed=ctx.seed), [Poisson(1.0)], ctx.bounds.level).at(
+                [t_star], cfg["spp"], ("crlb",), "common", cfg["replicates"], fd_step=cfg["fd_step"],
+                max_halvings=cfg["max_halvings"])
+            b = pt.bounds["crlb"]
+            budget_rows.append(_budget_row({"detector": label, "timing": det.timing, "log10_crlb": b.point,
+                                            "crlb_lower": b.lower, "crlb_upper": b.upper, "lower_note": b.lower_note},
+                                           photons))
     summed = {r["detector"]: r for r in rows if not r["timing"]}
     ratios = []
     for r in rows:
@@ -302,13 +325,17 @@ def _run(ctx: RunContext, cfg: dict) -> dict:
                                    "ratio_nuisance_upper": _ratio(s["crlb_nuisance_upper"], r["crlb_nuisance_lower"])})
     write_csv(out / "bounds.csv", rows)
     write_csv(out / "ratios.csv", ratios)
+    if cfg["budgets"]:
+        write_csv(out / "budgets.csv", budget_rows)
     if trial_rows:
         write_csv(out / "trials.csv", trial_rows)
     _figure(out, rows, ratios, cfg["param"])
+    if cfg["budgets"]:
+        _budget_figure(out, budget_rows, cfg["param"])
     return {"param": cfg["param"], "nuisance": list(cfg["nuisance"]), "units": m.params.units[p.index],
             "theta": p.theta.tolist(),
             "photons": cfg["photons"], "gain": gain, "background": cfg["background"], "spp": cfg["spp"],
-            "replicates": cfg["replicates"], "level": ctx.bounds.level,
+            "replicates": cfg["replicates"], "level": ctx.bounds.level, "budgets": sorted(cfg["budgets"]),
             "zzb": {"prior": [float(t_star[0] - cfg["zzb_halfwidth"]), float(t_star[0] + cfg["zzb_halfwidth"])],
                     "points": cfg["zzb_points"]} if cfg["zzb_halfwidth"] else None,
             "ratios": [{k: v for k, v in r.items()} for r in ratios], "trials": cfg["trials"],
@@ -333,6 +360,13 @@ def _nuisance(ctx: RunContext, cfg: dict, p: Plan, det: Detector) -> dict:
     return {"nuisance": ",".join(cfg["nuisance"]), "log10_crlb_nuisance": b.point, "crlb_nuisance_lower": b.lower,
             "crlb_nuisance_upper": b.upper, "rms_nuisance": _rms(b.point), "rms_nuisance_lower": _rms(b.lower),
             "rms_nuisance_upper": _rms(b.upper), "nuisance_note": b.lower_note, "nuisance_renders": bank.renders}
+
+
+def _budget_row(r: dict, photons: float) -> dict:
+    """A detector's CRLB at one photon budget (a bounds.csv row's CRLB columns): log10 ends and RMS ends."""
+    return {"photons": photons, "detector": r["detector"], "timing": r["timing"], "log10_crlb": r["log10_crlb"],
+            "crlb_lower": r["crlb_lower"], "crlb_upper": r["crlb_upper"], "rms_bound": _rms(r["log10_crlb"]),
+            "rms_lower": _rms(r["crlb_lower"]), "rms_upper": _rms(r["crlb_upper"]), "lower_note": r["lower_note"]}
 
 
 def _zzb(svc: BoundService, cfg: dict, p: Plan) -> dict:
@@ -472,6 +506,31 @@ def _figure(out: Path, rows: list[dict], ratios: list[dict], param: str) -> None
     plt.close(fig)
 
 
+def _budget_figure(out: Path, rows: list[dict], param: str) -> None:
+    """√CRLB against the photon budget per detector, bars to its one-sided ends (budgets.png)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for name in dict.fromkeys(r["detector"] for r in rows):
+        rs = sorted((r for r in rows if r["detector"] == name), key=lambda r: r["photons"])
+        y = np.array([r["rms_bound"] for r in rs])
+        lo = np.clip(y - np.array([r["rms_lower"] for r in rs]), 0.0, None)
+        hi = np.clip(np.array([r["rms_upper"] for r in rs]) - y, 0.0, None)
+        ax.errorbar([r["photons"] for r in rs], y, yerr=[lo, np.where(np.isfinite(hi), hi, 0.0)], fmt="o-",
+                    capsize=3, label=f"{name} √CRLB")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("expected signal photons per capture")
+    ax.set_ylabel(f"RMS error of {param} [m]")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(out / "budgets.png", dpi=120)
+    plt.close(fig)
+
+
 def smoke(block: dict) -> dict:
     """The first jitter, 16 spp, 3 FD rounds, no halving, 2 trials, a 64-spp reference and MLE lattice, a 3-point
     ZZB grid."""
@@ -524,6 +583,20 @@ def report(study_dir: Path, results: dict) -> str:
                   "| transient | against | ratio of RMS bounds | lower limit | upper limit |", "|---|---|---|---|---|"]
         lines += [f"| {r['transient']} | {r['summed']} | {_num(r['ratio_nuisance'])} | "
                   f"{_num(r['ratio_nuisance_lower'])} | {_num(r['ratio_nuisance_upper'])} |" for r in ratios]
+    if results.get("budgets"):
+        budgets = read_csv(study_dir / "budgets.csv")
+        names = list(dict.fromkeys(r["detector"] for r in budgets))
+        photons = sorted({float(r["photons"]) for r in budgets})
+        cell = {(r["detector"], float(r["photons"])): r for r in budgets}
+        lines += ["", "Over photon budgets (expected signal photons per capture; the same renders, the detector's "
+                      f"gain scaled, {results['background']:g} background counts per bin unchanged): √CRLB [{u}] "
+                      "with its ends.", "", "| detector | " + " | ".join(f"{n:.3g} photons" for n in photons) + " |",
+                  "|---|" + "---|" * len(photons)]
+        lines += [f"| {name} | " + " | ".join(
+            f"{_num(cell[name, n]['rms_bound'])} [{_num(cell[name, n]['rms_lower'])}"
+            f"{' †' if cell[name, n].get('lower_note') else ''}, {_num(cell[name, n]['rms_upper'])}]" for n in photons)
+            + " |" for name in names]
+        lines += ["", f"![budgets]({study_dir.name}/budgets.png)"]
     if any(r.get("log10_hcr") not in (None, "") for r in rows):
         lines += ["", f"The HCR (unbiased estimators; test points Δ = ±ξ, ±2ξ and a {HCR_GRID}-point grid over Θ, "
                       "with the Δ → 0 term): √HCR and its ends beside √CRLB.", "",
