@@ -101,3 +101,13 @@ def test_the_cost_table_has_a_row_per_config_with_its_estimate_rate_and_committe
     assert quick[1] == str(sum(e.renders for e in studies_.values())) and quick[4] == "`results/quick/`"
     assert quick[5] == describe(machine["seconds_total"])
     assert quick[6] == str(sum(s["renders"] for s in machine["studies"].values()))
+
+
+def test_an_option_printed_with_an_en_dash_fails_the_build(tmp_path):
+    """The build's last check (`build-finished`) finds a command's `--set` or `--out` printed as `–set` (smart
+    quotes), in prose or in a code tag, and leaves a dash between numbers, in a name or spaced as prose alone: the
+    HTML build of `make test` fails on the first kind."""
+    (tmp_path / "cli.html").write_text("<p>nlosbench run c.yaml –set seed=3</p><code>–out runs/x</code>")
+    (tmp_path / "prose.html").write_text("<p>Θ = [0.7–1.69] m; Gauss–Newton; two cores – and no GPU; --set</p>")
+    hits = docs_ext.option_dashes(tmp_path)
+    assert len(hits) == 2 and all(h.startswith("cli.html") for h in hits), hits

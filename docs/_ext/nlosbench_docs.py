@@ -238,7 +238,31 @@ def constant_comment(app, what, name, obj, options, lines) -> None:
     logging.getLogger(__name__).warning(f"{name}: a public constant needs a #: comment where it is assigned")
 
 
+#: an en dash where a command's option was written (`--set` turned into `–set` by smart quotes): after a space, a
+#: bracket or a tag, and before a lower-case letter (a dash between numbers, 0.7–1.69, or a spaced one is prose)
+OPTION_DASH = re.compile(r"(?:^|[\s>(\[])–[a-z]")
+
+
+def option_dashes(html_dir: Path) -> list[str]:
+    """'file: context' for every en dash before an option name in the built pages under `html_dir`."""
+    hits = []
+    for page in sorted(Path(html_dir).rglob("*.html")):
+        text = page.read_text(encoding="utf-8", errors="replace")
+        hits += [f"{page.relative_to(html_dir)}: {text[max(m.start() - 30, 0):m.end() + 20]!r}"
+                 for m in OPTION_DASH.finditer(text)]
+    return hits
+
+
+def check_option_dashes(app, exception) -> None:
+    """After an HTML build: fail it where an option's `--` was printed as an en dash (a copied command fails)."""
+    if exception is None and app.builder.format == "html":
+        hits = option_dashes(Path(app.outdir))
+        if hits:
+            raise RuntimeError(f"{len(hits)} option(s) printed with an en dash, e.g. {hits[:3]}")
+
+
 def setup(app):
+    app.connect("build-finished", check_option_dashes)
     app.connect("config-inited", generate)  # before Sphinx lists the source files and autosummary reads them
     app.connect("autodoc-process-docstring", plain_notation, priority=400)  # before numpydoc (500) reads them
     app.connect("autodoc-process-docstring", constant_comment, priority=300)
