@@ -17,6 +17,7 @@ from nlosbench.studies.plotstyle import NOT_LIMIT, OPEN, note, symlog_ticks
 from nlosbench.studies.tables import fmt, fmt_end
 
 NOISE = "AWGN(sigma=0.05)"
+WORDS = "AWGN, σ = 0.05"  # how a legend names it
 
 
 @pytest.fixture(scope="module")
@@ -48,8 +49,8 @@ def test_the_legend_names_every_drawn_element_and_nothing_else(rows):
     assert len(labels) == len(set(labels))
     assert set(labels) == {a.get_label() for a in drawn(ax)}
     assert all(not a.get_label().startswith("_") for a in drawn(ax))
-    assert f"HCR: point, bars to its one-sided 95% ends, {NOISE}" in labels  # each interval has its entry
-    assert f"CRLB: point, bars to its one-sided 95% ends, {NOISE}" in labels
+    assert f"HCR: point, bars to its one-sided 95% ends, {WORDS}" in labels  # each interval has its entry
+    assert f"CRLB: point, bars to its one-sided 95% ends, {WORDS}" in labels
     noted = any(note(r, "hcr", e) for r in rs for e in ("lower", "upper"))  # the service's own notes (FD step)
     assert any(NOT_LIMIT in t for t in labels) == noted
     assert any(OPEN in t for t in labels) == any(math.isinf(r[f"{k}_upper"]) for r in rs for k in ("hcr", "crlb"))
@@ -70,6 +71,7 @@ def _row(noise: str, theta: float, hcr: tuple, crlb: tuple, notes: dict | None =
 
 
 A, B = "AWGN(sigma=0.05)", "Poisson(scale=300.0)"
+A_WORDS, B_WORDS = "AWGN, σ = 0.05", "Poisson, scale = 300"  # as the legend names them
 FD = "not a confidence limit: FD step not converged (F ×1.5 from ξ to ξ/2)"
 SYNTHETIC = [  # θ 0.1 resolved; 0.2: A's HCR upper end open; 0.3: A's lower ends not limits; B's CRLB open at 0.2
     _row(A, 0.1, (-4.0, -4.2, -3.8), (-4.1, -4.3, -3.9)),
@@ -95,7 +97,8 @@ def test_each_interval_is_its_own_bar_open_ends_are_arrows_and_non_limits_hollow
     bottom, top = ax.get_ylim()
     xs = {}
     for box in ax.containers:
-        name, noise = box.get_label().split(": point")[0], box.get_label().rsplit(", ", 1)[1]
+        name = box.get_label().split(": point")[0]
+        noise = next(n for n, words in ((A, A_WORDS), (B, B_WORDS)) if box.get_label().endswith(words))
         rs = [r for r in SYNTHETIC if r["noise"] == noise]
         line = box.lines[0]
         x = line.get_xdata()
@@ -109,10 +112,10 @@ def test_each_interval_is_its_own_bar_open_ends_are_arrows_and_non_limits_hollow
         assert line.get_markevery() == filled
     assert len(xs) == 4 and len({round(v[0], 9) for v in xs.values()}) == 4  # four bars apart at each θ
     hollow = {a.get_label(): a.get_xdata() for a in ax.lines if a.get_markerfacecolor() == "none"}
-    assert set(hollow) == {f"HCR: an end {NOT_LIMIT} (hollow), {A}", f"CRLB: an end {NOT_LIMIT} (hollow), {A}"}
+    assert set(hollow) == {f"HCR: an end {NOT_LIMIT} (hollow), {A_WORDS}", f"CRLB: an end {NOT_LIMIT} (hollow), {A_WORDS}"}
     assert all(len(x) == 1 for x in hollow.values())
     arrows = {a.get_label(): a for a in ax.lines if "arrow to the frame" in a.get_label()}
-    assert set(arrows) == {f"HCR: {OPEN}, arrow to the frame, {A}", f"CRLB: {OPEN}, arrow to the frame, {B}"}
+    assert set(arrows) == {f"HCR: {OPEN}, arrow to the frame, {A_WORDS}", f"CRLB: {OPEN}, arrow to the frame, {B_WORDS}"}
     for label, a in arrows.items():
         y = a.get_ydata()
         assert len(y) == 3 and np.isnan(y[2]) and top - 0.02 * (top - bottom) < y[1] < top  # one arrow, to the frame
@@ -159,8 +162,8 @@ def test_values_decades_away_are_marked_off_scale_and_do_not_stretch_the_axis(ro
     data = [v for r in rs for v in (r["log10_hcr"], r["hcr_upper"], r["log10_crlb"])]
     assert bottom > min(data) - 1 and top < max(data) + 1
     off = [a for a in ax.lines if "off scale" in a.get_label()]
-    assert {a.get_label().split(":")[0] for a in off} == {f"HCR_Neff (paper), {NOISE}",
-                                                          f"ZZB over Θ (Bayesian MSE), {NOISE}"}
+    assert {a.get_label().split(":")[0] for a in off} == {f"HCR_Neff (paper), {WORDS}",
+                                                          f"ZZB over Θ (Bayesian MSE), {WORDS}"}
     for a in off:
         assert bottom < min(a.get_ydata()) and max(a.get_ydata()) < bottom + 0.1 * (top - bottom)  # just inside
     assert not any(np.allclose(a.get_ydata(), bottom) for a in ax.lines)  # nothing drawn on the bottom frame

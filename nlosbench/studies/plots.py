@@ -103,16 +103,17 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
         color = f"C{i}"
         for j, (kind, name, marker, style) in enumerate(kinds):
             shift = (i * len(kinds) + j - (slots - 1) / 2) * width
-            interval_artists(ax, rs, x + shift, kind, name, noise, marker, style, color)
+            interval_artists(ax, rs, x + shift, kind, name, noise_text(noise), marker, style, color)
         for key, style, name, lw in (("log10_hcr_neff", ":", "HCR_Neff (paper)", 0.9),
                                      ("log10_barankin", "-.", "Barankin", 1.0)):
             if rs and rs[0].get(key) not in ("", None):
                 y = np.array([cell(r[key]) for r in rs])
-                inside = off_scale(ax, x, y, bottom, top, f"{name}, {noise}", units, color, slot)
+                inside = off_scale(ax, x, y, bottom, top, f"{name}, {noise_text(noise)}", units, color, slot)
                 slot += int(not inside.all())
                 if (inside & np.isfinite(y)).any():
-                    ax.plot(x, np.where(inside, y, np.nan), style, color=color, lw=lw, label=f"{name}, {noise}")
-        name = f"ZZB over Θ (Bayesian MSE), {noise}"
+                    ax.plot(x, np.where(inside, y, np.nan), style, color=color, lw=lw,
+                            label=f"{name}, {noise_text(noise)}")
+        name = f"ZZB over Θ (Bayesian MSE), {noise_text(noise)}"
         if noise in zzb and off_scale(ax, x[len(x) // 2:][:1], np.array([zzb[noise]]), bottom, top, name, units, color,
                                       slot).all():
             bad = (zzb_notes or {}).get(noise, "")
@@ -135,7 +136,7 @@ def draw_bound_curves(ax, rows: list[dict], los_until: float | None = None, para
             bars = np.stack([np.where(np.isfinite(lo), y - lo, 0.0), np.where(np.isfinite(up), up - y, 0.0)])
             color = f"C{names.index(noise)}" if noise in names else "k"
             ax.errorbar(x, y, yerr=bars, fmt=marker, ms=5, capsize=3, color=color, mec="k", mew=0.6,
-                        label=f"{name} at the quoted θ (point, ends), {noise}")
+                        label=f"{name} at the quoted θ (point, ends), {noise_text(noise)}")
     if los_until is not None:
         ax.axvline(float(los_until), color="gray", lw=0.8)
         below = top - 0.04 * (top - bottom)  # under the arrowheads of open ends
@@ -486,7 +487,7 @@ def inexact_plots(study_dir: Path, results: dict) -> list[Path]:
                     [r for r in lrows if r["noise"] == noise and r["theta"] == th],
                     results,
                     study_dir / f"lambda_{slug(noise)}_{tag}.png",
-                    f"{noise}, θ* = {cell(th):g} ({tag} interval: {width[i]:.3g} decades)",
+                    f"{noise_text(noise)}, θ* = {cell(th):g} ({tag} interval: {width[i]:.3g} decades)",
                 )
             )
     if (study_dir / "decay.csv").exists():
@@ -637,11 +638,11 @@ def _depth_plot(rows: list[dict], results: dict, path: Path) -> Path:
                 by[int(r["value"])][1].append(float(r["log10_crlb"]))
         d = sorted(by)
         fin = [np.array([v for v in by[k][0] if math.isfinite(v)] or [np.nan]) for k in d]
-        ax.plot(d, [np.median(f) for f in fin], "o-", color=f"C{i}", label=f"HCR, {noise}")
+        ax.plot(d, [np.median(f) for f in fin], "o-", color=f"C{i}", label=f"HCR, {noise_text(noise)}")
         ax.fill_between(d, [f.min() for f in fin], [f.max() for f in fin], color=f"C{i}", alpha=0.15,
-                        label=f"HCR min – max over the θ, {noise}")
+                        label=f"HCR min – max over the θ, {noise_text(noise)}")
         crlb = [np.median([v for v in by[k][1] if math.isfinite(v)] or [np.nan]) for k in d]
-        ax.plot(d, crlb, "s--", color=f"C{i}", label=f"CRLB, {noise}")
+        ax.plot(d, crlb, "s--", color=f"C{i}", label=f"CRLB, {noise_text(noise)}")
     ax.set_xticks(d)
     ax.set_xlabel("max_depth (1: emitters seen directly, 2: direct light, ...)")
     units = results.get("units", "units")
