@@ -10,7 +10,9 @@ pixel-sample plus renders × the cost every render has beside its samples (the b
 checksummed, fsynced write: what makes a lattice of 10⁵ cheap renders take minutes), for this scene, variant
 and versions (the model's content key), measured once on this machine with tiny timed renders (after untimed
 ones that compile the kernels) and kept in `rates_path()` (~/.cache/nlosbench/rates.json, or
-$XDG_CACHE_HOME/nlosbench/rates.json).
+$XDG_CACHE_HOME/nlosbench/rates.json) with the load per core it was measured at: one measured under load is
+measured again once the machine is at most half as loaded (a rate kept from a busy moment made every later
+estimate too long).
 """
 from __future__ import annotations
 
@@ -35,6 +37,9 @@ AD_PASS_RENDERS = 4
 RATE_SAMPLES = 1 << 18
 #: 1-spp renders timed through a bank with a store to measure a render's cost beside its samples
 OVERHEAD_RENDERS = 4
+#: a kept rate measured at a 1-minute load average above this per core (or at an unknown load) is measured again
+#: when the machine is at most half as loaded: other work slowed the first measurement down
+LOADED = 0.5
 
 
 @dataclass(frozen=True)
@@ -106,26 +111,40 @@ def _key(model: ForwardModel) -> str:
     return hashlib.sha256(blob).hexdigest()[:24]
 
 
+def load_per_core() -> float:
+    """The 1-minute load average per CPU core (NaN where the system does not say)."""
+    try:
+        return os.getloadavg()[0] / (os.cpu_count() or 1)
+    except (OSError, AttributeError):
+        return math.nan
+
+
 def rate(model: ForwardModel) -> Rate:
-    """This machine's seconds per pixel-sample and per render for `model` (cached in `rates_path()`; measured on a
-    miss)."""
+    """This machine's seconds per pixel-sample and per render for `model` (cached in `rates_path()` with the load per
+    core it was measured at; measured on a miss, and again when it was measured under load (`LOADED`, or at an
+    unknown load) and the machine is now at most half as loaded)."""
     path, key = rates_path(), _key(model)
     try:
         known = json.loads(path.read_text())
     except (OSError, ValueError):
         known = {}
     hit = known.get(key) if isinstance(known, dict) else None
+    now = load_per_core()
     if isinstance(hit, dict) and _usable(hit.get("seconds_per_sample")) and _usable(hit.get("seconds_per_render"),
                                                                                     zero=True):
-        return Rate(float(hit["seconds_per_sample"]), f"measured {hit.get('when', '')} ({path})",
-                    float(hit["seconds_per_render"]))  # else (NaN, 0, < 0, text, missing) measured again
+        then = hit.get("load_per_core")
+        then = float(then) if _usable(then, zero=True) else math.inf  # unknown: as if loaded
+        if not (then > LOADED and now <= min(then, 2 * LOADED) / 2):  # NaN now: kept
+            return Rate(float(hit["seconds_per_sample"]), f"measured {hit.get('when', '')} ({path})",
+                        float(hit["seconds_per_render"]))  # else (NaN, 0, < 0, text, missing) measured again
     r = measure(model)
     o = measure_overhead(model, r)
     try:
         write_json(path, {**(known if isinstance(known, dict) else {}),
                           key: {"seconds_per_sample": r, "seconds_per_render": o, "scene": model.name,
                                 "variant": getattr(_base(model), "variant", type(_base(model)).__name__),
-                                "when": datetime.date.today().isoformat()}})
+                                "when": datetime.date.today().isoformat(),
+                                "load_per_core": None if math.isnan(now) else round(now, 3)}})
     except OSError:  # a read-only home: the estimate still stands, it is just measured again next time
         pass
     return Rate(r, "measured now", o)
