@@ -112,10 +112,11 @@ def test_each_interval_is_its_own_bar_open_ends_are_arrows_and_non_limits_hollow
         assert line.get_markevery() == filled
     assert len(xs) == 4 and len({round(v[0], 9) for v in xs.values()}) == 4  # four bars apart at each θ
     hollow = {a.get_label(): a.get_xdata() for a in ax.lines if a.get_markerfacecolor() == "none"}
-    assert set(hollow) == {f"HCR: an end {NOT_LIMIT} (hollow), {A_WORDS}", f"CRLB: an end {NOT_LIMIT} (hollow), {A_WORDS}"}
+    assert set(hollow) == {f"{kind}: an end {NOT_LIMIT} (hollow), {A_WORDS}" for kind in ("HCR", "CRLB")}
     assert all(len(x) == 1 for x in hollow.values())
     arrows = {a.get_label(): a for a in ax.lines if "arrow to the frame" in a.get_label()}
-    assert set(arrows) == {f"HCR: {OPEN}, arrow to the frame, {A_WORDS}", f"CRLB: {OPEN}, arrow to the frame, {B_WORDS}"}
+    assert set(arrows) == {f"HCR: {OPEN}, arrow to the frame, {A_WORDS}",
+                           f"CRLB: {OPEN}, arrow to the frame, {B_WORDS}"}
     for label, a in arrows.items():
         y = a.get_ydata()
         assert len(y) == 3 and np.isnan(y[2]) and top - 0.02 * (top - bottom) < y[1] < top  # one arrow, to the frame
