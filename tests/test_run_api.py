@@ -60,11 +60,28 @@ def test_compare_refuses_runs_without_a_table_in_common(runs, tmp_path, capsys):
         capsys.readouterr().err
 
 
-def test_compare_matches_a_grid_written_with_other_rounding():
-    """precise_nlos (written before CSVs printed θ at its precision) has θ = 0.7899999999999999 where quick has 0.79
-    (the same 34-point grid, AWGN in both): every row is in both runs, none is one run's own."""
-    assert "0.7899999999999999," in Path("results/precise_nlos/00-bounds/bounds.csv").read_text()
+def test_compare_matches_a_grid_written_with_other_rounding(tmp_path):
+    """precise_nlos copied with every θ written one float step below (0.7899999999999999 where quick has 0.79, as a
+    CSV written before θ was printed at its precision has it; the same 34-point grid, AWGN in both): every row is
+    in both runs, none is one run's own."""
+    import csv
+    import shutil
+
+    import numpy as np
+
+    other = tmp_path / "precise_nlos"
+    shutil.copytree("results/precise_nlos", other)
+    table = other / "00-bounds" / "bounds.csv"
+    with table.open(newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        r["theta_object_position"] = repr(float(np.nextafter(float(r["theta_object_position"]), -np.inf)))
+    with table.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    assert "0.7899999999999999," in table.read_text()
     assert "0.7899999999999999," not in Path("results/quick/00-bounds/bounds.csv").read_text()
-    out = nb.compare("results/quick", "results/precise_nlos", ["00-bounds/bounds"])
+    out = nb.compare("results/quick", str(other), ["00-bounds/bounds"])
     assert not [ln for ln in out.splitlines() if "only in" in ln], out
     assert sum(": crlb " in ln for ln in out.splitlines()) == 34
