@@ -329,7 +329,7 @@ def _run(ctx: RunContext, cfg: dict) -> dict:
         write_csv(out / "budgets.csv", budget_rows)
     if trial_rows:
         write_csv(out / "trials.csv", trial_rows)
-    _figure(out, rows, ratios, cfg["param"])
+    _figure(out, rows, cfg["param"])
     if cfg["budgets"]:
         _budget_figure(out, budget_rows, cfg["param"])
     return {"param": cfg["param"], "nuisance": list(cfg["nuisance"]), "units": m.params.units[p.index],
@@ -468,67 +468,66 @@ def _mle_fit(est: Surrogate, problem: Problem, y: torch.Tensor, t: float, k: int
             "cluster": 0, **fields}
 
 
-def _figure(out: Path, rows: list[dict], ratios: list[dict], param: str) -> None:
+def _rms_figure(path: Path, xlabel: str, param: str, draw) -> None:
+    """A log–log figure of RMS errors of `param` (metres) against `xlabel`: `draw(ax)` draws, this labels and saves."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(6, 4))
-    tr = [r for r in rows if r["timing"]]
-    x = [float(r["jitter_ps"]) for r in tr]
-    for key, style, name in (("rms_bound", "o-", "transient √CRLB"), ("bp_mse", "s--", "backprojection RMSE"),
-                             ("mle_mse", "d-.", "maximum likelihood RMSE")):
-        if key == "rms_bound":
-            y = [r[key] for r in tr]
-        elif all(key in r for r in tr):
-            y = [math.sqrt(r[key]) for r in tr]
-        else:
-            continue
-        ax.plot(x, y, style, label=name)
-    if all("rms_zzb_lower" in r for r in tr):  # the bound to quote is the lower end; the bar reaches the point
-        lo = np.array([r["rms_zzb_lower"] for r in tr])
-        up = np.clip(np.array([r["rms_zzb"] for r in tr]) - lo, 0.0, None)  # 0 where exact renders leave no spread
-        ax.errorbar(x, lo, yerr=[np.zeros_like(lo), up], fmt="^:",
-                    capsize=3, label="transient √ZZB over the prior (lower end)")
-        ax.axhline(tr[0]["rms_prior"], ls="-.", lw=0.8, color="tab:purple", label="the prior's RMS")
-    for r in rows:
-        if not r["timing"]:
-            ax.axhline(r["rms_bound"], ls=":", color="k" if "wall" in r["detector"] else "grey",
-                       label=f"{r['detector']} √CRLB")
+    draw(ax)
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel("detector jitter σ [ps]")
+    ax.set_xlabel(xlabel)
     ax.set_ylabel(f"RMS error of {param} [m]")
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(out / "time_of_flight.png", dpi=120)
+    fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def _figure(out: Path, rows: list[dict], param: str) -> None:
+    """RMS bounds and errors against the detector jitter, the time-summed bounds as lines (time_of_flight.png)."""
+    tr = [r for r in rows if r["timing"]]
+    x = [float(r["jitter_ps"]) for r in tr]
+
+    def draw(ax) -> None:
+        for key, style, name in (("rms_bound", "o-", "transient √CRLB"), ("bp_mse", "s--", "backprojection RMSE"),
+                                 ("mle_mse", "d-.", "maximum likelihood RMSE")):
+            if key == "rms_bound":
+                y = [r[key] for r in tr]
+            elif all(key in r for r in tr):
+                y = [math.sqrt(r[key]) for r in tr]
+            else:
+                continue
+            ax.plot(x, y, style, label=name)
+        if all("rms_zzb_lower" in r for r in tr):  # the bound to quote is the lower end; the bar reaches the point
+            lo = np.array([r["rms_zzb_lower"] for r in tr])
+            up = np.clip(np.array([r["rms_zzb"] for r in tr]) - lo, 0.0, None)  # 0: exact renders, no spread
+            ax.errorbar(x, lo, yerr=[np.zeros_like(lo), up], fmt="^:", capsize=3,
+                        label="transient √ZZB over the prior (lower end)")
+            ax.axhline(tr[0]["rms_prior"], ls="-.", lw=0.8, color="tab:purple", label="the prior's RMS")
+        for r in rows:
+            if not r["timing"]:
+                ax.axhline(r["rms_bound"], ls=":", color="k" if "wall" in r["detector"] else "grey",
+                           label=f"{r['detector']} √CRLB")
+
+    _rms_figure(out / "time_of_flight.png", "detector jitter σ [ps]", param, draw)
 
 
 def _budget_figure(out: Path, rows: list[dict], param: str) -> None:
     """√CRLB against the photon budget per detector, bars to its one-sided ends (budgets.png)."""
-    import matplotlib
+    def draw(ax) -> None:
+        for name in dict.fromkeys(r["detector"] for r in rows):
+            rs = sorted((r for r in rows if r["detector"] == name), key=lambda r: r["photons"])
+            y = np.array([r["rms_bound"] for r in rs])
+            lo = np.clip(y - np.array([r["rms_lower"] for r in rs]), 0.0, None)
+            hi = np.clip(np.array([r["rms_upper"] for r in rs]) - y, 0.0, None)
+            ax.errorbar([r["photons"] for r in rs], y, yerr=[lo, np.where(np.isfinite(hi), hi, 0.0)], fmt="o-",
+                        capsize=3, label=f"{name} √CRLB")
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for name in dict.fromkeys(r["detector"] for r in rows):
-        rs = sorted((r for r in rows if r["detector"] == name), key=lambda r: r["photons"])
-        y = np.array([r["rms_bound"] for r in rs])
-        lo = np.clip(y - np.array([r["rms_lower"] for r in rs]), 0.0, None)
-        hi = np.clip(np.array([r["rms_upper"] for r in rs]) - y, 0.0, None)
-        ax.errorbar([r["photons"] for r in rs], y, yerr=[lo, np.where(np.isfinite(hi), hi, 0.0)], fmt="o-",
-                    capsize=3, label=f"{name} √CRLB")
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    ax.set_xlabel("expected signal photons per capture")
-    ax.set_ylabel(f"RMS error of {param} [m]")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(out / "budgets.png", dpi=120)
-    plt.close(fig)
+    _rms_figure(out / "budgets.png", "expected signal photons per capture", param, draw)
 
 
 def smoke(block: dict) -> dict:
