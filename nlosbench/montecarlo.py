@@ -60,7 +60,8 @@ class Setting:
 class Trial:
     """One fit of one setting: noise j, θ* index i, trial k; `clean` is the observation's mean at θ*
     (H, W, C), clean-image replicate `cluster`; `bank`: grid renders the estimator may use (Problem.bank);
-    `grid`: the renders of the setting's own grid (`Estimator.grid_wanted`), made by the run's bank (Problem.grids)."""
+    `grids`: the renders of the setting's own grids (`Estimator.grid_wanted`), made by the run's bank
+    (Problem.grids)."""
 
     noise_index: int
     theta_index: int
@@ -75,7 +76,7 @@ class Trial:
     keep_trace: bool = False
     cluster: int = 0
     bank: BankGrid | None = None
-    grid: BankGrid | None = None
+    grids: tuple[BankGrid, ...] = ()
 
     @property
     def key(self) -> tuple:
@@ -93,7 +94,7 @@ def make_trials(thetas: np.ndarray, n: int, settings: Sequence[Setting], noises:
                 grids: dict | None = None) -> list[Trial]:
     """All trials, in the order noise → θ* → trial → setting. thetas: (T, P); noises: index → model;
     cleans: (θ index, replicate) → image for replicates 0 … clusters − 1 (or θ index → image, one replicate);
-    trial k uses replicate k mod clusters; grids: setting label → its grid renders (`Trial.grid`)."""
+    trial k uses replicate k mod clusters; grids: setting label → its grids' renders (`Trial.grids`)."""
     if n < 1:
         raise ValueError(f"n (trials per θ*) must be >= 1, got {n}")
     labels = [s.label for s in settings]
@@ -105,7 +106,7 @@ def make_trials(thetas: np.ndarray, n: int, settings: Sequence[Setting], noises:
 
     grids = grids or {}
     return [Trial(j, i, k, s, noise, tuple(float(v) for v in thetas[i]), clean(i, k % clusters), seed, budget,
-                  start_width, keep_trace, k % clusters, bank, grids.get(s.label))
+                  start_width, keep_trace, k % clusters, bank, grids.get(s.label, ()))
             for j, noise in noises.items() for i in range(len(thetas)) for k in range(n) for s in settings]
 
 
@@ -119,7 +120,7 @@ def make_bayes_trials(thetas: np.ndarray, settings: Sequence[Setting], noises: d
         raise ValueError(f"estimator labels must be unique, got {labels}")
     grids = grids or {}
     return [Trial(j, k, 0, s, noise, tuple(float(v) for v in thetas[k]), cleans[k], seed, budget, None, keep_trace,
-                  0, bank, grids.get(s.label))
+                  0, bank, grids.get(s.label, ()))
             for j, noise in noises.items() for k in range(len(thetas)) for s in settings]
 
 
@@ -152,7 +153,7 @@ def run_trial(model: ForwardModel, trial: Trial) -> dict:
                       np.random.default_rng(derive(trial.seed, "trial-start", i, k)))
     rec["init"] = init.tolist()
     problem = Problem(model, trial.noise, trial.setting.gradient, derive(trial.seed, "problem"), trial.bank,
-                      () if trial.grid is None else (trial.grid,))
+                      trial.grids)
     fields, est = fit_record(_estimator(trial.setting), problem, y, init,
                              np.random.default_rng(derive(trial.seed, "trial-fit", i, k)), trial.budget)
     rec.update(fields)

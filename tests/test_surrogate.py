@@ -190,7 +190,7 @@ def test_poisson_fit_with_a_bright_sample_in_a_dark_pixel(tmp_path):
     images[end][dark] += 0.5
     setting = Setting("surrogate", {"spp": spp, **OPTIONS})
     trials = make_trials(THETA[None], n, [setting], {0: noise}, {0: L}, seed=4,
-                         grids={"surrogate": BankGrid(np.tile(thetas, (sets, 1)), images, spp)})
+                         grids={"surrogate": (BankGrid(np.tile(thetas, (sets, 1)), images, spp),)})
     records = run_trials(SerialExecutor(model), trials, tmp_path / LOG_NAME)
     (row,) = summarize(records, model.params.names, bootstrap=2)
     Lt = base.clean(torch.tensor([THETA[0], 0.5])).detach()
@@ -263,3 +263,40 @@ def test_the_lattice_keeps_common_seeds_whatever_the_study_seeds(tmp_path):
         thetas[seeds] = sorted((r["trial"], r["theta_hat"][0]) for r in records)
         assert len(records) == 20 and res["summary"][0]["n_failed"] == 0
     assert thetas["common"] == thetas["independent"]
+
+
+SEGMENTS = [{"region": [0.35, 0.45], "step": 0.01}, {"region": [0.45, 0.57], "step": 0.02, "spp": 2}]
+
+
+@pytest.mark.parametrize("theta", [0.4067, 0.4490, 0.4567, 0.5133])
+def test_segments_land_on_theta_on_both_sides_of_the_join(theta):
+    """A lattice in two segments (1 cm over [0.35, 0.45], 2 cm over [0.45, 0.57]) of exact renders: from y = L(θ*)
+    the fit lands on θ* to the cubic's misfit, in either segment and beside the join, with no render."""
+    model = blob()
+    est = nb.estimators.get("surrogate", spp=1, segments=SEGMENTS, window=2, degree=3, sets=2)
+    wanted = est.grid_wanted(model.params)
+    assert [(len(t), spp, sets) for t, spp, sets in wanted] == [(11, 1, 2), (7, 2, 2)]
+    grids = tuple(BankGrid(np.tile(t, (sets, 1)), torch.stack([model.render(v, spp, k) for k in range(sets)
+                                                               for v in t]), spp) for t, spp, sets in wanted)
+    fit = est.fit(Problem(model, nb.noise.AWGN(SIGMA), grids=grids), model.render(np.array([theta]), 1, 0),
+                  rng=np.random.default_rng(0))
+    assert fit.status == "converged" and fit.renders == 0
+    assert abs(fit.theta[0] - theta) < 2e-5
+
+
+def test_segments_are_checked_and_set_the_prediction_step():
+    """Segments must be contiguous and in order, and exclude step/region; the prediction's stand-in gradient is
+    the central FD at 0.744 h of the segment holding θ* (the cubic's centre-slope variance)."""
+    with pytest.raises(ValueError, match="contiguous"):
+        nb.estimators.get("surrogate", segments=[{"region": [0.3, 0.4], "step": 0.01},
+                                                 {"region": [0.41, 0.6], "step": 0.02}])
+    with pytest.raises(ValueError, match="not both"):
+        nb.estimators.get("surrogate", step=0.01, segments=SEGMENTS)
+    with pytest.raises(ValueError, match=r"segments\[0\]"):
+        nb.estimators.get("surrogate", segments=[{"region": [0.3, 0.4]}])
+    params = blob().params
+    est = nb.estimators.get("surrogate", segments=SEGMENTS)
+    g = GradientSettings(method="fd", step=0.06, crn=True)
+    assert est.stand_in(params, [0.40], g).step == pytest.approx(0.00744)
+    assert est.stand_in(params, [0.50], g).step == pytest.approx(0.01488)
+    assert nb.estimators.get("surrogate", **OPTIONS).stand_in(params, [0.40], g) is g

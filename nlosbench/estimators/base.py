@@ -501,10 +501,12 @@ class Estimator(ABC):
                         grad_passes=used.grad_passes, samples=used.samples, seconds=tracker.seconds(),
                         final_loss=float(out.final_loss), init=theta0, trace=tracker.trace)
 
-    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int] | tuple[np.ndarray, int, int] | None:
+    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int] | tuple[np.ndarray, int, int] | \
+            list[tuple[np.ndarray, int, int]] | None:
         """A θ grid (G, P) and spp this estimator renders once per process before its fits (None: none), and
-        optionally a number K of independent render sets of it (default 1). A study with a render bank renders it
-        there and passes it as `Problem.grids`, so the grid is made once per run, shared with equal render sets
+        optionally a number K of independent render sets of it (default 1); or a list of such grids (each at its
+        own spp). A study with a render bank renders them
+        there and passes them as `Problem.grids`, so a grid is made once per run, shared with equal render sets
         (e.g. a bound grid) and counted with the bank's renders; K sets come as one `BankGrid` whose θ are the
         grid repeated K times (K·G, P), set k's renders at rows k·G … (k + 1)·G − 1.
 
@@ -515,11 +517,32 @@ class Estimator(ABC):
 
         Returns
         -------
-        tuple of (numpy.ndarray, int) or (numpy.ndarray, int, int) or None
+        tuple of (numpy.ndarray, int) or (numpy.ndarray, int, int), or a list of the latter, or None
             The grid (G, P) in parameter units, the spp of its renders and optionally the number of independent
-            render sets; None when the estimator needs none.
+            render sets (or several such grids); None when the estimator needs none.
         """
         return None
+
+    def stand_in(self, params: ParamSpace, theta, gradient: GradientSettings) -> GradientSettings:
+        """The gradient setting whose Jacobian noise a predicted variance measures at θ* (a study's
+        `predict_jacobians`): the setting's own; an estimator whose slope noise depends on where θ* lies returns the
+        one for there (the surrogate's lattice segments).
+
+        Parameters
+        ----------
+        params : ParamSpace
+            The parameter space Θ.
+        theta : array_like
+            θ* (P,) in parameter units.
+        gradient : GradientSettings
+            The setting's gradient.
+
+        Returns
+        -------
+        GradientSettings
+            The gradient to measure at θ*.
+        """
+        return gradient
 
     @abstractmethod
     def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,

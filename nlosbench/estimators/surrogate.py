@@ -4,16 +4,21 @@ A lattice t_g = a + g·h (g = 0 … G − 1) over a region [a, b] of Θ (`grid_w
 in K independent sets, each with one seed shared by every point (common random numbers: a pixel whose light paths do
 not meet the moving object has the same rendering error at every t_g, which cancels in every difference between
 them). The trials study renders the sets in its render bank (`Problem.grids`: once per run, counted with the bank's
-renders, shared by every fit); a direct fit renders them once per process. A fit renders nothing:
+renders, shared by every fit); a direct fit renders them once per process. Where L(θ) has edges at pixel scale over
+part of Θ (a silhouette in line of sight) and is smooth over centimetres elsewhere, the lattice is made of
+`segments`, each a uniform lattice over its own region at its own step and spp (contiguous: one segment's end is the
+next one's start, a point both hold); a window never straddles two segments, and every set keeps one seed per
+segment. A fit renders nothing:
 
 1. the NLL of y at every lattice point's mean render M_g; g₀ its minimum;
-2. the window of 2w + 1 lattice points centred on g₀ (shifted inside the lattice at its ends) and, per set k and
+2. the window of 2w + 1 lattice points centred on g₀ (shifted inside g₀'s segment at its ends) and, per set k and
    pixel ω, the least-squares polynomial of degree d in u = (θ − t_c) / h (t_c the window's centre) through them,
    S_kω(θ) = Σ_j c_{kjω} u^j, c_k = (VᵀV)⁻¹Vᵀ L_k,window, V the window's Vandermonde matrix (2w + 1, d + 1);
 3. θ̂ = argmin Q(θ), Q = NLL(y, M(θ)) − ½ Σ_ω w_ω s²_ω(θ) / K, M the sets' mean and s² their sample variance
    per pixel, w the noise model's Fisher weight at max(M, SE), SE = s / √K the standard error of M (Brent's
-   bounded search over the window's span: no render); when θ̂ lies nearer another lattice point than t_{g₀}, the
-   window moves there and 2–3 repeat (at most `max_moves` times). The NLL and w both see their mean floored by
+   bounded search over the window's span: no render); when θ̂ lies nearer another lattice point than t_{g₀} (in the
+   segment holding θ̂; the current one where two hold it, the next one where θ̂ stops at their join), the window
+   moves there and 2–3 repeat (at most `max_moves` times). The NLL and w both see their mean floored by
    `Problem.nll`'s Poisson policy (`base.floored`: at least `POISSON_FLOOR` photons): a polynomial through one
    bright sample in a dark pixel dips below 0 between lattice points, and a fit never fails on it, so every
    trial's θ̂ enters the MSE. The SE bounds a pixel's correction by ½ q·SE (q the Poisson scale, photons per unit
@@ -78,6 +83,10 @@ class Surrogate(Estimator):
         Independent render sets K of the lattice (each with its own common seed); with K ≥ 2 the objective is
         unbiased for the NLL at L(θ) (AWGN; Poisson: on average over observations, module docstring), with K = 1
         the slope's noise shrinks θ̂ towards the surrogate's own error.
+    segments : sequence of mappings, optional
+        Instead of `region` and `step`: uniform lattices {region: [a, b], step: h, spp: s (default `spp`)} over
+        contiguous regions of Θ, in order (one's b the next one's a), each holding ≥ 2w + 1 points: a fine step
+        where L(θ) has edges at pixel scale, a coarse one where it is smooth.
     window : int, default 2
         Half-width w of the local fit, in lattice points (2w + 1 points, ≥ degree + 1).
     degree : int, default 2
@@ -109,7 +118,8 @@ class Surrogate(Estimator):
                   "as 'stalled'.")
 
     def __init__(self, step: float | None = None, region: Sequence[float] | None = None, spp: int = 4096,
-                 sets: int = 2, window: int = 2, degree: int = 2, max_moves: int = 4, xtol: float = 1e-6):
+                 sets: int = 2, window: int = 2, degree: int = 2, max_moves: int = 4, xtol: float = 1e-6,
+                 segments: Sequence[dict] | None = None):
         for k, v in {"spp": spp, "sets": sets, "window": window, "degree": degree, "max_moves": max_moves}.items():
             if isinstance(v, bool) or int(v) != v or v < 1:
                 raise ValueError(f"surrogate: {k} must be a positive integer, got {v!r}")
@@ -127,10 +137,54 @@ class Surrogate(Estimator):
         self.spp, self.sets, self.window, self.degree = int(spp), int(sets), int(window), int(degree)
         self.max_moves = int(max_moves)
         self.xtol = float(xtol)
+        self.segments = None if segments is None else _check_segments(segments, self.spp, step, region)
         self._grids: dict[tuple, list[torch.Tensor]] = {}
 
+    def parts(self, params: ParamSpace) -> list[tuple[np.ndarray, int]]:
+        """Each segment's lattice a + g·h (G_s, 1) float64 (parameter units) and its spp: one segment (`region`,
+        `step`, `spp`) unless `segments` are given.
+
+        Parameters
+        ----------
+        params : ParamSpace
+            Θ; one parameter.
+
+        Returns
+        -------
+        list of (numpy.ndarray, int)
+            Per segment, in order: its points (G_s, 1), G_s ≥ 2·window + 1, and spp.
+
+        Raises
+        ------
+        ValueError
+            For more than one parameter, a region outside Θ, fewer points than the window needs or more than
+            `MAX_GRID` in all.
+        """
+        if params.dim != 1:
+            raise ValueError(f"surrogate: one parameter only, the model has {list(params.names)}")
+        segs = self.segments or [{"region": self.region or [float(params.lower[0]), float(params.upper[0])],
+                                  "step": self.step, "spp": self.spp}]
+        out, total = [], 0.0
+        for seg in segs:
+            lo, hi = seg["region"]
+            if lo < params.lower[0] - 1e-12 or hi > params.upper[0] + 1e-12:
+                raise ValueError(f"surrogate: region [{lo}, {hi}] is not inside Θ = [{params.lower[0]}, "
+                                 f"{params.upper[0]}]")
+            h = (hi - lo) / 24 if seg["step"] is None else seg["step"]
+            total += (hi - lo) / h
+            if not total < MAX_GRID:  # before anything is allocated (a tiny step is billions of points)
+                raise ValueError(f"surrogate: step {h:g} gives {total:.3g} lattice renders up to {hi:g}, above the "
+                                 f"ceiling of {MAX_GRID}; use a larger step or a smaller region")
+            G = int(np.floor((hi - lo) / h + 1e-9)) + 1
+            if G < 2 * self.window + 1:
+                raise ValueError(f"surrogate: the region [{lo:g}, {hi:g}] holds {G} lattice points at step {h:g}, "
+                                 f"the window needs {2 * self.window + 1}")
+            out.append(((lo + h * np.arange(G, dtype=np.float64)).reshape(-1, 1), int(seg["spp"])))
+        return out
+
     def lattice(self, params: ParamSpace) -> np.ndarray:
-        """The lattice a + g·h over the region (G, 1) float64, parameter units.
+        """Every lattice point (G, 1) float64, parameter units, segment after segment (a point two segments share
+        appears in both).
 
         Parameters
         ----------
@@ -140,31 +194,13 @@ class Surrogate(Estimator):
         Returns
         -------
         numpy.ndarray
-            The lattice points (G, 1), G ≥ 2·window + 1.
-
-        Raises
-        ------
-        ValueError
-            For more than one parameter, a region outside Θ, fewer points than the window needs or more than
-            `MAX_GRID`.
+            The lattice points (G, 1).
         """
-        if params.dim != 1:
-            raise ValueError(f"surrogate: one parameter only, the model has {list(params.names)}")
-        lo, hi = (float(params.lower[0]), float(params.upper[0])) if self.region is None else self.region
-        if lo < params.lower[0] - 1e-12 or hi > params.upper[0] + 1e-12:
-            raise ValueError(f"surrogate: region [{lo}, {hi}] is not inside Θ = [{params.lower[0]}, {params.upper[0]}]")
-        h = (hi - lo) / 24 if self.step is None else self.step
-        if not (hi - lo) / h < MAX_GRID:  # before anything is allocated (a tiny step is billions of points)
-            raise ValueError(f"surrogate: step {h:g} gives {(hi - lo) / h:.3g} lattice renders over [{lo:g}, {hi:g}], "
-                             f"above the ceiling of {MAX_GRID}; use a larger step or a smaller region")
-        G = int(np.floor((hi - lo) / h + 1e-9)) + 1
-        if G < 2 * self.window + 1:
-            raise ValueError(f"surrogate: the region holds {G} lattice points at step {h:g}, the window needs "
-                             f"{2 * self.window + 1}")
-        return (lo + h * np.arange(G, dtype=np.float64)).reshape(-1, 1)
+        return np.concatenate([t for t, _ in self.parts(params)])
 
-    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int, int]:
-        """The lattice (G, 1), its spp and its independent render sets, rendered by the run's bank (`Problem.grids`).
+    def grid_wanted(self, params: ParamSpace) -> tuple[np.ndarray, int, int] | list[tuple[np.ndarray, int, int]]:
+        """The lattice (G, 1), its spp and its independent render sets, rendered by the run's bank (`Problem.grids`);
+        with `segments`, one such grid per segment.
 
         Parameters
         ----------
@@ -173,15 +209,16 @@ class Surrogate(Estimator):
 
         Returns
         -------
-        tuple of (numpy.ndarray, int, int)
-            The lattice points (G, 1) in parameter units, `spp` and `sets`.
+        tuple of (numpy.ndarray, int, int), or a list of them
+            The lattice points (G, 1) in parameter units, their spp and `sets`.
         """
-        return self.lattice(params), self.spp, self.sets
+        wanted = [(t, spp, self.sets) for t, spp in self.parts(params)]
+        return wanted if self.segments else wanted[0]
 
-    def renders(self, problem: Problem) -> tuple[np.ndarray, torch.Tensor]:
-        """(lattice (G,), renders (K, G, N) float64): the run's when the problem carries them (`Problem.find_grid`),
-        else rendered on first use in this process, set k with one seed derived from the problem's (common random
-        numbers across the lattice), and kept.
+    def renders(self, problem: Problem) -> list[tuple[np.ndarray, torch.Tensor]]:
+        """Per segment, (lattice (G_s,), renders (K, G_s, N) float64): the run's when the problem carries them
+        (`Problem.find_grid`), else rendered on first use in this process, set k of segment s with one seed derived
+        from the problem's (common random numbers across the segment), and kept.
 
         Parameters
         ----------
@@ -190,39 +227,45 @@ class Surrogate(Estimator):
 
         Returns
         -------
-        tuple of (numpy.ndarray, torch.Tensor)
-            The lattice points (G,) and their K sets of renders flattened to (K, G, N) float64.
+        list of (numpy.ndarray, torch.Tensor)
+            Per segment, its points (G_s,) and their K sets of renders flattened to (K, G_s, N) float64.
         """
-        thetas = self.lattice(problem.params)
-        K, G = self.sets, len(thetas)
-        given = problem.find_grid(np.tile(thetas, (K, 1)), self.spp)
-        if given is not None:
-            return thetas[:, 0], given.images.double().reshape(K, G, -1)
-        key = (repr(problem.model.content_key()), self.spp, K, problem.seed, thetas.tobytes())
-        if key not in self._grids:
-            self._grids[key] = [problem.model.render(t, self.spp, derive(problem.seed, "surrogate-lattice", k))
-                                for k in range(K) for t in thetas]
-        return thetas[:, 0], torch.stack(self._grids[key]).double().reshape(K, G, -1)
+        out = []
+        for s, (thetas, spp) in enumerate(self.parts(problem.params)):
+            K, G = self.sets, len(thetas)
+            given = problem.find_grid(np.tile(thetas, (K, 1)), spp)
+            if given is not None:
+                out.append((thetas[:, 0], given.images.double().reshape(K, G, -1)))
+                continue
+            key = (repr(problem.model.content_key()), spp, K, problem.seed, thetas.tobytes())
+            if key not in self._grids:
+                self._grids[key] = [problem.model.render(t, spp, derive(problem.seed, "surrogate-lattice", k,
+                                                                        *((s,) if s else ())))
+                                    for k in range(K) for t in thetas]
+            out.append((thetas[:, 0], torch.stack(self._grids[key]).double().reshape(K, G, -1)))
+        return out
 
     def _fit(self, problem: Problem, y: torch.Tensor, theta0: np.ndarray, rng: np.random.Generator,
              tracker: Tracker) -> Outcome:
-        t, sets = self.renders(problem)
-        K, G, w, h = self.sets, len(t), self.window, t[1] - t[0]
+        segs = self.renders(problem)
+        K, w = self.sets, self.window
         shape = y.shape
-        Ls = sets.mean(dim=0)
-        prof = np.array([nll(problem, y, L.reshape(shape)) for L in Ls])
-        g0 = int(np.argmin(prof))
-        tracker.record(0, float(prof[g0]), t[g0:g0 + 1])
+        profs = [np.array([nll(problem, y, L.reshape(shape)) for L in sets.mean(dim=0)]) for _, sets in segs]
+        s0 = int(np.argmin([p.min() for p in profs]))
+        g0 = int(np.argmin(profs[s0]))
+        tracker.record(0, float(profs[s0][g0]), segs[s0][0][g0:g0 + 1])
         u = np.arange(-w, w + 1, dtype=np.float64)
         pinv = torch.as_tensor(np.linalg.pinv(np.vander(u, self.degree + 1, increasing=True)))  # (d+1, 2w+1)
-        seen, theta, loss = set(), float(t[g0]), float(prof[g0])
+        seen, theta, loss = set(), float(segs[s0][0][g0]), float(profs[s0][g0])
         for move in range(self.max_moves + 1):
+            t, sets = segs[s0]
+            G, h = len(t), t[1] - t[0]
             lo = min(max(g0 - w, 0), G - 2 * w - 1)
             # (K, d+1, N): each set's polynomial per pixel over the window, in u about t[lo + w]
             C = torch.einsum("jg,kgn->kjn", pinv, sets[:, lo:lo + 2 * w + 1])
             c0 = t[lo + w]
 
-            def f(v: float, C=C, c0=c0) -> float:
+            def f(v: float, C=C, c0=c0, h=h) -> float:
                 uu = (v - c0) / h
                 S = sum(C[:, j] * uu**j for j in range(self.degree + 1))  # (K, N)
                 M = S.mean(dim=0)
@@ -237,21 +280,30 @@ class Surrogate(Estimator):
                                                  options={"xatol": self.xtol * h})
             theta, loss = float(res.x), finite_or_raise(float(res.fun), "NLL on the surrogate")
             tracker.record(move + 1, loss, np.array([theta]))
-            seen.add(lo)
-            g1 = int(np.clip(np.rint((theta - t[0]) / h), 0, G - 1))
-            if min(max(g1 - w, 0), G - 2 * w - 1) in seen:  # the window θ̂ asks for was fitted already
+            seen.add((s0, lo))
+            s1 = _segment_of(theta, [seg[0] for seg in segs], s0)
+            tol = 10 * self.xtol * h
+            if s1 == s0 and s0 > 0 and lo == 0 and theta - t[0] < tol:  # at the join: the minimum may lie beyond it
+                s1 = s0 - 1
+            elif s1 == s0 and s0 < len(segs) - 1 and lo == G - 2 * w - 1 and t[-1] - theta < tol:
+                s1 = s0 + 1
+            t1 = segs[s1][0]
+            g1 = int(np.clip(np.rint((theta - t1[0]) / (t1[1] - t1[0])), 0, len(t1) - 1))
+            if (s1, min(max(g1 - w, 0), len(t1) - 2 * w - 1)) in seen:  # the window θ̂ asks for was fitted already
                 break
-            g0 = g1
+            s0, g0 = s1, g1
         else:
             return Outcome(np.array([theta]), self.max_moves + 1, "max-iterations",
                            f"the window moved {self.max_moves} times", loss)
-        edge = (theta - t[0] < 0.5 * h and t[0] > problem.params.lower[0] + 1e-12) or \
-            (t[-1] - theta < 0.5 * h and t[-1] < problem.params.upper[0] - 1e-12)
+        first, last = segs[0][0], segs[-1][0]
+        edge = (theta - first[0] < 0.5 * (first[1] - first[0]) and first[0] > problem.params.lower[0] + 1e-12) or \
+            (last[-1] - theta < 0.5 * (last[1] - last[0]) and last[-1] < problem.params.upper[0] - 1e-12)
         if edge:
             return Outcome(np.array([theta]), move + 1, "stalled",
-                           f"the minimum lies at the end of the lattice region [{t[0]:g}, {t[-1]:g}]", loss)
-        return Outcome(np.array([theta]), move + 1, "converged",
-                       f"minimum of the surrogate on lattice window {lo}–{lo + 2 * w}", loss)
+                           f"the minimum lies at the end of the lattice region [{first[0]:g}, {last[-1]:g}]", loss)
+        where = f"{lo}–{lo + 2 * w}" + (f" of segment {s0}" if len(segs) > 1 else "")
+        return Outcome(np.array([theta]), move + 1, "converged", f"minimum of the surrogate on lattice window {where}",
+                       loss)
 
     def shared_cov(self, problem: Problem, lin: Linearisation) -> np.ndarray:
         """The lattice's value error at θ*, one offset for every fit of a run: with common seeds across the lattice
@@ -270,7 +322,7 @@ class Surrogate(Estimator):
         numpy.ndarray
             (1, 1) in parameter units².
         """
-        return lin.sandwich(lin.render_var(self.sets * self.spp))
+        return lin.sandwich(lin.render_var(self.sets * self._local(problem.params, lin.theta)[0]))
 
     def fit_cov(self, problem: Problem, lin: Linearisation, iterations: Sequence[int] | None,
                 budget: Budget, statuses: Sequence[str] | None = None) -> tuple[np.ndarray, str]:
@@ -301,12 +353,81 @@ class Surrogate(Estimator):
         F = lin.F
         Fi = np.linalg.inv(F)
         g = dataclasses.replace(problem.gradient, spp=None)  # the slope's noise at the lattice's spp, not the FD's own
-        total = self.sets * self.spp
+        spp, h = self._local(problem.params, lin.theta)
+        note = ""
+        if self.segments and g.step is not None and abs(g.step - 0.744 * h) > 0.1 * 0.744 * h:
+            note = (f" (not 0.744h = {0.744 * h:.3g} of the lattice step h = {h:g} at θ*: the prediction is for a "
+                    f"lattice step ξ / 0.744)")
+        total = self.sets * spp
         if self.sets > 1:
             V = Fi @ lin.jacobian_excess(total, g, lin.weighted(lin.obs_var, lin.truth_var)) @ Fi
         else:
             V = np.linalg.inv(F + lin.jacobian_excess(total, g, lin.w)) - Fi
-        rho = float(np.trace(Fi @ lin.jacobian_excess(self.spp, g, lin.w)))
-        return V, (f"surrogate slope noise of {self.sets} set(s) at {self.spp} spp as a central FD of step "
-                   f"{problem.gradient.step} with common random numbers (one set's ρ = F̃/F − 1 = {rho:.3g}); the "
-                   f"lattice's value error is an offset shared by the trials (bias)")
+        rho = float(np.trace(Fi @ lin.jacobian_excess(spp, g, lin.w)))
+        return V, (f"surrogate slope noise of {self.sets} set(s) at {spp} spp as a central FD of step "
+                   f"{problem.gradient.step} with common random numbers{note} (one set's ρ = F̃/F − 1 = {rho:.3g}); "
+                   f"the lattice's value error is an offset shared by the trials (bias)")
+
+    def stand_in(self, params: ParamSpace, theta, gradient):
+        """With `segments`, the gradient at the step whose central-FD noise the cubic's centre slope has in θ*'s
+        segment, ξ = 0.744 h (module docstring); else the setting's own.
+
+        Parameters
+        ----------
+        params : ParamSpace
+            Θ; one parameter.
+        theta : array_like
+            θ* (1,) in parameter units.
+        gradient : GradientSettings
+            The setting's gradient (FD with common random numbers).
+
+        Returns
+        -------
+        GradientSettings
+            The gradient the prediction measures at θ*.
+        """
+        if not self.segments:
+            return gradient
+        return dataclasses.replace(gradient, step=round(0.744 * self._local(params, theta)[1], 12))
+
+    def _local(self, params: ParamSpace, theta) -> tuple[int, float]:
+        """(spp, step h) of the segment holding θ (the first where two hold it)."""
+        parts = self.parts(params)
+        s = _segment_of(float(np.ravel(theta)[0]), [t[:, 0] for t, _ in parts], 0)
+        t, spp = parts[s]
+        return spp, float(t[1, 0] - t[0, 0])
+
+
+def _segment_of(theta: float, lattices: Sequence[np.ndarray], current: int) -> int:
+    """Index of the segment whose span [t₀, t_last] holds θ: `current` where it does (two share their join), else
+    the first that does, else the nearest."""
+    if lattices[current][0] - 1e-12 <= theta <= lattices[current][-1] + 1e-12:
+        return current
+    gaps = [max(t[0] - theta, theta - t[-1], 0.0) for t in lattices]
+    return int(np.argmin(gaps))
+
+
+def _check_segments(segments, spp: int, step, region) -> list[dict]:
+    """The segments as [{region: [a, b], step: h, spp: s}] (ValueError, one line, for a malformed one, for segments
+    given with `step` or `region`, or for regions that are not contiguous and in order)."""
+    if step is not None or region is not None:
+        raise ValueError("surrogate: give either segments or step/region, not both")
+    if isinstance(segments, (str, dict)) or not len(segments):
+        raise ValueError(f"surrogate: segments must be a non-empty list of {{region, step, spp}}, got {segments!r}")
+    out = []
+    for k, seg in enumerate(segments):
+        if not isinstance(seg, dict) or set(seg) - {"region", "step", "spp"} or not {"region", "step"} <= set(seg):
+            raise ValueError(f"surrogate: segments[{k}] must be {{region: [a, b], step: h, spp: s (optional)}}, "
+                             f"got {seg!r}")
+        r, h, n = seg["region"], seg["step"], seg.get("spp", spp)
+        if len(r) != 2 or not float(r[0]) < float(r[1]):
+            raise ValueError(f"surrogate: segments[{k}].region must be [a, b] with a < b, got {r!r}")
+        if isinstance(h, bool) or not isinstance(h, (int, float)) or not h > 0:
+            raise ValueError(f"surrogate: segments[{k}].step must be > 0, got {h!r}")
+        if isinstance(n, bool) or int(n) != n or n < 1:
+            raise ValueError(f"surrogate: segments[{k}].spp must be a positive integer, got {n!r}")
+        if out and abs(float(r[0]) - out[-1]["region"][1]) > 1e-12:
+            raise ValueError(f"surrogate: segments[{k}] starts at {r[0]}, not where segments[{k - 1}] ends "
+                             f"({out[-1]['region'][1]}): segments must be contiguous and in order")
+        out.append({"region": [float(r[0]), float(r[1])], "step": float(h), "spp": int(n)})
+    return out

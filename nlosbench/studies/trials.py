@@ -222,7 +222,7 @@ class Plan:
     replicates, bound renders (spp, replicates, seeds), the noise models, the estimator settings (gradients
     resolved), the budget per fit, what fixes the results besides the config (`fingerprint`: the resolved
     gradients; the run folder's fingerprint holds it, so a resume after the verdicts changed is refused), and
-    the grids the settings' estimators want (label → (θ grid, spp, sets, seeds): `Estimator.grid_wanted`)."""
+    the grids the settings' estimators want (label → [(θ grid, spp, sets, seeds), …]: `Estimator.grid_wanted`)."""
 
     mode: str
     thetas: np.ndarray
@@ -291,9 +291,10 @@ def plan(ctx, cfg: dict) -> Plan:
 
 
 def wanted_grids(settings: list[Setting], params, where: str, seeds: str) -> dict:
-    """label → (θ grid (G, P), spp, independent render sets, seeds) of each setting whose estimator renders a grid
-    before its fits (`Estimator.grid_wanted`; sets 1 where it names none; seeds the estimator's `grid_seeds`, else
-    the study's `seeds`); ConfigError naming the setting for a grid it refuses (e.g. above max_grid)."""
+    """label → [(θ grid (G, P), spp, independent render sets, seeds), …] of each setting whose estimator renders
+    grids before its fits (`Estimator.grid_wanted`: one grid, or several at their own spp; sets 1 where it names
+    none; seeds the estimator's `grid_seeds`, else the study's `seeds`); ConfigError naming the setting for a grid
+    it refuses (e.g. above max_grid)."""
     out = {}
     for k, s in enumerate(settings):
         try:
@@ -302,7 +303,8 @@ def wanted_grids(settings: list[Setting], params, where: str, seeds: str) -> dic
         except ValueError as e:
             raise ConfigError(f"{where}[{k}]", str(e)) from None
         if want is not None:
-            out[s.label] = (*want[:2], want[2] if len(want) > 2 else 1, est.grid_seeds or seeds)
+            out[s.label] = [(*w[:2], w[2] if len(w) > 2 else 1, est.grid_seeds or seeds)
+                            for w in (want if isinstance(want, list) else [want])]
     return out
 
 
@@ -342,7 +344,8 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
                 # the response's FD stages at ξ/2 … ξ/2^max_halvings (the bound's own where it made them; ξ/2 counted)
                 k = T * R * 2 * P * max(cfg["max_halvings"] - (1 if want & {"hcr", "crlb"} else 0), 0)
                 renders, samples = renders + k, samples + k * bspp
-    for thetas, spp, sets, seeds in p.grids.values():  # made once by the bank; the bound grid's when they are the same
+    for thetas, spp, sets, seeds in (g for gs in p.grids.values() for g in gs):  # made once by the bank; the bound
+        # grid's when they are the same
         if not (spp == bspp and len(thetas) == G and sets <= R and seeds == cfg["seeds"]):
             renders, samples = renders + sets * len(thetas), samples + sets * len(thetas) * spp
     for s in p.settings:
@@ -433,9 +436,10 @@ def run(ctx, cfg: dict) -> dict:
     # the settings' own grids (grid-search, surrogate): the first `sets` replicates of the bound sets at their spp and
     # seeds (the surrogate's lattice: common, `Estimator.grid_seeds`), one render per (θ, spp, seed); several sets
     # are passed as one grid, its θ repeated per set (`Estimator.grid_wanted`)
-    grids = {label: BankGrid(np.tile(thetas, (sets, 1)), svc.replicates(thetas, spp, seeds, sets,
-                                                                        f"{label} grid").flatten(0, 1), spp)
-             for label, (thetas, spp, sets, seeds) in p.grids.items()}
+    grids = {label: tuple(BankGrid(np.tile(thetas, (sets, 1)), svc.replicates(thetas, spp, seeds, sets,
+                                                                              f"{label} grid").flatten(0, 1), spp)
+                          for thetas, spp, sets, seeds in gs)
+             for label, gs in p.grids.items()}
     bound_rows, zzb, precision = [], {}, []
     tseed = ctx.seed_for(f"trials {sid}")  # the trials' noise, start and fit seeds: a stream of this study's own
     if p.mode == "bayesian":
@@ -543,8 +547,8 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
     variance where it has one (the analytic toys, per element), else the per-pixel channel covariance of the bound
     service's R replicate renders at θ* × bound_spp / s (`predict.render_covariance`: a pixel's channels share its
     light paths); Σ_truth = Σ_render(N_eff / clusters); the fits' Jacobian noise from
-    `predict_jacobians` Jacobians with the setting's own gradient at its spp; the start from the study's start
-    rule."""
+    `predict_jacobians` Jacobians with the setting's own gradient (`Estimator.stand_in` at θ*) at its spp; the
+    start from the study's start rule."""
     model, params, R, K = ctx.model, ctx.model.params, p.replicates, cfg["predict_jacobians"]
     if not any(_predicts(s.name) for s in p.settings):
         return {(j, i, s.label): getattr(estimators.factory(s.name), "no_prediction", Estimator.no_prediction)
@@ -563,11 +567,12 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
         grads: dict[int, list] = {}
         if _predicts(est):
             purpose = f"predict {cfg.get('id') or NAME}"
-            items = [((i, k), p.thetas[i].tolist(), spp, ctx.seed_for(purpose, si, i, k), s.gradient)
-                     for i in range(len(p.thetas)) for k in range(K)]
+            items = [((i, k), p.thetas[i].tolist(), spp, ctx.seed_for(purpose, si, i, k),
+                      est.stand_in(params, p.thetas[i], s.gradient)) for i in range(len(p.thetas)) for k in range(K)]
             for (i, _), J in ctx.bank.map(gradient_task, items, f"{s.label} Jacobian noise"):
                 grads.setdefault(i, []).append(J.double().reshape(params.dim, -1).numpy())
         for i, theta in enumerate(p.thetas):
+            g = est.stand_in(params, theta, s.gradient)
             L = sum(cleans[i, c] for c in range(p.clusters)).double() / p.clusters
             # the model's own variance is per element; a render's error is shared by a pixel's channels (`predict`)
             C = 1 if own is not None else int(L.shape[-1])
@@ -579,7 +584,7 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
 
                 def render_var(n: int, var=var) -> np.ndarray:
                     return var * p.bound_spp / n
-            jcov = jacobian_covariance(np.stack(grads[i]), spp, s.gradient, C) if len(grads.get(i, [])) > 1 else None
+            jcov = jacobian_covariance(np.stack(grads[i]), spp, g, C) if len(grads.get(i, [])) > 1 else None
             for j, noise in p.noises.items():
                 key = (j, i, s.label)
                 if not _predicts(est):
@@ -598,7 +603,7 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                     cov, about = start_cov(params, theta, cfg["start_width"], est, cfg["hcr_grid"],
                                            render_var(R * p.bound_spp), lin.sandwich)
                     lin = dataclasses.replace(lin, start_cov=cov, start_about=about)
-                    pred = est.predicted_variance(Problem(model, noise, s.gradient), lin, its or None, p.budget,
+                    pred = est.predicted_variance(Problem(model, noise, g), lin, its or None, p.budget,
                                                   sts or None)
                 except (ValueError, np.linalg.LinAlgError) as e:
                     out[key] = f"no prediction: {e}"
@@ -625,6 +630,8 @@ def _smoke_options(options: dict) -> dict:
             v = min(v, SMOKE_OPTIONS[k])
         elif k == "spp" and isinstance(v, list):  # an spp schedule [[fraction, spp], ...]
             v = [[f, min(n, SMOKE_OPTIONS["spp"])] for f, n in v]
+        elif k == "segments" and isinstance(v, list):  # the surrogate's lattice segments, each at its own spp
+            v = [_smoke_options(seg) if isinstance(seg, dict) else seg for seg in v]
         out[k] = v
     return out
 
@@ -642,7 +649,8 @@ def smoke(block: dict) -> dict:
     renders ≤ 8 spp × 2 replicates (3 with a `precision`, whose budget becomes 1 pixel-sample: the pilot and the
     plan, no fresh look), HCR grid ≤ 5 points per parameter and ≤ 2 offsets, spp levels [8, 16],
     ≤ 20 bootstrap resamples, at most 3 iterations per fit (the budget, which caps plug-in estimators too)
-    and the built-in estimators' options capped (`SMOKE_OPTIONS`: spp ≤ 4, grid num ≤ 5, starts ≤ 2, ...);
+    and the built-in estimators' options capped (`SMOKE_OPTIONS`: spp ≤ 4, also a lattice segment's, grid num ≤ 5,
+    starts ≤ 2, ...);
     gradient renders ≤ 4 spp and 1 FD round."""
     b = copy.deepcopy(block)
     if b["theta"] is not None:
