@@ -655,9 +655,11 @@ def _vec_label(v) -> str:
     return "(" + ", ".join(f"{float(x):g}" for x in v) + ")"
 
 
-def heat_maps(rows: list[dict], out: Path, summary: dict) -> list[Path]:
+def heat_maps(rows: list[dict], out: Path, summary: dict, column: str = "mean_fisher") -> list[Path]:
     """One PNG per noise model: log10 of the mean per-pixel FI of each parameter over the offset grid
-    (axis 0 across, axis 1 up, in cm, like the paper's figure); infinite or missing cells are blank."""
+    (axis 0 across, axis 1 up, in cm, like the paper's figure) from `column` (mean_fisher: unbiased,
+    heatmap_noise{k}.png; plugin_mean_fisher: the plug-in, heatmap_plugin_noise{k}.png); infinite, missing or
+    non-positive cells are blank."""
     plt = _plt()
     num, step = summary["num"], summary["step"]
     half = (num - 1) / 2 * step * 100
@@ -669,19 +671,20 @@ def heat_maps(rows: list[dict], out: Path, summary: dict) -> list[Path]:
         for p, name in enumerate(names):
             grid = np.full((num, num), np.nan)
             for r in rows:
-                v = float(r["mean_fisher"])
+                v = float(r[column])
                 if r["noise"] == noise and r["param"] == name and math.isfinite(v) and v > 0:
                     grid[int(r["i"]), int(r["j"])] = math.log10(v)
             im = axes[0, p].imshow(grid.T, origin="lower", extent=ext, cmap="viridis", interpolation="nearest")
             at = f", {theta_text(names, summary['theta'], summary['units'])}" if "theta" in summary else ""
-            axes[0, p].set_title(f"FI for {name}{at}, {noise_text(noise)}", fontsize=9)
+            kind = "plug-in FI" if column == "plugin_mean_fisher" else "FI"
+            axes[0, p].set_title(f"{kind} for {name}{at}, {noise_text(noise)}", fontsize=9)
             axes[0, p].set_xlabel(f"camera offset along {_vec_label(summary['axes'][0])} [cm]")
             axes[0, p].set_ylabel(f"camera offset along {_vec_label(summary['axes'][1])} [cm]")
             fig.colorbar(
                 im, ax=axes[0, p], fraction=0.046, pad=0.04, label=f"log10 mean FI per pixel [1/{summary['units'][p]}²]"
             )
         fig.tight_layout()
-        path = out / f"heatmap_noise{k}.png"
+        path = out / (f"heatmap_plugin_noise{k}.png" if column == "plugin_mean_fisher" else f"heatmap_noise{k}.png")
         save_figure(fig, path, dpi=120)
         paths.append(path)
     return paths
