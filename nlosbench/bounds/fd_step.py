@@ -262,19 +262,24 @@ class CRLBTerm:
     lower_note: str
     zero_note: str
     loo: np.ndarray
+    smoothed: bool = False
 
     @property
     def flags(self) -> tuple[str, ...]:
+        if self.smoothed:
+            return ("fd-smoothed",)
         if "not checked" in self.lower_note:
             return ("fd-step-not-checked",)
         return (("fd-step-diverging",) if self.zero_note else ()) + (
             ("fd-step-not-converged",) if self.lower_note or self.zero_note else ())
 
 
-def crlb_term(sf: StepFisher, level: float, index: int | None = None) -> CRLBTerm:
+def crlb_term(sf: StepFisher, level: float, index: int | None = None, smoothed: bool = False) -> CRLBTerm:
     """The CRLB term's ends at one-sided `level` over every stage and variant of `sf` (see the module docstring):
     of trace(F⁻¹), or with `index` j of (F⁻¹)_jj alone (θ_j's CRLB with every other parameter unknown: nuisance
-    parameters), units²."""
+    parameters), units². With `smoothed` and one unchecked step ξ, the term is that of the FD-smoothed model (the
+    information of (L(θ + ξ) − L(θ − ξ)) / 2ξ), whose ends are confidence limits of that quantity: no label, the
+    flag "fd-smoothed" (what a map that compares views at one ξ quotes)."""
     point = inv_part(sf.final.est, index)
     settled = settled_from(sf)
     lows = _ends(lower_candidates(sf), level, index)[0]
@@ -286,7 +291,7 @@ def crlb_term(sf: StepFisher, level: float, index: int | None = None) -> CRLBTer
         zero = ("FD step not converged: F rises with every halving of the step (" +
                 ", ".join(f"×{h.ratio:.3g}" for h in sf.halvings) + "): the derivative may diverge, so the lower end "
                 "is 0")
-    elif not sf.checked and math.isfinite(sf.steps[-1]):
+    elif not sf.checked and math.isfinite(sf.steps[-1]) and not smoothed:
         note = f"not a confidence limit: FD step not checked (one step, ξ = {sf.steps[-1]:.3g})"
     elif not sf.converged:
         h = sf.halvings[-1]
@@ -295,7 +300,8 @@ def crlb_term(sf: StepFisher, level: float, index: int | None = None) -> CRLBTer
         note = f"not a confidence limit: FD step not converged ({change} from ξ = {h.step:.3g} to ξ/2)"
     final = sf.final
     loo = np.array([_log(inv_part(Fk, index)) for Fk in final.loo]) if final.loo.size else np.empty(0)
-    return CRLBTerm(_log(point), _log(lower), _log(upper), note, zero, loo)
+    return CRLBTerm(_log(point), _log(lower), _log(upper), note, zero, loo,
+                    smoothed and not sf.checked and not sf.diverging)
 
 
 def settled_from(sf: StepFisher) -> int:

@@ -143,8 +143,9 @@ def reached(b) -> float:
 class Raw:
     """What a plan needs from one look at one θ* for one noise model: λ's replicate differences D (R, K, N)
     and U-statistic (None without "hcr"), the StepFisher and the FD stages (rounds (R, P, N)), the weight w
-    (N,), the tested Δ (K,) or (K, P) and their limits (Θ − θ*), H·W pixels, and the values per pixel that share
-    path samples (`group`, the model's channels)."""
+    (N,), the tested Δ (K,) or (K, P) and their limits (Θ − θ*), H·W pixels, the values per pixel that share
+    path samples (`group`, the model's channels), and whether the CRLB quoted is the FD-smoothed model's
+    (`smoothed`: `fd_step.crlb_term`)."""
 
     D: np.ndarray | None
     lam: UStat | None
@@ -156,6 +157,7 @@ class Raw:
     upper: np.ndarray
     pixels: int
     group: int = 1
+    smoothed: bool = False
 
     def subset(self, mask: np.ndarray) -> Raw:
         """The same look with only the tested Δ of `mask` (K,)."""
@@ -163,7 +165,7 @@ class Raw:
         lam = UStat(lam.est[mask], lam.se[mask], lam.loo[:, mask] if lam.loo.size else lam.loo, lam.replicates,
                     np.array(lam.dof[mask]), noise=None if lam.noise is None else lam.noise[mask])
         return Raw(self.D[:, mask], lam, self.sf, self.stages, self.w, self.deltas[mask], self.lower, self.upper,
-                   self.pixels, self.group)
+                   self.pixels, self.group, self.smoothed)
 
 
 @dataclass(frozen=True)
@@ -424,7 +426,7 @@ class Fit:
             pred = self.step_fisher(R, level, window)
         out = {}
         if "crlb" in kinds:
-            t = crlb_term(pred, level)
+            t = crlb_term(pred, level, smoothed=raw.smoothed)
             out["crlb"] = (t.lower, t.point, t.upper, t.lower_note or t.zero_note)
         if "hcr" in kinds and self.lam is not None:
             # a look's λ̂ ≤ 0 says nothing about λ (that Δ would never resolve): plan with the local quadratic

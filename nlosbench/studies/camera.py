@@ -84,13 +84,18 @@ def _point(v):
 
 
 def viewpoint_information(model: ForwardModel, theta, spp: int, seed: int, fd_step: float, rounds: int, noises,
-                          reduce: str = "mean") -> FisherPoint:
+                          reduce: str = "mean", smoothed: bool = False, precision: float | None = None,
+                          budget: int | None = None, looks: int = 2) -> FisherPoint:
     """Render, FD Jacobian and per-pixel Fisher maps (P, H, W) per noise model at the current camera pose,
     from the bound service over a render bank of the posed model (its seeds derive from `seed`). The maps
     compare poses at one FD step ξ (no halving: the heat map is of the FD-smoothed information, at the same
-    cost per pose); the CRLB of a pose is labelled as not a confidence limit for that reason."""
+    cost per pose); the CRLB of a pose is labelled as not a confidence limit for that reason, unless `smoothed`:
+    then it is quoted as the FD-smoothed model's, whose ends are limits of that (`BoundService.fisher`), and a
+    `precision` target on it (the A-optimal score tr F̂⁻¹ to ±p, `budget` pixel-samples, `looks`) adds fresh
+    rounds at this pose only where its interval is wider than asked (the point's `precise` record)."""
     svc = BoundService(RenderBank(model, seed=seed), noises)
-    return svc.fisher([theta], spp, fd_step, rounds, reduce, max_halvings=0)[0]
+    return svc.fisher([theta], spp, fd_step, rounds, reduce, max_halvings=0, smoothed=smoothed,
+                      precision=precision, budget=budget, looks=looks)[0]
 
 
 def unit_axes(axes) -> np.ndarray:
@@ -101,14 +106,14 @@ def unit_axes(axes) -> np.ndarray:
     return a / np.linalg.norm(a, axis=1, keepdims=True)
 
 
-def view_scores(points: list[FisherPoint], noises, group: int) -> list[dict]:
+def view_scores(points: list[FisherPoint], noises, group: int, smoothed: bool = False) -> list[dict]:
     """Per noise model (index into `noises`), the A-optimal score of independent cameras' FisherPoints as JSON-ready
     cells: the summed unbiased Fisher matrix "F" (P, P) and the bound service's CRLB of θ, tr F̂⁻¹ (units²,
     `bounds.cameras_crlb`): its log10 "log10", one-sided ends "lower"/"upper" (log10), "log_se" (`log_se`),
-    "lower_note" and "flags"."""
+    "lower_note" and "flags"; `smoothed`: the FD-smoothed model's score (`viewpoint_information`)."""
     out = []
     for k in range(len(noises)):
-        F, b = cameras_crlb(points, k, group=group)
+        F, b = cameras_crlb(points, k, group=group, smoothed=smoothed)
         out.append({"F": F.tolist(), "log10": b.point, "lower": b.lower, "upper": b.upper, "log_se": log_se(b),
                     "lower_note": b.lower_note, "flags": ",".join(b.flags)})
     return out

@@ -6,7 +6,12 @@ in the centre) and re-aimed at a fixed `target`; the image L_θ and its FD Jacob
 numbers) give per-pixel Fisher maps for every parameter and noise model, whose spatial mean is one cell of
 the heat map; the view's Fisher matrix F̂ (P × P) and its A-optimal score tr F̂⁻¹ with one-sided limits (the bound
 service's CRLB of θ, `camera.view_scores`; limits need fd_rounds >= 3) are in every row too (the score and F̂'s
-upper triangle repeat across a view's parameter rows). Beside the unbiased mean FI, `plugin_mean_fisher` is what the
+upper triangle repeat across a view's parameter rows). Views are compared at one FD step ξ, so the score is that of
+the model smoothed by ξ (flag "fd-smoothed": its ends are confidence limits of that, not of the CRLB of L(θ)). With a
+`precision` target p, fresh FD rounds are added at each view only until its score's interval is within ±p for every
+noise model (the stopping rule of bounds.precision, within `precision_budget` pixel-samples per view): the score,
+F̂ and the maps are then the reported look's, at its level, and each row says whether the view met the target.
+Beside the unbiased mean FI, `plugin_mean_fisher` is what the
 paper's method gives: one FD Jacobian's Ĵᵀ W Ĵ per pixel (averaged over the rounds, each one such estimate), whose
 expectation exceeds the information by the Jacobian's rendering noise Σ w Var(Ĵ): small where the object is seen,
 dominant where it is hidden. Output: viewpoints.csv, heat map PNGs per noise model of log10 of the mean FI, unbiased
@@ -26,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ..bounds import fisher_maps, save_fisher_maps
+from ..bounds.precision import CEILING, check_precision
 from ..forward.model import ForwardModel
 from ..io import read_csv, write_csv, write_exr, write_png
 from ..records import RecordLog
@@ -34,6 +40,7 @@ from .camera import VIEW_KEYS, CameraRig, score_cells, unit_axes, view_scores, v
 from .context import RunContext, theta_at
 from .estimate import Estimate, pixels
 from .plots import heat_maps
+from .plotstyle import noise_text
 
 NAME = "viewpoints"
 SCHEMA = {
@@ -42,7 +49,14 @@ SCHEMA = {
     "num": Field(int, 3, "viewpoints per axis; odd, so the standard view is the centre (paper: 31)"),
     "step": Field(float, 0.0254, "offset between neighbouring viewpoints [m] (paper: 2.54 cm)"),
     **VIEW_KEYS,
-    "fd_rounds": Field(int, 2, "independent FD rounds of the unbiased Fisher information (>= 2)"),
+    "fd_rounds": Field(int, 2, "independent FD rounds of the unbiased Fisher information (>= 2; >= 3 for limits and "
+                       "for a precision target)"),
+    "precision": Field(float, None, "target relative half-width p of each view's A-optimal score tr F̂⁻¹ (of the "
+                       "FD-smoothed model): fresh FD rounds at a view only until its interval is within ±p for every "
+                       "noise model; null: the fd_rounds given", nullable=True),
+    "precision_budget": Field(int, None, "cap on the pixel-samples one view may spend on its target (needs "
+                              "`precision`); null: the default ceiling, 16 × its pilot", nullable=True),
+    "looks": Field(int, 2, "with `precision`: the pilot and at most looks − 1 fresh looks per view"),
     "reduce": Field(str, "mean", "combine the RGB channels' information by (paper: mean)", choices=("sum", "mean")),
 }
 
@@ -72,7 +86,9 @@ def _viewpoint_task(model: ForwardModel, item: dict) -> tuple:
     rig = CameraRig(model, item["target"])
     with rig.at(item["offset"]):
         fp = viewpoint_information(model, item["theta"], item["spp"], item["seed"], item["fd_step"],
-                                   item["fd_rounds"], item["noises"], item["reduce"])
+                                   item["fd_rounds"], item["noises"], item["reduce"], smoothed=True,
+                                   precision=item["precision"], budget=item["precision_budget"],
+                                   looks=item["looks"])
     maps = [fp.maps[k] for k in range(len(item["noises"]))]
     renders = model.stats.since(before).renders
     plugin = [np.mean([fisher_maps(fp.L, J, noise, item["reduce"]) for J in fp.rounds], axis=0)
@@ -81,10 +97,23 @@ def _viewpoint_task(model: ForwardModel, item: dict) -> tuple:
            "mean_fisher": [[float(np.mean(mp)) for mp in nm] for nm in maps],
            "plugin_mean_fisher": [[float(np.mean(mp)) for mp in nm] for nm in plugin],
            "infinite_pixels": [[int(np.isinf(mp).sum()) for mp in nm] for nm in maps],
-           "scores": view_scores([fp], item["noises"], model.channels), "renders": renders}
+           "scores": _scores(fp, item["noises"], model.channels), "renders": renders}
     if item["keep"]:
         rec["images"] = (fp.L.numpy(), maps)
     return (item["i"], item["j"]), rec, renders
+
+
+def _scores(fp, noises, group: int) -> list[dict]:
+    """`view_scores` of one view (the FD-smoothed model's); with a precision target each noise model's score ends
+    are the reported look's (at its level, `precise`), and "met", "reached", "rounds" say what the target got."""
+    scores = view_scores([fp], noises, group, smoothed=True)
+    for k, s in enumerate(scores):
+        pt = fp.precise.get(k)
+        if pt is not None:
+            b, pr = pt.bounds["crlb"], pt.precision
+            s.update(log10=b.point, lower=b.lower, upper=b.upper, lower_note=b.lower_note, met=pr.met,
+                     reached=pr.reached.get("crlb", float("inf")), rounds=int(fp.rounds.shape[0]))
+    return scores
 
 
 @dataclass(frozen=True)
@@ -111,6 +140,10 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
                                               f"{cfg['fd_rounds']}")
     if not cfg["fd_step"] > 0:
         raise ConfigError(f"{sid}.fd_step", f"expected a step > 0, got {cfg['fd_step']}")
+    try:
+        check_precision(cfg["precision"], cfg["precision_budget"], cfg["looks"], ("crlb",), cfg["fd_rounds"])
+    except ValueError as e:
+        raise ConfigError(sid, str(e)) from None
     for key, call in (("num", lambda: offset_grid(cfg["num"], 1.0, [[1, 0, 0], [0, 0, 1]])),
                       ("step", lambda: offset_grid(1, cfg["step"], [[1, 0, 0], [0, 0, 1]])),
                       ("axes", lambda: offset_grid(1, 1.0, cfg["axes"]))):
@@ -128,9 +161,16 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
-    """num² viewpoints × (a render + `fd_rounds` central-FD Jacobians) at `spp`."""
-    renders = cfg["num"] ** 2 * (1 + 2 * ctx.model.params.dim * cfg["fd_rounds"])
-    return Estimate(renders, renders * cfg["spp"] * pixels(ctx.model))
+    """num² viewpoints × (a render + `fd_rounds` central-FD Jacobians) at `spp`; with a precision target, the most
+    each view may spend (its `precision_budget`, else CEILING × its pilot), renders in proportion."""
+    views, px = cfg["num"] ** 2, cfg["spp"] * pixels(ctx.model)
+    per_view = 1 + 2 * ctx.model.params.dim * cfg["fd_rounds"]
+    if cfg["precision"] is None:
+        return Estimate(views * per_view, views * per_view * px)
+    most = cfg["precision_budget"] or CEILING * per_view * px
+    return Estimate(views * max(per_view, round(most / px)), views * max(most, per_view * px),
+                    note=f"with the precision target: at most {most:.3g} pixel-samples per view",
+                    least=views * per_view * px)
 
 
 def run(ctx: RunContext, cfg: dict) -> dict:
@@ -154,6 +194,9 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             "seed": ctx.seed_for("viewpoint", i, j),
             "fd_step": cfg["fd_step"],
             "fd_rounds": cfg["fd_rounds"],
+            "precision": cfg["precision"],
+            "precision_budget": cfg["precision_budget"],
+            "looks": cfg["looks"],
             "noises": ctx.noises,
             "reduce": cfg["reduce"],
             "keep": (i, j) in saved,
@@ -185,6 +228,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                         "plugin_mean_fisher": rec["plugin_mean_fisher"][k][p],
                         "infinite_pixels": rec["infinite_pixels"][k][p],
                         **score_cells(rec["scores"][k], list(m.params.names)),
+                        **({"score_met": rec["scores"][k]["met"], "score_reached": rec["scores"][k]["reached"],
+                            "fd_rounds": rec["scores"][k]["rounds"]} if "met" in rec["scores"][k] else {}),
                     }
                 )
     write_csv(out / "viewpoints.csv", rows)
@@ -198,10 +243,36 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         "units": list(m.params.units),
         "noises": [str(n) for n in ctx.noises],
         "spp": cfg["spp"],
+        "fd_step": cfg["fd_step"],
+        "precision": cfg["precision"],
         "renders": sum(rec["renders"] for rec in done.values()),  # every invocation's, from the records
         "infinite_cells": sum(r["infinite_pixels"] > 0 for r in rows),
     }
     return summary  # the heat maps: report() draws them from viewpoints.csv
+
+
+def _precision_lines(rows: list[dict], results: dict) -> list[str]:
+    """With a precision target: per noise model how many views met it, the rounds they took, and the views that did
+    not (at most 20 named, with what each reached)."""
+    if not results.get("precision") or not rows or "score_met" not in rows[0]:
+        return []
+    views = {(r["noise"], r["i"], r["j"]): r for r in rows}  # one score per view and noise (parameter rows repeat it)
+    out = ["", f"**Precision.** Target: each view's A-optimal score (of the FD-smoothed model, ξ = "
+               f"{results['fd_step']:g}) within ±{results['precision'] * 100:.3g} %.", "",
+           "| noise | views met | FD rounds (min–max) | not met (offset cm: reached) |", "|---|---|---|---|"]
+    u = float(results["step"]) * 100
+    c = (int(results["num"]) - 1) / 2
+    for noise in results["noises"]:
+        sel = [r for (n, _, _), r in views.items() if n == noise]
+        missed = sorted((r for r in sel if r["score_met"] not in (True, "True")),
+                        key=lambda r: -float(r["score_reached"]))
+        rounds = [int(r["fd_rounds"]) for r in sel]
+        named = ", ".join(f"({(int(r['i']) - c) * u:.3g}, {(int(r['j']) - c) * u:.3g}): "
+                          f"±{float(r['score_reached']) * 100:.3g} %" for r in missed[:20])
+        more = f" and {len(missed) - 20} more" if len(missed) > 20 else ""
+        out.append(f"| {noise_text(noise)} | {len(sel) - len(missed)} of {len(sel)} | {min(rounds)}–{max(rounds)} | "
+                   f"{named + more or 'none'} |")
+    return out
 
 
 def _save_view(out: Path, label: str, L, maps, names: list[str]) -> None:
@@ -257,6 +328,7 @@ def report(study_dir: Path, results: dict) -> str:
                 f"{np.nanmax(vals):.4g} | ({float(best['offset_0']) * 100:.3g}, {float(best['offset_1']) * 100:.3g}) | "
                 f"{np.median(ratio) if ratio else float('nan'):.3g} |"
             )
+    lines += _precision_lines(rows, results)
     if results.get("infinite_cells"):
         lines.append(
             f"\n{results['infinite_cells']} cell(s) have infinite Fisher information (a Poisson pixel rendered "

@@ -29,7 +29,7 @@ class FisherInformation(RenderSets):
 
     def fisher(self, thetas, spp: int, fd_step: float = 0.01, rounds: int = 3, reduce: str = "sum",
                noises=None, step_tol: float = 0.1, max_halvings: int = 3, precision: float | None = None,
-               budget: int | None = None, looks: int = 2) -> list[FisherPoint]:
+               budget: int | None = None, looks: int = 2, smoothed: bool = False) -> list[FisherPoint]:
         """Unbiased per-pixel Fisher information maps and the CRLB per parameter at each θ (T, P).
 
         Per θ: a render (purpose "fisher", the Poisson weight image) and `rounds` independent FD rounds at step ξ:
@@ -72,6 +72,11 @@ class FisherInformation(RenderSets):
         looks : int, optional
             K ≥ 2: the pilot and at most K − 1 fresh looks, each on rounds of its own; α spent along the path
             (the pilot α/20, the fresh looks the rest: `bounds.precision.spending`).
+        smoothed : bool, optional
+            With `max_halvings` 0: quote the CRLBs of the model smoothed by the FD step (the information of
+            (L(θ + ξ) − L(θ − ξ)) / 2ξ, what maps compared at one ξ show), whose ends are confidence limits of that
+            quantity (flag "fd-smoothed", no label), so a precision target can be met; False: the lower ends
+            are labelled "not a confidence limit" (no step check).
 
         Returns
         -------
@@ -85,7 +90,7 @@ class FisherInformation(RenderSets):
         _check_step(fd_step, step_tol, max_halvings)
         check_precision(precision, budget, looks, ("crlb",), rounds)
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, self.params.dim)
-        args = (spp, reduce, noises, step_tol)
+        args = (spp, reduce, noises, step_tol, smoothed)
         if precision is None:
             return self._fisher(thetas, rounds, 0, *args, fd_step, max_halvings)[0]
         found: dict[int, FisherPoint] = {}
@@ -107,7 +112,8 @@ class FisherInformation(RenderSets):
         return [found[i] for i in range(len(thetas))]
 
     def _fisher(self, thetas: np.ndarray, rounds: int, first: int, spp: int, reduce: str, noises, step_tol: float,
-                fd_step: float, max_halvings: int, keep: dict | None = None) -> tuple[list[FisherPoint], list]:
+                smoothed: bool, fd_step: float, max_halvings: int, keep: dict | None = None
+                ) -> tuple[list[FisherPoint], list]:
         """`fisher` from FD rounds first … first + rounds − 1 at the service's level: the FisherPoints and the
         CRLB of θ (tr F̂⁻¹) as BoundPoints (noise-major); `keep`, when given, is filled with {(noise index, θ
         index): the raw data a precision plan needs (`precision.Raw`)}."""
@@ -134,21 +140,21 @@ class FisherInformation(RenderSets):
                 m = m.reshape(*m.shape[:3], -1)  # a pixel's (scan point's) values together
                 maps[j] = m.sum(axis=-1) if reduce == "sum" else m.mean(axis=-1)
                 sf = converge(stages[i], wflat[j][i], self.level, step_tol, spp)
-                joint = crlb_bound(sf, self.level, flags)  # the CRLB of θ, tr F̂⁻¹: for a scalar θ its only one
+                joint = crlb_bound(sf, self.level, flags, smoothed=smoothed)  # tr F̂⁻¹: a scalar θ's only CRLB
                 bounds[j] = [joint] if P == 1 else [
                     crlb_bound(converge([Stage(s.step, {"central": s.rounds["central"][:, k:k + 1]}, s.group)
                                          for s in stages[i]], wflat[j][i], self.level, step_tol, spp),
-                               self.level, flags) for k in range(P)]
+                               self.level, flags, smoothed=smoothed) for k in range(P)]
                 rows[j, i] = BoundPoint(j, str(noise), t.copy(), {"crlb": joint})
                 if keep is not None:
                     keep[j, i] = Raw(None, None, sf, stages[i], wflat[j][i], np.empty((0, P)), self.params.lower - t,
-                                     self.params.upper - t, int(np.prod(L.shape[:2])), self.group)
+                                     self.params.upper - t, int(np.prod(L.shape[:2])), self.group, smoothed)
             out.append(FisherPoint(t, L, Jf.mean(dim=0), maps, bounds, Jf, stages[i][-1].step, ws))
         return out, [rows[j, i] for j in sel for i in range(len(thetas))]
 
 
-def cameras_crlb(points: Sequence[FisherPoint], noise: int, level: float = 0.95, group: int = 1
-                 ) -> tuple[np.ndarray, Bound]:
+def cameras_crlb(points: Sequence[FisherPoint], noise: int, level: float = 0.95, group: int = 1,
+                 smoothed: bool = False) -> tuple[np.ndarray, Bound]:
     """The CRLB of θ (tr F̂⁻¹, units²) from independent cameras, each a FisherPoint of `BoundService.fisher`:
     their Fisher matrices add.
 
@@ -167,6 +173,8 @@ def cameras_crlb(points: Sequence[FisherPoint], noise: int, level: float = 0.95,
         One-sided confidence of each end, in (0, 1).
     group : int, optional
         The values per pixel that share path samples (`ForwardModel.channels`).
+    smoothed : bool, optional
+        Quote the CRLB of the model smoothed by the FD step (`BoundService.fisher`): ends that are limits of it.
 
     Returns
     -------
@@ -203,4 +211,4 @@ def cameras_crlb(points: Sequence[FisherPoint], noise: int, level: float = 0.95,
     w = np.concatenate([fp.weights[noise].reshape(-1).numpy() for fp in points])
     zeros = sum(int(f.split("=")[1]) for fp in points for f in fp.crlb[noise][0].flags if f.startswith("zero-pixels="))
     sf = converge([Stage(steps.pop(), {"central": J}, group)], w, level, step_tol=0.1)
-    return sf.final.est, crlb_bound(sf, level, (f"zero-pixels={zeros}",) if zeros else ())
+    return sf.final.est, crlb_bound(sf, level, (f"zero-pixels={zeros}",) if zeros else (), smoothed=smoothed)

@@ -288,12 +288,13 @@ def interval_bound(iv: HCRInterval, extra_flags: tuple = (), step: StepFisher | 
 
 
 def crlb_bound(sf: StepFisher | UStat, level: float, extra_flags: tuple = (), index: int | None = None,
-               kind: str = "crlb") -> Bound:
+               kind: str = "crlb", smoothed: bool = False) -> Bound:
     """The `crlb` Bound (trace of F̂⁻¹, units²) from the unbiased Fisher information at every FD stage tried
     (`fd_step`; a UStat of F (P, P): one stage, no step check), with one-sided ends at `level`; with `index` j the
-    CRLB of θ_j alone, (F̂⁻¹)_jj, every other parameter unknown (nuisance), under the name `kind`."""
+    CRLB of θ_j alone, (F̂⁻¹)_jj, every other parameter unknown (nuisance), under the name `kind`; `smoothed`: of
+    the FD-smoothed model at an unchecked step (`fd_step.crlb_term`)."""
     sf = sf if isinstance(sf, StepFisher) else single(sf)
-    term = crlb_term(sf, level, index=index)
+    term = crlb_term(sf, level, index=index, smoothed=smoothed)
     R = sf.final.replicates
     flags = list(extra_flags) + list(term.flags)
     if not math.isfinite(term.point):
@@ -304,6 +305,8 @@ def crlb_bound(sf: StepFisher | UStat, level: float, extra_flags: tuple = (), in
               f"CRLB from an unbiased FI (U-statistic over {R} FD rounds; the FI of the FD-smoothed derivative)")
     if sf.checked:
         reason += "; " + (term.zero_note or sf.note()) + (f" ({sf.settle()})" if sf.settle() else "")
+    elif term.smoothed:
+        reason += f"; of the model smoothed by the FD step ξ = {sf.steps[-1]:.3g} (not checked: not the CRLB of L(θ))"
     if index is not None:
         reason += f"; (F̂⁻¹)_{index}{index} of the full {sf.final.est.shape[0]}-parameter F̂: the others unknown"
     return Bound(kind, term.point, flags=tuple(flags), reason=reason, lower=term.lower, upper=term.upper,
