@@ -112,7 +112,20 @@ def test_a_precision_target_per_view_resolves_the_seen_views_within_each_views_b
     px = 40 * 30 * STUDY["spp"]
     per_view = [rec["renders"] for rec in map(json.loads, open(tmp_path / "vp" / "viewpoints.jsonl"))]
     assert len(per_view) == 9 and max(per_view) * px <= 3_000_000 + px, per_view  # the weight render beside
+    assert {r["score_resolution"] for r in rows if r["i"] == "0"} == {"met"}
+    assert all(r["score_resolution"] in ("negligible", "open") for r in rows if r["i"] == "2")
     assert "| AWGN, σ = 0.1 |" in viewpoints.report(tmp_path / "vp", res)
+
+
+def test_a_view_is_negligible_only_when_its_information_upper_limit_is_under_1_percent_of_the_best():
+    """The rule on hand-made scores (log10 m²; information = 10^−score): the best view's point is −6, so a view not
+    met is negligible when its score's lower limit is ≥ −4 (information ≤ 1e4 = 1 % of 1e6) and that limit is a
+    confidence limit; met views stay met whatever their score; an infinite score does not set the best."""
+    def view(point, lower, met=False, note=""):
+        return {"score_met": str(met), "log10_score": str(point), "score_lower": str(lower), "score_lower_note": note}
+    views = [view(-6.0, -6.1, met=True), view(-2.0, -3.9), view(-2.0, -4.0), view(-3.0, -4.1), view(-1.0, -3.0,
+             note="not a confidence limit"), view(float("inf"), 0.0), view(-2.5, -2.6, met=True)]
+    assert viewpoints.resolution(views) == ["met", "negligible", "negligible", "open", "open", "negligible", "met"]
 
 
 def test_camera_rig_moves_aims_and_restores_the_pose(study):

@@ -10,7 +10,9 @@ upper triangle repeat across a view's parameter rows). Views are compared at one
 the model smoothed by ξ (flag "fd-smoothed": its ends are confidence limits of that, not of the CRLB of L(θ)). With a
 `precision` target p, fresh FD rounds are added at each view only until its score's interval is within ±p for every
 noise model (the stopping rule of bounds.precision, within `precision_budget` pixel-samples per view): the score,
-F̂ and the maps are then the reported look's, at its level, and each row says whether the view met the target.
+F̂ and the maps are then the reported look's, at its level, and each row says whether the view met the target, or,
+once the whole map is known, whether its information is negligible (`resolution`: its upper limit ≤ 1 % of the
+map's largest) or left open.
 Beside the unbiased mean FI, `plugin_mean_fisher` is what the
 paper's method gives: one FD Jacobian's Ĵᵀ W Ĵ per pixel (averaged over the rounds, each one such estimate), whose
 expectation exceeds the information by the Jacobian's rendering noise Σ w Var(Ĵ): small where the object is seen,
@@ -25,6 +27,7 @@ service (`camera.viewpoint_information`).
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -232,6 +235,13 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                             "fd_rounds": rec["scores"][k]["rounds"]} if "met" in rec["scores"][k] else {}),
                     }
                 )
+    if cfg["precision"] is not None:  # met / negligible / open, once the whole map is known
+        for noise in map(str, ctx.noises):
+            sel = {(r["i"], r["j"]): r for r in rows if r["noise"] == noise}
+            state = dict(zip(sel, resolution(list(sel.values())), strict=True))
+            for r in rows:
+                if r["noise"] == noise:
+                    r["score_resolution"] = state[r["i"], r["j"]]
     write_csv(out / "viewpoints.csv", rows)
     summary = {
         "num": cfg["num"],
@@ -251,27 +261,52 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     return summary  # the heat maps: report() draws them from viewpoints.csv
 
 
+#: a view whose A-optimal information (tr F̂⁻¹)⁻¹ has its upper limit at most this share of the map's largest
+#: (its score's lower limit ≥ the best view's score / NEGLIGIBLE) is resolved as negligible without meeting ±p
+NEGLIGIBLE = 0.01
+
+
+def resolution(views: list[dict]) -> list[str]:
+    """Per view of one noise model's map (rows with score_met, log10_score, score_lower in log10 m²): "met" (its score
+    within ±p), "negligible" (not met, but its information's upper limit 1/10^score_lower is at most NEGLIGIBLE × the
+    map's largest point 1/10^min(log10_score): the view is known to carry under 1 % of the best view's information),
+    else "open"."""
+    best = min((float(r["log10_score"]) for r in views if math.isfinite(float(r["log10_score"]))), default=math.inf)
+    out = []
+    for r in views:
+        if r["score_met"] in (True, "True"):
+            out.append("met")
+        elif r["score_lower_note"] == "" and float(r["score_lower"]) >= best - math.log10(NEGLIGIBLE):
+            out.append("negligible")
+        else:
+            out.append("open")
+    return out
+
+
 def _precision_lines(rows: list[dict], results: dict) -> list[str]:
-    """With a precision target: per noise model how many views met it, the rounds they took, and the views that did
-    not (at most 20 named, with what each reached)."""
+    """With a precision target: per noise model how many views met it, how many more are resolved as negligible
+    (`resolution`), the rounds they took, and the views left open (at most 20 named, with what each reached)."""
     if not results.get("precision") or not rows or "score_met" not in rows[0]:
         return []
     views = {(r["noise"], r["i"], r["j"]): r for r in rows}  # one score per view and noise (parameter rows repeat it)
     out = ["", f"**Precision.** Target: each view's A-optimal score (of the FD-smoothed model, ξ = "
-               f"{results['fd_step']:g}) within ±{results['precision'] * 100:.3g} %.", "",
-           "| noise | views met | FD rounds (min–max) | not met (offset cm: reached) |", "|---|---|---|---|"]
+               f"{results['fd_step']:g}) within ±{results['precision'] * 100:.3g} %, or its information's upper limit "
+               f"at most {NEGLIGIBLE * 100:g} % of the map's largest (negligible).", "",
+           "| noise | views met | negligible | FD rounds (min–max) | open (offset cm: reached) |",
+           "|---|---|---|---|---|"]
     u = float(results["step"]) * 100
     c = (int(results["num"]) - 1) / 2
     for noise in results["noises"]:
         sel = [r for (n, _, _), r in views.items() if n == noise]
-        missed = sorted((r for r in sel if r["score_met"] not in (True, "True")),
+        state = resolution(sel)
+        missed = sorted((r for r, s in zip(sel, state, strict=True) if s == "open"),
                         key=lambda r: -float(r["score_reached"]))
         rounds = [int(r["fd_rounds"]) for r in sel]
         named = ", ".join(f"({(int(r['i']) - c) * u:.3g}, {(int(r['j']) - c) * u:.3g}): "
                           f"±{float(r['score_reached']) * 100:.3g} %" for r in missed[:20])
         more = f" and {len(missed) - 20} more" if len(missed) > 20 else ""
-        out.append(f"| {noise_text(noise)} | {len(sel) - len(missed)} of {len(sel)} | {min(rounds)}–{max(rounds)} | "
-                   f"{named + more or 'none'} |")
+        out.append(f"| {noise_text(noise)} | {state.count('met')} of {len(sel)} | {state.count('negligible')} | "
+                   f"{min(rounds)}–{max(rounds)} | {named + more or 'none'} |")
     return out
 
 
