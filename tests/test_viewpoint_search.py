@@ -161,7 +161,8 @@ def test_the_study_runs_through_the_cli_with_a_grid(tmp_path):
     """`nlosbench run --smoke` on the Π hallway (16 × 12 px) with a 3 × 3 `viewpoints` grid and a search over the
     same box: the search's evaluations, the fresh confirmations (the returned view, the standard view, the grid's
     best view, the pair) and the path over the grid's map are written; the pair's joint F̂ is the sum of its two
-    fresh views' F̂, and the confirmation of the returned view comes from other renders than its evaluation."""
+    fresh views' F̂, and the confirmation of the returned view comes from other renders than its evaluation; every
+    score is the FD-smoothed model's, as the grid's, with both ends limits."""
     raw = {"name": "vs", "seed": 0,
            "scene": {"name": "pi_hallway", "options": {"defines": {"width": 16, "height": 12, "max_depth": 3}}},
            "noise": [{"model": "awgn", "sigma": 0.1}, {"model": "poisson", "scale": 100.0}],
@@ -181,6 +182,10 @@ def test_the_study_runs_through_the_cli_with_a_grid(tmp_path):
     assert [r["phase"] for r in ev[::2]] == ["sobol"] * 3 + ["bo"]
     conf = {(r["confirm"], r["noise"]): r for r in csv.DictReader(open(out / "search" / "confirmed.csv"))}
     key = "fisher_object_position_object_position"
+    # the grid's quantity (the FD-smoothed model's score): both ends confidence limits of it, in every table
+    grid = list(csv.DictReader(open(out / "grid" / "viewpoints.csv")))
+    for r in [*conf.values(), *ev, *grid]:
+        assert r["score_lower_note"] == "" and "fd-smoothed" in r["score_flags"], r
     for noise in ("AWGN(sigma=0.1)", "Poisson(scale=100.0)"):
         views = [float(conf[f"pair view {v}", noise][key]) for v in (0, 1)]
         assert math.isclose(float(conf["pair", noise][key]), sum(views), rel_tol=1e-9)

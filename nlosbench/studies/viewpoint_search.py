@@ -4,7 +4,9 @@ optimisation, confirmed with fresh renders, and the best pair of cameras.
 A view is a camera offset x = (x₀, x₁) [m] along two world axes, the camera re-aimed at a fixed `target`
 (`camera.CameraRig`, as in the `viewpoints` grid). Its score is the bound service's CRLB of θ, tr F̂⁻¹ (units²),
 from the unbiased Fisher matrix F̂ (P × P) over `fd_rounds` ≥ 3 independent FD rounds (`bounds.cameras_crlb`),
-with one-sided limits and the jackknife SE of its log10 (`camera.log_se`).
+with one-sided limits and the jackknife SE of its log10 (`camera.log_se`). Views are compared at one FD step ξ, as
+in the grid: the score is that of the model smoothed by ξ (flag "fd-smoothed"), the same quantity as the grid's, so
+its ends are confidence limits of it and a search's view compares with a grid's view.
 
 1. Search: `bayesopt.Search` minimises log10 tr F̂⁻¹ of one noise model over the offset `box`: a Sobol design
    (nothing from a grid), then `qLogNoisyExpectedImprovement` batches with each evaluation's SE as its known
@@ -150,11 +152,11 @@ def _views_task(model, item: dict) -> tuple:
     for offset, seed in zip(item["offsets"], item["seeds"], strict=True):
         with rig.at(np.asarray(offset) @ np.asarray(item["axes"])):
             fp = viewpoint_information(model, item["theta"], item["spp"], seed, item["fd_step"], item["rounds"],
-                                       item["noises"], item["reduce"])
+                                       item["noises"], item["reduce"], smoothed=True)
         points.append(fp)
-        views.append(view_scores([fp], item["noises"], group))
+        views.append(view_scores([fp], item["noises"], group, smoothed=True))
     rec = {"tag": item["tag"], "offsets": item["offsets"], "views": views,
-           "joint": view_scores(points, item["noises"], group) if len(points) > 1 else None}
+           "joint": view_scores(points, item["noises"], group, smoothed=True) if len(points) > 1 else None}
     rec["renders"] = model.stats.since(before).renders
     return item["tag"], rec, rec["renders"]
 
