@@ -71,6 +71,31 @@ def test_information_falls_as_the_camera_moves_right(study):
         assert m[0] > m[1] > m[2] and m[0] > 5 * m[2], m
 
 
+def test_the_reports_largest_transition_falls_where_the_camera_loses_sight_of_the_object(study):
+    """On the real 3 × 3 map the information falls left to right (the test above: left ≫ right, middle in between);
+    the report's transitions are the profile's steps in order along x, and the largest fall is one of the two steps
+    of the 3-point profile, with the whole fall left to right equal to their sum (decades)."""
+    ctx, _, res = study
+    rows = list(csv.DictReader(open(ctx.dir / "vp" / "viewpoints.csv")))
+    for noise in map(str, ctx.noises):
+        u0, med, q = viewpoints.profile(rows, noise, "object_position")
+        assert np.allclose(u0, [-0.3, 0.0, 0.3]) and np.all(q[0] <= med) and np.all(med <= q[2])
+        steps = viewpoints.transitions(u0, med)
+        assert [x for x, _ in steps] == pytest.approx([-0.15, 0.15])
+        assert sum(d for _, d in steps) == pytest.approx(med[2] - med[0]) and med[2] - med[0] < -1
+    report = viewpoints.report(ctx.dir / "vp", res)
+    assert "**Transitions**" in report and (ctx.dir / "vp" / "profiles.png").stat().st_size > 0
+
+
+def test_transitions_are_the_largest_steps_of_a_profile_in_order_along_the_axis():
+    """A profile with known steps (decades): −2 between 0.1 and 0.2 m, +0.5 between 0.3 and 0.4 m, −1 between 0.5
+    and 0.6 m, small wiggles elsewhere; a NaN column is skipped. The three largest, in order along the axis."""
+    u0 = np.arange(8) / 10
+    med = np.array([3.0, 3.05, 1.05, 1.0, 1.5, 1.45, 0.45, np.nan])
+    assert np.allclose(viewpoints.transitions(u0, med), [(0.15, -2.0), (0.35, 0.5), (0.55, -1.0)])
+    assert np.allclose(viewpoints.transitions(u0, med, top=1), [(0.15, -2.0)])
+
+
 def test_the_plugin_map_is_biased_up_most_where_the_object_is_hidden(study):
     """The paper's plug-in estimate (one FD Jacobian's Ĵᵀ W Ĵ) has expectation F + Σ w Var(Ĵ): its excess is the
     Jacobian's rendering noise, which does not shrink with the information. Where the camera sees the object

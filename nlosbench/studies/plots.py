@@ -688,3 +688,25 @@ def heat_maps(rows: list[dict], out: Path, summary: dict, column: str = "mean_fi
         save_figure(fig, path, dpi=120)
         paths.append(path)
     return paths
+
+
+def profile_plot(curves: dict, out: Path, summary: dict) -> Path:
+    """profiles.png: per parameter, log10 mean FI along the map's first axis, the median over the second axis with its
+    10–90 % band, one colour per noise model; curves[(noise, param)] = (u0 (n0,) [m], quantiles (3, n0))."""
+    plt = _plt()
+    names = summary["params"]
+    fig, axes = plt.subplots(1, len(names), figsize=(4.6 * len(names), 3.6), squeeze=False)
+    for p, name in enumerate(names):
+        ax = axes[0, p]
+        for noise in summary["noises"]:
+            u0, q = curves[noise, name]
+            line, = ax.plot(u0 * 100, q[1], marker=".", label=noise_text(noise))
+            ax.fill_between(u0 * 100, q[0], q[2], color=line.get_color(), alpha=0.2, lw=0)
+        ax.set_xlabel(f"camera offset along {_vec_label(summary['axes'][0])} [cm]")
+        ax.set_ylabel(f"log10 mean FI per pixel [1/{summary['units'][p]}²]")
+        ax.set_title(f"{name}: median over {_vec_label(summary['axes'][1])} (band 10–90 %)", fontsize=9)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = out / "profiles.png"
+    save_figure(fig, path, dpi=120)
+    return path

@@ -17,10 +17,10 @@ Beside the unbiased mean FI, `plugin_mean_fisher` is what the
 paper's method gives: one FD Jacobian's Ĵᵀ W Ĵ per pixel (averaged over the rounds, each one such estimate), whose
 expectation exceeds the information by the Jacobian's rendering noise Σ w Var(Ĵ): small where the object is seen,
 dominant where it is hidden. Output: viewpoints.csv, heat map PNGs per noise model of log10 of the mean FI, unbiased
-(heatmap_noise{k}.png) and plug-in (heatmap_plugin_noise{k}.png), and the render and FD-FI maps at the centre and two
-opposite corners. Viewpoints are
-independent tasks for the run's executor (each worker poses its own copy of the scene); finished ones are appended to
-viewpoints.jsonl (a `records.RecordLog`), so a resumed run skips them.
+(heatmap_noise{k}.png) and plug-in (heatmap_plugin_noise{k}.png), the profile along the first axis (profiles.png; the
+report lists its largest steps, `transitions`), and the render and FD-FI maps at the centre and two opposite corners.
+Viewpoints are independent tasks for the run's executor (each worker poses its own copy of the scene); finished ones
+are appended to viewpoints.jsonl (a `records.RecordLog`), so a resumed run skips them.
 
 The camera is posed by `camera.CameraRig` (outside θ, no reload); a pose's information comes from the bound
 service (`camera.viewpoint_information`).
@@ -42,7 +42,7 @@ from ..schema import ConfigError, Field
 from .camera import VIEW_KEYS, CameraRig, score_cells, unit_axes, view_scores, viewpoint_information
 from .context import RunContext, theta_at
 from .estimate import Estimate, pixels
-from .plots import heat_maps
+from .plots import heat_maps, profile_plot
 from .plotstyle import noise_text
 
 NAME = "viewpoints"
@@ -283,6 +283,43 @@ def resolution(views: list[dict]) -> list[str]:
     return out
 
 
+def profile(rows: list[dict], noise: str, param: str, column: str = "mean_fisher"
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The map along its first axis: offsets u0 (n0,) [m] and the 10 %, 50 % and 90 % quantiles over the second axis
+    of log10 `column` (3, n0) (non-finite or non-positive cells left out; NaN where a column has none)."""
+    sel = [r for r in rows if r["noise"] == noise and r["param"] == param]
+    u0 = np.unique([float(r["offset_0"]) for r in sel])
+    cols: list[list[float]] = [[] for _ in u0]
+    for r in sel:
+        v = float(r[column])
+        if math.isfinite(v) and v > 0:
+            cols[int(np.searchsorted(u0, float(r["offset_0"])))].append(math.log10(v))
+    q = np.array([np.quantile(c, (0.1, 0.5, 0.9)) if c else np.full(3, np.nan) for c in cols]).reshape(-1, 3).T
+    return u0, q[1], q
+
+
+def transitions(u0: np.ndarray, median: np.ndarray, top: int = 3) -> list[tuple[float, float]]:
+    """The `top` largest changes of a profile between neighbouring offsets, in order along the axis: (midpoint [m],
+    change in decades, signed: negative where the information falls as the offset grows)."""
+    d = np.diff(median)
+    ok = np.flatnonzero(np.isfinite(d))
+    best = ok[np.argsort(-np.abs(d[ok]), kind="stable")[:top]]
+    return [(float((u0[k] + u0[k + 1]) / 2), float(d[k])) for k in sorted(best)]
+
+
+def _transition_lines(rows: list[dict], results: dict) -> list[str]:
+    """Per noise model and parameter, the map's largest steps along the first axis (median over the second)."""
+    out = ["", f"**Transitions** along {results['axes'][0]} (the median over the other axis of log10 mean FI; the "
+               "three largest changes between neighbouring offsets, cm: decades):", "",
+           "| noise | parameter | transitions |", "|---|---|---|"]
+    for noise in results["noises"]:
+        for name in results["params"]:
+            u0, med, _ = profile(rows, noise, name)
+            steps = ", ".join(f"{x * 100:+.3g} cm: {d:+.2f}" for x, d in transitions(u0, med))
+            out.append(f"| {noise_text(noise)} | {name} | {steps or 'none'} |")
+    return out
+
+
 def _precision_lines(rows: list[dict], results: dict) -> list[str]:
     """With a precision target: per noise model how many views met it, how many more are resolved as negligible
     (`resolution`), the rounds they took, and the views left open (at most 20 named, with what each reached)."""
@@ -363,6 +400,12 @@ def report(study_dir: Path, results: dict) -> str:
                 f"{np.nanmax(vals):.4g} | ({float(best['offset_0']) * 100:.3g}, {float(best['offset_1']) * 100:.3g}) | "
                 f"{np.median(ratio) if ratio else float('nan'):.3g} |"
             )
+    if rows and len({r["i"] for r in rows}) > 1:
+        lines += _transition_lines(rows, results)
+        curves = {(noise, name): profile(rows, noise, name)[::2] for noise in results["noises"]
+                  for name in results["params"]}
+        prof = profile_plot(curves, study_dir, results)
+        lines += ["", f"![profiles]({study_dir.name}/{prof.name})"]
     lines += _precision_lines(rows, results)
     if results.get("infinite_cells"):
         lines.append(
