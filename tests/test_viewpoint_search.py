@@ -2,10 +2,12 @@
 noise, the replay harness on an interpolated grid, the best pair of cameras on closed-form Fisher matrices, the
 CRLB of independent cameras from the bound service, and the study's smoke run through the CLI."""
 import csv
+import importlib.util
 import itertools
 import json
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +21,8 @@ from nlosbench.experiment import config
 from nlosbench.studies import bayesopt, viewpoint_search
 from nlosbench.studies.camera import best_pair
 from nlosbench.studies.context import RunContext
+
+ROOT = Path(__file__).resolve().parents[1]
 
 BOX = [[-0.381, 0.381], [-0.381, 0.381]]
 OPTIMUM = np.array([0.12, -0.2])
@@ -196,6 +200,17 @@ def test_the_study_runs_through_the_cli_with_a_grid(tmp_path):
     report = (out / "report.md").read_text()
     assert "search/search_path.png)" in report and "| pair |" in report
     assert (out / "search" / "search_path.png").stat().st_size > 0
+    # scripts/viewpoint_check.py on this run (map and search in one): costs, the quantile check, seeded replays
+    spec = importlib.util.spec_from_file_location("viewpoint_check", ROOT / "scripts" / "viewpoint_check.py")
+    vc = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(vc)
+    chk = vc.check(out, out, replays=2, quantile=0.25, seed=0)
+    scores = [float(r["log10_score"]) for r in grid if r["noise"] == "AWGN(sigma=0.1)" and
+              r["param"] == "object_position" and math.isfinite(float(r["log10_score"]))]  # the finite cells
+    assert chk["map_quantile_log10"] == pytest.approx(np.quantile(scores, 0.25)) and chk["replays"] == 2
+    assert chk["found_upper_log10"] == float(conf["search", "AWGN(sigma=0.1)"]["score_upper"])
+    assert chk["found_within"] == (chk["found_upper_log10"] <= chk["map_quantile_log10"])
+    assert chk["map_pixel_samples"] == 9 * 7 * 16 * 12 * 16 and chk["search_pixel_samples"] == 63 * 16 * 12 * 16
     # resume after a kill that lost the last evaluation and the confirmations: the same seeded offsets are asked
     # again, only the missing views are rendered, and the tables come out the same
     tables = {name: (out / "search" / name).read_text() for name in ("evaluations.csv", "confirmed.csv")}
