@@ -18,6 +18,8 @@ import nlosbench as nb
 from nlosbench.bounds import Bound, FisherPoint, cameras_crlb, unbiased_fisher
 from nlosbench.cli import main
 from nlosbench.experiment import config
+from nlosbench.experiment.runner import prepare
+from nlosbench.schema import ConfigError
 from nlosbench.studies import bayesopt, viewpoint_search
 from nlosbench.studies.camera import best_pair
 from nlosbench.studies.context import RunContext
@@ -224,3 +226,23 @@ def test_the_study_runs_through_the_cli_with_a_grid(tmp_path):
     again = viewpoint_search.run(ctx, run_cfg["studies"][1])
     assert ctx.model.stats.renders - before == 7 + 5 * 7 and again["found"] == res["found"]
     assert {name: (out / "search" / name).read_text() for name in tables} == tables
+    # a search in a later run against this run's map (`grid_from`): the same grid-best view and candidates
+    later = {**raw, "studies": [{**raw["studies"][1], "grid": None, "grid_from": str(out)}]}
+    cfg.write_text(yaml.safe_dump(later))
+    assert main(["run", str(cfg), "--smoke", "--out", str(tmp_path / "later"), "--quiet"]) == 0
+    res2 = json.loads((tmp_path / "later" / "results.json").read_text())["studies"]["search"]["results"]
+    assert res2["pair"]["candidates"] == 4 + 9 and res2["grid"] == str(out) and res2["found"] == res["found"]
+    conf2 = {(r["confirm"], r["noise"]): r for r in csv.DictReader(open(tmp_path / "later" / "search" /
+                                                                         "confirmed.csv"))}
+    assert conf2["grid-best", "AWGN(sigma=0.1)"]["offsets"] == conf["grid-best", "AWGN(sigma=0.1)"]["offsets"]
+    fp = json.loads((tmp_path / "later" / "fingerprint.json").read_text())
+    assert "grid_sha256" in json.dumps(fp)
+    for bad, says in (({"grid": "grid"}, "not both"), ({"grid_from": str(tmp_path / "nowhere")}, "not a finished"),
+                      ({"fd_step": 0.02}, "differs in fd_step")):
+        cfg.write_text(yaml.safe_dump({**later, "studies": [{**later["studies"][0], **bad}]}))
+        with pytest.raises(ConfigError, match=says):
+            prepare(cfg, out=tmp_path / "refused", smoke=True, quiet=True)
+    cfg.write_text(yaml.safe_dump({**later, "noise": [{"model": "awgn", "sigma": 0.2}]}))
+    with pytest.raises(ConfigError, match="another noise"):
+        prepare(cfg, out=tmp_path / "refused", smoke=True, quiet=True)
+    assert not (tmp_path / "refused").exists()

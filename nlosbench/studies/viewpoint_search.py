@@ -26,7 +26,9 @@ Needs the optional extra `search` (BoTorch).
 """
 from __future__ import annotations
 
+import hashlib
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -59,6 +61,10 @@ SCHEMA = {
     "grid": Field(str, None, "id of a `viewpoints` study earlier in this run (same θ, axes, target, FD step, reduce, "
                   "fd_rounds >= 3): its best view is confirmed too, its views join the pair's candidates and its map "
                   "is drawn under the search's path", nullable=True),
+    "grid_from": Field(str, None, "instead of `grid`: the folder of an earlier run (e.g. "
+                       "results/paper_hallway_viewpoint_map; relative to the working directory) whose one `viewpoints` "
+                       "study is used as `grid` is, checked to match this run's scene and noise models too",
+                       nullable=True),
 }
 GRID_KEYS = ("at", "axes", "target", "fd_step", "reduce")
 #: what is confirmed with fresh renders; the index in this tuple seeds its renders (purpose "viewpoint-confirm")
@@ -73,9 +79,25 @@ def check(block: dict, path: str) -> None:
         raise ConfigError(path, str(e)) from None
 
 
-def plan(ctx: RunContext, cfg: dict) -> dict:
-    """θ (P,), the box (2, 2) [m], the unit axes (2, 3), the camera's target (3,) and the grid's block (or None),
-    from the validated block; ConfigError naming the key for what the schema cannot see. Renders nothing."""
+@dataclass(frozen=True)
+class Plan:
+    """θ (P,), the box (2, 2) [m], the unit axes (2, 3), the camera's target (3,); the grid's block, the path of its
+    viewpoints.csv and its label (the study id, or the earlier run's folder), None without a grid; `fingerprint`:
+    the earlier run's map (its SHA-256), so a resume after it changed is refused."""
+
+    theta: np.ndarray
+    box: np.ndarray
+    axes: np.ndarray
+    target: np.ndarray
+    grid: dict | None
+    grid_csv: Path | None
+    grid_label: str | None
+    fingerprint: dict | None
+
+
+def plan(ctx: RunContext, cfg: dict) -> Plan:
+    """The study's plan from its validated block; ConfigError naming the key for what the schema cannot see.
+    Renders nothing."""
     sid = cfg.get("id") or NAME
     m = ctx.model
     theta = theta_at(ctx, cfg, sid)
@@ -104,8 +126,49 @@ def plan(ctx: RunContext, cfg: dict) -> dict:
     except ValueError as e:
         raise ConfigError(f"{sid}.target" if cfg["target"] is not None or "hits nothing" in str(e) else sid,
                           str(e)) from None
-    return {"theta": theta, "box": box, "axes": unit_axes(cfg["axes"]), "target": target,
-            "grid": _grid_block(ctx, cfg, sid)}
+    if cfg["grid"] is not None and cfg["grid_from"] is not None:
+        raise ConfigError(f"{sid}.grid_from", "give `grid` (a study of this run) or `grid_from` (an earlier run), "
+                                              "not both")
+    if cfg["grid_from"] is not None:
+        g, csv = _grid_from(ctx, cfg, sid)
+        label, fp = cfg["grid_from"], {"grid_sha256": hashlib.sha256(csv.read_bytes()).hexdigest()}
+    else:
+        g, label, fp = _grid_block(ctx, cfg, sid), cfg["grid"], None
+        csv = None if g is None else ctx.dir / g["id"] / "viewpoints.csv"
+    return Plan(theta, box, unit_axes(cfg["axes"]), target, g, csv, label, fp)
+
+
+def _matching(g: dict, cfg: dict, path: str, what: str) -> None:
+    """ConfigError unless the grid's block `g` matches this search in GRID_KEYS and has fd_rounds >= 3."""
+    differ = [k for k in GRID_KEYS if g[k] != cfg[k]] + (["fd_rounds"] if g["fd_rounds"] < 3 else [])
+    if differ:
+        raise ConfigError(path, f"the grid {what} must match this search in {', '.join(GRID_KEYS)} and have "
+                                f"fd_rounds >= 3; it differs in {', '.join(differ)}")
+
+
+def _grid_from(ctx: RunContext, cfg: dict, sid: str) -> tuple[dict, Path]:
+    """The one `viewpoints` block of the run in `grid_from` (its config.yaml) and its
+    viewpoints.csv, checked to match this run's scene and noise models and this search."""
+    import yaml
+
+    where, key = Path(cfg["grid_from"]), f"{sid}.grid_from"
+    try:  # a run writes its config resolved (every default, every study's id)
+        other = yaml.safe_load((where / "config.yaml").read_text())
+    except (OSError, yaml.YAMLError) as e:
+        raise ConfigError(key, f"{where} is not a finished run's folder ({e})") from None
+    blocks = [(k, b) for k, b in enumerate(other.get("studies", [])) if b["type"] == "viewpoints"]
+    if len(blocks) != 1:
+        raise ConfigError(key, f"{where} has {len(blocks)} `viewpoints` studies; one is needed")
+    k, g = blocks[0]
+    differ = [part for part in ("scene", "noise") if other[part] != ctx.config[part]]
+    if differ:
+        raise ConfigError(key, f"{where} was run with another {' and '.join(differ)}: its views are not this "
+                               "run's")
+    _matching(g, cfg, key, repr(str(where)))
+    csv = where / (g.get("id") or f"{k:02d}-viewpoints") / "viewpoints.csv"
+    if not csv.is_file():
+        raise ConfigError(key, f"{csv} is missing (is the run finished?)")
+    return g, csv
 
 
 def _grid_block(ctx: RunContext, cfg: dict, sid: str) -> dict | None:
@@ -119,18 +182,13 @@ def _grid_block(ctx: RunContext, cfg: dict, sid: str) -> dict | None:
     if not found:
         raise ConfigError(f"{sid}.grid", f"no `viewpoints` study with id {cfg['grid']!r} before this one "
                                          f"(ids: {', '.join(str(i) for i in ids[:here]) or 'none'})")
-    g = found[0]
-    differ = [k for k in GRID_KEYS if g[k] != cfg[k]]
-    if differ or g["fd_rounds"] < 3:
-        raise ConfigError(f"{sid}.grid", f"the grid {cfg['grid']!r} must match this search in {', '.join(GRID_KEYS)} "
-                                         f"and have fd_rounds >= 3; it differs in "
-                                         f"{', '.join(differ + (['fd_rounds'] if g['fd_rounds'] < 3 else []))}")
-    return g
+    _matching(found[0], cfg, f"{sid}.grid", repr(cfg["grid"]))
+    return found[0]
 
 
 def _views_per_confirmation(cfg: dict) -> int:
     """Views rendered afresh: the search's, the standard one, the grid's best (with a grid), the pair's two."""
-    return 2 + (cfg["grid"] is not None) + 2 * cfg["pair"]
+    return 2 + (cfg["grid"] is not None or cfg["grid_from"] is not None) + 2 * cfg["pair"]
 
 
 def cost(ctx: RunContext, cfg: dict, p: dict) -> Estimate:
@@ -169,7 +227,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     if not ctx.resume:
         log.reset()
     done = {rec["tag"]: rec for rec in log.read()}
-    base = {"target": p["target"].tolist(), "axes": p["axes"].tolist(), "theta": p["theta"].tolist(),
+    base = {"target": p.target.tolist(), "axes": p.axes.tolist(), "theta": p.theta.tolist(),
             "spp": cfg["spp"], "fd_step": cfg["fd_step"], "noises": ctx.noises, "reduce": cfg["reduce"]}
 
     def render(items: list[dict], desc: str) -> list[dict]:
@@ -185,7 +243,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         return [done[it["tag"]] for it in items]
 
     k = cfg["noise"]
-    search = bayesopt.Search(p["box"], cfg["initial"], ctx.seed_for("viewpoint-search"))
+    search = bayesopt.Search(p.box, cfg["initial"], ctx.seed_for("viewpoint-search"))
     while len(search) < cfg["evaluations"]:
         X, phase = search.ask(min(cfg["batch"], cfg["evaluations"] - len(search)))
         n0 = len(search)
@@ -202,8 +260,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     cand_x = [e["offsets"][0] for e in evaluations]
     cand_F = [np.array(e["views"][0][k]["F"]) for e in evaluations]
     grid_best = None
-    if p["grid"] is not None:
-        gx, gF, gbest = _grid_views(ctx.dir / p["grid"]["id"] / "viewpoints.csv", str(ctx.noises[k]), names)
+    if p.grid_csv is not None:
+        gx, gF, gbest = _grid_views(p.grid_csv, str(ctx.noises[k]), names)
         cand_x, cand_F, grid_best = cand_x + gx, cand_F + gF, gx[gbest]
     confirm = ([("search", [found.tolist()])] if resolved else []) + [("standard", [[0.0, 0.0]])]
     if grid_best is not None:
@@ -236,13 +294,15 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                              "noise": str(noise), **score_cells(scores[j], names)})
     write_csv(out / "confirmed.csv", rows)
     return {
-        "theta": p["theta"].tolist(), "params": names, "units": list(ctx.model.params.units),
-        "noises": [str(n) for n in ctx.noises], "noise": k, "box": p["box"].tolist(), "axes": cfg["axes"],
-        "target": p["target"].tolist(), "spp": cfg["spp"], "fd_rounds": cfg["fd_rounds"],
+        "theta": p.theta.tolist(), "params": names, "units": list(ctx.model.params.units),
+        "noises": [str(n) for n in ctx.noises], "noise": k, "box": p.box.tolist(), "axes": cfg["axes"],
+        "target": p.target.tolist(), "spp": cfg["spp"], "fd_rounds": cfg["fd_rounds"],
         "confirm_rounds": cfg["confirm_rounds"], "evaluations": cfg["evaluations"], "initial": cfg["initial"],
         "batch": cfg["batch"], "found": None if found is None else found.tolist(),
         "posterior_log10": post_mean, "posterior_sd": post_sd,
-        "pair": pair, "grid": None if p["grid"] is None else p["grid"]["id"],
+        "pair": pair, "grid": p.grid_label, "grid_from": cfg["grid_from"] is not None,
+        "grid_csv": None if p.grid_csv is None else str(p.grid_csv if cfg["grid_from"] else p.grid_csv.relative_to(
+            ctx.dir)),
         "renders": sum(r["renders"] for r in done.values()),
         "pixel_samples": sum(r["renders"] for r in done.values()) * cfg["spp"] * pixels(ctx.model),
     }
@@ -329,6 +389,14 @@ def _fmt(lg) -> str:
     return "∞" if v == math.inf else "0" if v == -math.inf else "–" if math.isnan(v) else f"{10 ** v:.3g}"
 
 
+def _grid_csv(study_dir: Path, results: dict) -> Path:
+    """The grid's viewpoints.csv: in this run's folder (`grid`), or as given (`grid_from`: relative to the working
+    directory, as when the run was made)."""
+    if results.get("grid_from"):
+        return Path(results["grid_csv"])
+    return study_dir.parent / (results.get("grid_csv") or Path(results["grid"]) / "viewpoints.csv")
+
+
 def _path_plot(study_dir: Path, results: dict) -> Path:
     """The search's evaluations, numbered in order, over the offset box [cm] (and over a grid's A-optimal map of
     the same noise model when the run has one), with the returned view, the pair and the standard view."""
@@ -339,8 +407,7 @@ def _path_plot(study_dir: Path, results: dict) -> Path:
     fig, ax = plt.subplots(figsize=(6.2, 5))
     x = np.array([[float(r["offset_0"]), float(r["offset_1"])] for r in rows]) * 100
     score = np.array([float(r["log10_score"]) for r in rows])
-    grid = bayesopt.read_grid(study_dir.parent / results["grid"] / "viewpoints.csv", noise) if results.get("grid") \
-        else None
+    grid = bayesopt.read_grid(_grid_csv(study_dir, results), noise) if results.get("grid") else None
     shown = np.concatenate([score] + ([grid[2].ravel()] if grid else []))
     shown = shown[np.isfinite(shown)]
     norm = {"vmin": shown.min(), "vmax": shown.max()} if shown.size else {}  # one colour scale: grid and path
