@@ -94,7 +94,7 @@ def test_fresh_rounds_go_only_where_the_target_is_unmet_and_the_maps_are_the_rep
     (dict(precision=0.2, rounds=2), "needs replicates >= 3"),
     (dict(budget=10**6), "a budget needs a precision target"),
     (dict(precision=-1.0), "precision must be a finite number > 0"),
-    (dict(precision=0.2, looks=1), "looks must be an integer >= 2"),
+    (dict(precision=0.2, looks=0), "looks must be an integer >= 1"),
 ])
 def test_bad_targets_raise_before_any_render(bad, match):
     bank = RenderBank(_blob(2.0))

@@ -50,7 +50,7 @@ def test_without_a_target_one_fixed_set_is_rendered_and_no_record_is_kept():
     (dict(precision=math.inf), "precision must be a finite number > 0"),
     (dict(precision=0.2, budget=0), "budget must be a positive integer"),
     (dict(precision=0.2, budget=1.5e6), "budget must be a positive integer"),
-    (dict(precision=0.2, looks=1), "looks must be an integer >= 2"),
+    (dict(precision=0.2, looks=0), "looks must be an integer >= 1"),
     (dict(budget=10**6), "a budget needs a precision target"),
     (dict(precision=0.2, want=("hcr_neff",)), "needs an interval bound"),
     (dict(precision=0.2, replicates=2), "needs replicates >= 3"),
@@ -301,6 +301,24 @@ def test_a_target_without_a_budget_stops_at_the_default_ceiling(call):
     assert not rec.met and rec.looks >= 2 and "default ceiling" in rec.note and rec.extra_pixel_samples > 0
     more, _ = ask(budget=4 * CEILING * pilot.pixel_samples)
     assert more.pixel_samples > rec.budget
+
+
+def test_one_look_is_the_plain_call_at_the_full_level_with_what_a_fresh_look_would_cost():
+    """`looks=1`: the pilot alone, at the full level (no fresh look is ever made, so none is paid for): its ends are
+    bit for bit those of the same call without a target, it renders nothing more, and an unmet target says what one
+    fresh look is predicted to cost (blob2d's x, precision 0.002: never met by 3 sets of 16 spp)."""
+    def call(**kw):
+        bank = RenderBank(_blob(2.0), seed=0)
+        (pt,) = BoundService(bank, [nb.noise.AWGN(0.3)]).at([[0.45]], 16, **BLOB, **kw)
+        return pt, bank.renders
+
+    (plain, n_plain), (one, n_one) = call(), call(precision=0.002, looks=1)
+    for kind in ("hcr", "crlb"):
+        a, b = plain.bounds[kind], one.bounds[kind]
+        assert (a.lower, a.point, a.upper) == (b.lower, b.point, b.upper) and b.level == a.level == 0.95
+    rec = one.precision
+    assert n_one == n_plain and rec.looks == 1 and rec.fresh_sets == 0 and not rec.met
+    assert rec.extra_pixel_samples > 0 and "pilot alone" in rec.note
 
 
 def test_independent_seeds_use_fresh_fd_rounds_at_every_look():

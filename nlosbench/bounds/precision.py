@@ -12,7 +12,9 @@ model, has reached ≤ p.
 
 The stopping rule (`refine`). Let α = 1 − level and K = `looks`. α is spent along the path (`spending`): the
 pilot's ends at level 1 − α₀ with α₀ = α/20, fresh look k's at 1 − α_k with α₀ + Σ_k α_k = α (K = 2, the default:
-α₁ = 0.95 α; K = 3: 0.8 and 0.2 of 0.95 α; each later look a quarter of the one before).
+α₁ = 0.95 α; K = 3: 0.8 and 0.2 of 0.95 α; each later look a quarter of the one before). K = 1 is the pilot alone, at
+level 1 − α (no fresh look is ever made, so nothing is spent on one): each θ* says whether it met p and what one
+fresh look would cost (`extra_pixel_samples`), a survey at a fixed cost.
   look 0, the pilot: the R0 replicate sets 0 … R0 − 1 at level 1 − α₀. θ* that meet p stop here (only then, or
       where no fresh look is made, is the pilot's interval reported).
   plan: for every other θ*, from the pilot alone, R* = the smallest number of fresh sets on the ladder
@@ -107,8 +109,9 @@ def check_precision(precision, budget, looks, want: Sequence[str], replicates: i
     precision, an interval bound (hcr, crlb) is asked for from ≥ 3 replicates."""
     if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1):
         raise ValueError(f"budget must be a positive integer number of pixel-samples or None, got {budget!r}")
-    if isinstance(looks, bool) or not isinstance(looks, (int, np.integer)) or looks < 2:
-        raise ValueError(f"looks must be an integer >= 2 (the pilot and at least one fresh look), got {looks!r}")
+    if isinstance(looks, bool) or not isinstance(looks, (int, np.integer)) or looks < 1:
+        raise ValueError(f"looks must be an integer >= 1 (the pilot, then at most looks − 1 fresh looks), "
+                         f"got {looks!r}")
     if precision is None:
         if budget is not None:
             raise ValueError("a budget needs a precision target (precision=...)")
@@ -469,7 +472,9 @@ def ladder(cap: int, above: int = 0, least: int = 4) -> list[int]:
 def spending(alpha: float, K: int) -> list[float]:
     """α spent per look over K looks: the pilot α/20, fresh look k (1 … K − 1) 0.95·α·4^−(k−1)/Σ_j 4^−(j−1) (K = 2:
     0.95 α; K = 3: 0.76 α and 0.19 α, i.e. 0.8 and 0.2 of 0.95 α; each later look a quarter of the one before). They
-    sum to α (module docstring: the pathwise proof)."""
+    sum to α (module docstring: the pathwise proof). K = 1, the pilot alone (no fresh look is ever made): all of α."""
+    if K == 1:
+        return [alpha]
     shares = [4.0 ** -(k - 1) for k in range(1, K)]
     return [alpha / 20.0] + [0.95 * alpha * w / sum(shares) for w in shares]
 
@@ -576,7 +581,8 @@ def refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budge
 def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budget: int | None, K: int,
             alpha: float, cost: SetCost, spp: int, spend) -> list:
     levels = [1.0 - a for a in spending(alpha, K)]
-    level = levels[1]  # what plans and predictions aim at: the first fresh look's level
+    # what plans and predictions aim at: the first fresh look's level (K = 1: the level of a run that has one)
+    level = levels[1] if K > 1 else 1.0 - spending(alpha, 2)[1]
     goal = np.broadcast_to(np.asarray(target, dtype=np.float64).reshape(-1), (T,))
     st = _State()
 
@@ -621,7 +627,9 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         f"the default ceiling of {cap:.3g} pixel-samples, {CEILING} × the pilot's (a budget raises it)")
     active = [i for i in range(T) if worst(i) > goal[i]]
     for i in range(T):
-        st.notes[i] = "met at the pilot" if i not in active else ""
+        st.notes[i] = "met at the pilot" if i not in active else "" if K > 1 else "not met: the pilot alone (looks 1)"
+    if K == 1:
+        active = []
     # plan from the pilot alone; the budget caps the first look's sets (each θ* with its planned window and Δ)
     plans = {i: planned(i) for i in active}
     affordable = [R for R in ladder(MAX_SETS) if active and spent() + cost.look(

@@ -59,7 +59,8 @@ SCHEMA = {
                        "noise model; null: the fd_rounds given", nullable=True),
     "precision_budget": Field(int, None, "cap on the pixel-samples one view may spend on its target (needs "
                               "`precision`); null: the default ceiling, 16 × its pilot", nullable=True),
-    "looks": Field(int, 2, "with `precision`: the pilot and at most looks − 1 fresh looks per view"),
+    "looks": Field(int, 2, "with `precision`: the pilot and at most looks − 1 fresh looks per view (1: the pilot "
+                   "alone at the full level, each view classified against ±p with the predicted cost of meeting it)"),
     "reduce": Field(str, "mean", "combine the RGB channels' information by (paper: mean)", choices=("sum", "mean")),
 }
 
@@ -115,7 +116,8 @@ def _scores(fp, noises, group: int) -> list[dict]:
         if pt is not None:
             b, pr = pt.bounds["crlb"], pt.precision
             s.update(log10=b.point, lower=b.lower, upper=b.upper, lower_note=b.lower_note, met=pr.met,
-                     reached=pr.reached.get("crlb", float("inf")), rounds=int(fp.rounds.shape[0]))
+                     reached=pr.reached.get("crlb", float("inf")), rounds=int(fp.rounds.shape[0]),
+                     extra=pr.extra_pixel_samples)
     return scores
 
 
@@ -170,6 +172,8 @@ def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     per_view = 1 + 2 * ctx.model.params.dim * cfg["fd_rounds"]
     if cfg["precision"] is None:
         return Estimate(views * per_view, views * per_view * px)
+    if cfg["looks"] == 1:  # the pilot alone: no fresh round is ever rendered
+        return Estimate(views * per_view, views * per_view * px, note="the pilot alone (looks: 1)")
     most = cfg["precision_budget"] or CEILING * per_view * px
     return Estimate(views * max(per_view, round(most / px)), views * max(most, per_view * px),
                     note=f"with the precision target: at most {most:.3g} pixel-samples per view",
@@ -232,7 +236,9 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                         "infinite_pixels": rec["infinite_pixels"][k][p],
                         **score_cells(rec["scores"][k], list(m.params.names)),
                         **({"score_met": rec["scores"][k]["met"], "score_reached": rec["scores"][k]["reached"],
-                            "fd_rounds": rec["scores"][k]["rounds"]} if "met" in rec["scores"][k] else {}),
+                            "fd_rounds": rec["scores"][k]["rounds"],
+                            "score_extra_pixel_samples": rec["scores"][k].get("extra", math.nan)}
+                           if "met" in rec["scores"][k] else {}),
                     }
                 )
     if cfg["precision"] is not None:  # met / negligible / open, once the whole map is known
@@ -328,9 +334,10 @@ def _precision_lines(rows: list[dict], results: dict) -> list[str]:
     views = {(r["noise"], r["i"], r["j"]): r for r in rows}  # one score per view and noise (parameter rows repeat it)
     out = ["", f"**Precision.** Target: each view's A-optimal score (of the FD-smoothed model, ξ = "
                f"{results['fd_step']:g}) within ±{results['precision'] * 100:.3g} %, or its information's upper limit "
-               f"at most {NEGLIGIBLE * 100:g} % of the map's largest (negligible).", "",
-           "| noise | views met | negligible | FD rounds (min–max) | open (offset cm: reached) |",
-           "|---|---|---|---|---|"]
+               f"at most {NEGLIGIBLE * 100:g} % of the map's largest (negligible). The open views' cost to meet the "
+               "target is each one's predicted fresh look, summed (∞ where no number of rounds is predicted to).", "",
+           "| noise | views met | negligible | FD rounds (min–max) | open: cost to meet | open (offset cm: reached) |",
+           "|---|---|---|---|---|---|"]
     u = float(results["step"]) * 100
     c = (int(results["num"]) - 1) / 2
     for noise in results["noises"]:
@@ -342,8 +349,10 @@ def _precision_lines(rows: list[dict], results: dict) -> list[str]:
         named = ", ".join(f"({(int(r['i']) - c) * u:.3g}, {(int(r['j']) - c) * u:.3g}): "
                           f"±{float(r['score_reached']) * 100:.3g} %" for r in missed[:20])
         more = f" and {len(missed) - 20} more" if len(missed) > 20 else ""
+        extra = sum(float(r.get("score_extra_pixel_samples", math.nan)) for r in missed)
+        cost = "–" if not missed else "∞" if extra == math.inf else f"{extra:.3g} pixel-samples"
         out.append(f"| {noise_text(noise)} | {state.count('met')} of {len(sel)} | {state.count('negligible')} | "
-                   f"{min(rounds)}–{max(rounds)} | {named + more or 'none'} |")
+                   f"{min(rounds)}–{max(rounds)} | {cost} | {named + more or 'none'} |")
     return out
 
 
