@@ -116,6 +116,7 @@ def test_the_plugin_map_is_biased_up_most_where_the_object_is_hidden(study):
     assert (ctx.dir / "vp" / "heatmap_plugin_noise0.png").stat().st_size > 0
 
 
+@pytest.mark.slow  # 37 s: the make test tier pays for the search's later-run test with it
 def test_a_precision_target_per_view_resolves_the_seen_views_within_each_views_budget(tmp_path):
     """`precision: 0.3` on the A-optimal score (of the FD-smoothed model: its ends are limits of that, no label,
     flag fd-smoothed), 3 pilot rounds, at most 3e6 pixel-samples per view (≈ 3 pilots). The views that see the
