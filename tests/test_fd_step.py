@@ -213,3 +213,32 @@ def test_a_stage_shown_biased_low_does_not_hold_the_upper_end():
     flat = sf([1.0, 1.02, 1.0], [Halving(0.04, 1.02, 0.01, False, False), Halving(0.02, 0.98, 0.01, True, False)])
     assert settled_from(flat) == 0
     assert 10 ** crlb_term(flat, 0.95).upper == pytest.approx(1 / (1.0 - t * 0.01), rel=1e-12)
+
+
+def test_a_first_step_per_theta_gives_what_each_theta_gets_alone():
+    """`at` with one first FD step per θ* (edge1d, rendering noise 0.3, common seeds, seed 3): θ* = 0.507 from
+    ξ = 8 mm and θ* = 0.3 from ξ = 32 mm, in one call, give bit for bit the bounds and the FD stages (their steps
+    included) of two calls with one θ* and one step each; the stages start at each θ*'s own step. A step per θ* of
+    the wrong length, or one not positive, is refused before any render. Measured ratios in the reasons: 0.507 F ×1.13
+    from 8 to 4 mm, then settled; 0.3 F rising ×1.87, ×1.41, ×1.4, ×1.24 down to 2 mm."""
+    kw = dict(test_grid=7, offsets=2, max_halvings=4)
+
+    def service(seed=3):
+        bank = RenderBank(nb.scenes.get("edge1d", render_noise=0.3), seed=seed)
+        return BoundService(bank, [nb.noise.AWGN(SIGMA)]), bank
+
+    both = service()[0].at([[0.507], [0.3]], 16, fd_step=[0.008, 0.032], **kw)
+    for pt, (theta, xi) in zip(both, [(0.507, 0.008), (0.3, 0.032)], strict=True):
+        (alone,) = service()[0].at([[theta]], 16, fd_step=xi, **kw)
+        for kind in ("hcr", "crlb"):
+            a, b = alone.bounds[kind], pt.bounds[kind]
+            assert (a.lower, a.point, a.upper, a.reason) == (b.lower, b.point, b.upper, b.reason), kind
+    # the stages start at each θ*'s step: 0.507 checks 8 → 4 mm first; 0.3 (F rising at every halving) stops after
+    # 4 halvings of 32 mm, at 2 mm, and names the next, 1 mm (from 8 mm it would be 0.25 mm)
+    assert "= 1.13 ± 0.0017 at ξ = 0.008;" in both[0].bounds["crlb"].reason
+    assert "try ξ = 0.001 (one more halving)" in both[1].bounds["crlb"].reason
+    for bad, match in (([0.008, 0.016, 0.032], "one step or one per θ"), ([0.008, -0.01], "positive number")):
+        svc, bank = service()
+        with pytest.raises(ValueError, match=match):
+            svc.at([[0.507], [0.3]], 16, fd_step=bad, **kw)
+        assert bank.renders == 0

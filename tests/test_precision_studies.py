@@ -110,6 +110,17 @@ def test_a_looser_target_beyond_a_theta_reaches_the_quoted_bounds_beyond_it(tmp_
     assert sorted((round(r["theta"]["x"], 6), r["target"]) for r in recs) == [(0.2, 0.15), (0.5, 0.15), (0.8, 0.5)]
 
 
+def test_a_small_first_step_up_to_a_theta_starts_the_quoted_bounds_there(tmp_path):
+    """`precision_fd_step_until: [0.6, 0.005]` with `precision_fd_step: 0.02`, one halving: the quoted CRLB at 0.2
+    and 0.5 checks its step from 5 mm (its reason names ξ = 0.005 and no step above it), the one at 0.8 from 2 cm."""
+    rc, out = _run(tmp_path, [{**BOUNDS, "precision": 0.15, "precision_fd_step": 0.02, "hcr_offsets": 0,
+                               "precision_fd_step_until": [0.6, 0.005]}])
+    assert rc == 0
+    rows = {round(float(r["theta_x"]), 6): r["crlb_reason"] for r in read_csv(out / "b" / "precise.csv")}
+    assert "at ξ = 0.005" in rows[0.2] and "at ξ = 0.005" in rows[0.5] and "0.02" not in rows[0.2] + rows[0.5]
+    assert "at ξ = 0.02" in rows[0.8], rows[0.8]
+
+
 def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     rc, out = _run(tmp_path, [TRIALS, BOUNDS])
     assert rc == 0
@@ -124,7 +135,7 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
 @pytest.mark.parametrize("study, message", [
     ({**TRIALS, "precision": 0}, "studies[0].precision: expected a finite number > 0, got 0"),
     ({**TRIALS, "precision_budget": 10**6}, "t.precision_budget: a budget needs a precision target"),
-    ({**TRIALS, "precision": 0.2, "looks": 1}, "studies[0].looks: expected an integer in [2, 64], got 1"),
+    ({**TRIALS, "precision": 0.2, "looks": 0}, "studies[0].looks: expected an integer in [1, 64], got 0"),
     ({**TRIALS, "precision": 0.2, "replicates": 2}, "t.replicates: a precision target needs >= 3 replicates"),
     ({**TRIALS, "precision": 0.2, "bounds": ["hcr_neff"]}, "t.precision: a precision target needs an interval bound"),
     ({**TRIALS, "mode": "bayesian", "theta": None, "hcr_grid": 5, "precision": 0.2},
@@ -136,6 +147,9 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     ({**BOUNDS, "precision_beyond": [0.6, 0.5]}, "b.precision_beyond: needs a `precision` target"),
     ({**BOUNDS, "precision": 0.2, "precision_beyond": [0.6]}, "b.precision_beyond: expected [θ₀, p₀] with p₀ > 0"),
     ({**BOUNDS, "precision": 0.2, "precision_fd_step": -0.01}, "b.precision_fd_step: expected a step > 0"),
+    ({**BOUNDS, "precision_fd_step_until": [0.5, 0.005]}, "b.precision_fd_step_until: needs a `precision` target"),
+    ({**BOUNDS, "precision": 0.2, "precision_fd_step_until": [0.5, 0]},
+     "b.precision_fd_step_until: expected [θ₀, ξ₀] with ξ₀ > 0"),
     ({**BOUNDS, "precision": 0.2, "hcr_offsets": -1}, "b.hcr_offsets: expected an integer >= 0"),
 ])
 def test_bad_precision_keys_stop_the_run_at_config_time(tmp_path, capsys, study, message):

@@ -55,6 +55,9 @@ SCHEMA = {
     "precision_fd_step": Field(float, None, "the quoted bounds' first FD step ξ, halved per θ until F settles (at most "
                                "`max_halvings` times): large where L(θ) is smooth, the halvings reach an edge's step; "
                                "null: `fd_step`, else the grid spacing", nullable=True),
+    "precision_fd_step_until": Field(list, [], "[θ₀, ξ₀]: up to θ₀ the quoted bounds' first FD step is ξ₀ instead "
+                                     "(in line of sight an edge at pixel scale wants a small start, beyond the "
+                                     "corner a smooth L(θ) a large one; needs `precision`)", items=float),
     "hcr_offsets": Field(int, 4, "the quoted bounds' extra HCR test points ±ξ·2^k (k < hcr_offsets) around each θ, "
                          "besides the grid's Δ and Δ → 0; 0: none"),
     "barankin": Field(bool, False, "also compute the multi-point Barankin bound at each grid point (plug-in)"),
@@ -109,13 +112,16 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.level", f"expected a confidence level in (0, 1), got {cfg['level']}")
     if cfg["precision_at"] and cfg["precision"] is None:
         raise ConfigError(f"{sid}.precision_at", "quoting bounds at θ needs a `precision` target")
-    for key in ("precision_beyond", "precision_fd_step"):
+    for key in ("precision_beyond", "precision_fd_step", "precision_fd_step_until"):
         if cfg[key] not in (None, []) and cfg["precision"] is None:
             raise ConfigError(f"{sid}.{key}", "needs a `precision` target")
     if cfg["precision_beyond"] and (len(cfg["precision_beyond"]) != 2 or not cfg["precision_beyond"][1] > 0):
         raise ConfigError(f"{sid}.precision_beyond", f"expected [θ₀, p₀] with p₀ > 0, got {cfg['precision_beyond']}")
     if cfg["precision_fd_step"] is not None and not cfg["precision_fd_step"] > 0:
         raise ConfigError(f"{sid}.precision_fd_step", f"expected a step > 0 or null, got {cfg['precision_fd_step']}")
+    until = cfg["precision_fd_step_until"]
+    if until and (len(until) != 2 or not until[1] > 0):
+        raise ConfigError(f"{sid}.precision_fd_step_until", f"expected [θ₀, ξ₀] with ξ₀ > 0, got {until}")
     if cfg["hcr_offsets"] < 0:
         raise ConfigError(f"{sid}.hcr_offsets", f"expected an integer >= 0, got {cfg['hcr_offsets']}")
     precise.check(cfg, sid, ("hcr", "crlb") if cfg["crlb"] else ("hcr",))
@@ -161,10 +167,13 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     if cfg["precision_beyond"]:  # a target per quoted θ
         (edge, looser), base = cfg["precision_beyond"], kw["precision"]
         kw["precision"] = np.where(p.precision_at > edge, looser, base)
+    step = cfg["precision_fd_step"]
+    if cfg["precision_fd_step_until"]:  # a first FD step per quoted θ
+        (edge, small) = cfg["precision_fd_step_until"]
+        step = np.where(p.precision_at <= edge, small, step or p.fd_step or float(np.diff(p.thetas).min()))
     curve = svc.curve(p.thetas, p.spp, p.seeds, p.replicates, crlb=p.crlb, barankin=p.barankin, zzb=p.zzb,
                       fd_step=p.fd_step, step_tol=p.step_tol, quote=cfg["precision_at"] or None,
-                      max_halvings=cfg["max_halvings"], offsets=cfg["hcr_offsets"],
-                      quote_step=cfg["precision_fd_step"], **kw)
+                      max_halvings=cfg["max_halvings"], offsets=cfg["hcr_offsets"], quote_step=step, **kw)
     names = ctx.model.params.names
     write_csv(out / "bounds.csv", [pt.row(names) for pt in curve.points])
     precision = []

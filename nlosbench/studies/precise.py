@@ -21,8 +21,9 @@ PRECISION = Field(positive_number, None, "target relative half-width p of every 
 PRECISION_BUDGET = Field(positive_integer, None, "cap on the pixel-samples (spp × H × W × renders) the precise bounds "
                          f"may spend (needs `precision`); null: the default ceiling, {CEILING} × what their pilot "
                          "costs (the pilot included)", nullable=True)
-LOOKS = Field(integer_in(2, 64), 2, "with `precision`: the pilot and at most looks − 1 fresh looks, each on "
-              "replicate sets of its own; the pilot's ends at α/20, the fresh looks' share the rest (α = 1 − level)")
+LOOKS = Field(integer_in(1, 64), 2, "with `precision`: the pilot and at most looks − 1 fresh looks, each on "
+              "replicate sets of its own; the pilot's ends at α/20, the fresh looks' share the rest (α = 1 − level); "
+              "1: the pilot alone at the full level, with what meeting the target would cost")
 #: the schema keys, as a study's SCHEMA takes them
 KEYS = {"precision": PRECISION, "precision_budget": PRECISION_BUDGET, "looks": LOOKS}
 

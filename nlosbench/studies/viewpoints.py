@@ -38,7 +38,7 @@ from ..bounds.precision import CEILING, check_precision
 from ..forward.model import ForwardModel
 from ..io import read_csv, write_csv, write_exr, write_png
 from ..records import RecordLog
-from ..schema import ConfigError, Field
+from ..schema import ConfigError, Field, integer_in
 from .camera import VIEW_KEYS, CameraRig, score_cells, unit_axes, view_scores, viewpoint_information
 from .context import RunContext, theta_at
 from .estimate import Estimate, pixels
@@ -59,8 +59,9 @@ SCHEMA = {
                        "noise model; null: the fd_rounds given", nullable=True),
     "precision_budget": Field(int, None, "cap on the pixel-samples one view may spend on its target (needs "
                               "`precision`); null: the default ceiling, 16 × its pilot", nullable=True),
-    "looks": Field(int, 2, "with `precision`: the pilot and at most looks − 1 fresh looks per view (1: the pilot "
-                   "alone at the full level, each view classified against ±p with the predicted cost of meeting it)"),
+    "looks": Field(integer_in(1, 64), 2, "with `precision`: the pilot and at most looks − 1 fresh looks per view "
+                   "(1: the pilot alone at the full level, each view classified against ±p with the predicted cost "
+                   "of meeting it)"),
     "reduce": Field(str, "mean", "combine the RGB channels' information by (paper: mean)", choices=("sum", "mean")),
 }
 

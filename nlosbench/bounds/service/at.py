@@ -27,6 +27,7 @@ from nlosbench.bounds.service.renders import (
     _check_step,
     _FixedWeight,
     _need_replicates,
+    per_theta,
 )
 from nlosbench.bounds.ustat import pixel_ustat
 
@@ -46,7 +47,7 @@ class AtTheta(RenderSets):
     """`at` (the service's module docstring)."""
 
     def at(self, thetas, spp: int, want: Sequence[str] = ("hcr", "crlb"), seeds: str = "common",
-           replicates: int = 3, test_grid: int = 21, offsets: int = 4, fd_step: float = 0.01,
+           replicates: int = 3, test_grid: int = 21, offsets: int = 4, fd_step=0.01,
            levels: Sequence[int] = (1024, 2048), noises=None, step_tol: float = 0.1,
            max_halvings: int = 3, precision=None, budget: int | None = None,
            looks: int = 2) -> list[BoundPoint]:
@@ -82,8 +83,9 @@ class AtTheta(RenderSets):
             Points per axis of the grid of test points over Θ.
         offsets : int, optional
             Number of axis offsets ±ξ·2^k per side and axis.
-        fd_step : float, optional
-            The first FD step ξ, parameter units (also the base of the axis offsets).
+        fd_step : float or array_like of shape (T,), optional
+            The first FD step ξ, parameter units (also the base of the axis offsets): one for every θ*, or one
+            each (an edge at pixel scale in line of sight wants a small start, a smooth L(θ) a large one).
         levels : sequence of int, optional
             spp levels of the HCR-hat fit (at least 2 distinct).
         noises : iterable of int, optional
@@ -118,35 +120,39 @@ class AtTheta(RenderSets):
         _check_step(fd_step, step_tol, max_halvings)
         check_precision(precision, budget, looks, want, R)
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, p.dim)
+        steps = per_theta(fd_step, len(thetas))
         if precision is not None and np.size(precision) not in (1, len(thetas)):
             raise ValueError(f"precision: one target or one per θ* ({len(thetas)}), got {np.size(precision)}")
-        args = (spp, want, seeds, test_grid, offsets, fd_step, levels, noises, step_tol, max_halvings)
+        args = (spp, want, seeds, test_grid, offsets, levels, noises, step_tol, max_halvings)
         if precision is None:
-            return self._at(thetas, R, 0, *args)
+            return self._at(thetas, steps, R, 0, *args)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
         need_fi = bool({"hcr", "crlb", "crlb_each"} & set(want))
         cost = SetCost(p.grid(test_grid).shape[0] if need_alt else 0,
-                       np.array([1 + (len(axis_offsets(p, t, offsets, fd_step)) if need_alt else 0) for t in thetas]),
+                       np.array([1 + (len(axis_offsets(p, t, offsets, xi)) if need_alt else 0)
+                                 for t, xi in zip(thetas, steps, strict=True)]),
                        2 * p.dim if need_fi else 0, max_halvings + 1)
 
         def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict, window, tested) -> list[BoundPoint]:
             sub = copy.copy(self)
             sub.level = level
-            stages = {} if window is None else {"fd_start": fd_step / 2**window.start, "halvings": window.halvings}
-            return sub._at(thetas[idx], reps, first, *args, keep=keep, tested=tested, **stages)
+            stages = {} if window is None else {"fd_start": steps[idx] / 2**window.start,
+                                                "halvings": window.halvings}
+            return sub._at(thetas[idx], steps[idx], reps, first, *args, keep=keep, tested=tested, **stages)
 
         return refine(look, len(thetas), list(self._select(noises)), R, precision, budget, looks, 1 - self.level,
                       cost, spp, self.bank)
 
-    def _at(self, thetas: np.ndarray, R: int, first: int, spp: int, want: Sequence[str], seeds: str, test_grid: int,
-            offsets: int, fd_step: float, levels: Sequence[int], noises, step_tol: float, max_halvings: int,
-            keep: dict | None = None, fd_start: float | None = None, halvings: int | None = None,
-            tested: dict | None = None) -> list[BoundPoint]:
-        """`at` on the replicate sets first … first + R − 1 at the service's level; `keep`, when given, is filled
-        with {(noise index, θ index): the raw data a precision plan needs (`precision.Raw`)}; a precision look's
-        FD stages start at `fd_start` and halve at most `halvings` times (None: `fd_step`, `max_halvings`; the
-        axis offsets keep `fd_step` as their base), and where `tested` {θ index: mask or None} gives a mask over
-        θ*'s test points (the grid's other points, then the offsets) only those are rendered and tested."""
+    def _at(self, thetas: np.ndarray, fd_step: np.ndarray, R: int, first: int, spp: int, want: Sequence[str],
+            seeds: str, test_grid: int, offsets: int, levels: Sequence[int], noises, step_tol: float,
+            max_halvings: int, keep: dict | None = None, fd_start: np.ndarray | None = None,
+            halvings: int | None = None, tested: dict | None = None) -> list[BoundPoint]:
+        """`at` on the replicate sets first … first + R − 1 at the service's level, θ*'s first FD step `fd_step`
+        (T,); `keep`, when given, is filled with {(noise index, θ index): the raw data a precision plan needs
+        (`precision.Raw`)}; a precision look's FD stages start at `fd_start` (T,) and halve at most `halvings`
+        times (None: `fd_step`, `max_halvings`; the axis offsets keep `fd_step` as their base), and where `tested`
+        {θ index: mask or None} gives a mask over θ*'s test points (the grid's other points, then the offsets)
+        only those are rendered and tested."""
         p = self.params
         grid = p.grid(test_grid)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
@@ -155,7 +161,7 @@ class AtTheta(RenderSets):
         tests = []  # per θ*: (its grid points, its offsets)
         for i, theta in enumerate(thetas):
             near = np.flatnonzero(np.abs((grid - theta) / (p.upper - p.lower)).max(axis=1) > 1e-9)
-            offs = axis_offsets(p, theta, offsets, fd_step)
+            offs = axis_offsets(p, theta, offsets, float(fd_step[i]))
             mask = None if tested is None else tested.get(i)
             if mask is not None:
                 near, offs = near[mask[:len(near)]], offs[mask[len(near):]]

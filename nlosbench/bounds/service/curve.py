@@ -65,7 +65,7 @@ class Curves(RenderSets):
               barankin: bool = False, zzb: bool = True, prior=None, noises=None, fd_step: float | None = None,
               gradient: str = "fd", ad: dict | None = None, check_step: bool = True, step_tol: float = 0.1,
               precision=None, budget: int | None = None, looks: int = 2, quote=None,
-              max_halvings: int = 3, offsets: int = 4, quote_step: float | None = None) -> Curve:
+              max_halvings: int = 3, offsets: int = 4, quote_step=None) -> Curve:
         """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders; with a precision target, the
         interval bounds at the θ it quotes to that target.
 
@@ -137,10 +137,10 @@ class Curves(RenderSets):
         offsets : int, optional
             The quoted bounds' axis offsets ±ξ·2^k (k < offsets) per side as extra HCR test points (`at`); 0: the
             curve's grid Δ and Δ → 0 only.
-        quote_step : float, optional
-            The quoted bounds' first FD step ξ (halved per θ until F settles); None: `fd_step`, else the grid's
-            smallest spacing. Where L(θ) is smooth over centimetres a large start costs the fewest renders; where an
-            edge crosses pixels the halvings reach the step it needs.
+        quote_step : float or array_like of shape (Q,), optional
+            The quoted bounds' first FD step ξ (halved per θ until F settles), one for all or one per quoted θ;
+            None: `fd_step`, else the grid's smallest spacing. Where L(θ) is smooth over centimetres a large start
+            costs the fewest renders; where an edge crosses pixels a small one saves the halvings down to it.
 
         Returns
         -------
@@ -155,7 +155,7 @@ class Curves(RenderSets):
             raise ValueError("a bound curve needs at least 3 increasing grid points")
         R = _need_replicates(replicates)
         _check_step(fd_step or 1.0, step_tol, max_halvings)
-        _check_step(quote_step or 1.0, step_tol, max_halvings)
+        _check_step(1.0 if quote_step is None else quote_step, step_tol, max_halvings)
         if isinstance(offsets, bool) or not isinstance(offsets, (int, np.integer)) or offsets < 0:
             raise ValueError(f"offsets must be an integer >= 0, got {offsets!r}")
         kinds = ("hcr", "crlb") if crlb else ("hcr",)
@@ -201,7 +201,8 @@ class Curves(RenderSets):
             zzbs[j] = self._zzb(Xd, T, noise, Wflat, prior, spp) if zzb and not zzb_reason else None
         precise = [] if precision is None else self.at(
             quoted[:, None], spp, kinds, seeds, R, quote_test_grid(self.params, T), offsets,
-            fd_step=quote_step or fd_step or float(np.diff(T).min()), noises=noises, step_tol=step_tol,
+            fd_step=quote_step if quote_step is not None else fd_step or float(np.diff(T).min()), noises=noises,
+            step_tol=step_tol,
             max_halvings=max_halvings, precision=precision, budget=budget, looks=looks)
         return Curve(points, zzbs, zzb_reason, precise)
 

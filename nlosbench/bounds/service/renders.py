@@ -76,15 +76,16 @@ class RenderSets:
         pts = np.asarray(points, dtype=np.float64).reshape(-1, self.params.dim)
         return self.bank.sets(pts, spp, PURPOSE, range(first, first + R), seeds == "common", desc)
 
-    def _stencils(self, thetas: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
-        """FD stencil points (T, P, 2, P): θ ± ξ e_j clipped into Θ (one-sided at its edge), and their
-        separations (T, P)."""
+    def _stencils(self, thetas: np.ndarray, step) -> tuple[np.ndarray, np.ndarray]:
+        """FD stencil points (T, P, 2, P): θ ± ξ e_j clipped into Θ (one-sided at its edge), ξ one step or one per
+        θ (T,), and their separations (T, P)."""
         p = self.params
         T = len(thetas)
+        xi = per_theta(step, T)
         st = np.repeat(thetas[:, None, None, :], 2, axis=2).repeat(p.dim, axis=1)  # (T, P, 2, P)
         for j in range(p.dim):
-            st[:, j, 0, j] = np.minimum(thetas[:, j] + step, p.upper[j])
-            st[:, j, 1, j] = np.maximum(thetas[:, j] - step, p.lower[j])
+            st[:, j, 0, j] = np.minimum(thetas[:, j] + xi, p.upper[j])
+            st[:, j, 1, j] = np.maximum(thetas[:, j] - xi, p.lower[j])
         sep = np.stack([st[:, j, 0, j] - st[:, j, 1, j] for j in range(p.dim)], axis=1).reshape(T, p.dim)
         if np.any(sep <= 0):
             raise ValueError(f"FD step {step} leaves no room inside Θ")
@@ -118,8 +119,9 @@ class RenderSets:
         return torch.from_numpy(np.stack([s.rounds["central"] for s in stages], axis=1))
 
     def _stages(self, thetas: np.ndarray, center: torch.Tensor | None, spp: int, seeds: str, R: int,
-                step: float, first: int = 0, purpose: str = PURPOSE, sided: bool = True) -> list[Stage]:
-        """One FD Stage at step ξ per θ of thetas (T, P), R rounds, each independent of the others and with
+                step, first: int = 0, purpose: str = PURPOSE, sided: bool = True) -> list[Stage]:
+        """One FD Stage at step ξ (one for all, or one per θ) per θ of thetas (T, P), R rounds, each independent of
+        the others and with
         common random numbers inside each stencil: the central differences of round r's stencil renders (θ ± ξ e_j
         clipped into Θ) and, from a render of θ under the stencil's seed, the forward and backward differences —
         the one-sided variants the step check needs near a kink (`fd_step`). Common seeds: round r is replicate
@@ -129,7 +131,8 @@ class RenderSets:
         leaves θ's render out (one step, no check: the one-sided variants would decide nothing; with common seeds
         `center` costs nothing and is used regardless). Rounds are the replicate sets first … first + R − 1."""
         T, P = thetas.shape
-        st, sep = self._stencils(thetas, step)
+        xi = per_theta(step, T)
+        st, sep = self._stencils(thetas, xi)
         if seeds == "independent":
             own = 1 if sided else 0
             reqs = [Request.of(pt, spp, self.bank.seed(purpose + "-stencil", spp, thetas[t], r))
@@ -151,19 +154,20 @@ class RenderSets:
                     rounds["forward"] = _diff(X[:, t, :, 0], c, fwd)
                 if np.all(bwd > 0):
                     rounds["backward"] = _diff(c, X[:, t, :, 1], bwd)
-            out.append(Stage(step, rounds, self.group))
+            out.append(Stage(float(xi[t]), rounds, self.group))
         return out
 
-    def _refine(self, thetas: np.ndarray, stage_fn, weights: dict, step: float, step_tol: float,
+    def _refine(self, thetas: np.ndarray, stage_fn, weights: dict, step, step_tol: float,
                 max_halvings: int) -> list[list[Stage]]:
-        """FD stages (coarse to fine) per θ of thetas (T, P): ξ, then ξ/2, ξ/4 … for the θ whose step has not
-        converged (`fd_step.halving`) for every weight in `weights` ({noise index: [w per θ]}), at most
-        `max_halvings` times. stage_fn(index array, ξ) gives the stages of those θ."""
+        """FD stages (coarse to fine) per θ of thetas (T, P): ξ, then ξ/2, ξ/4 … (ξ one step, or one per θ) for
+        the θ whose step has not converged (`fd_step.halving`) for every weight in `weights` ({noise index: [w per
+        θ]}), at most `max_halvings` times. stage_fn(index array, ξ (one per index)) gives the stages of those θ."""
         _check_step(step, step_tol, max_halvings)
+        xi = per_theta(step, len(thetas))
         stages: list[list[Stage]] = [[] for _ in thetas]
         active = np.arange(len(thetas))
         for k in range(max_halvings + 1):
-            for i, stage in zip(active, stage_fn(active, step / 2**k), strict=True):
+            for i, stage in zip(active, stage_fn(active, xi[active] / 2**k), strict=True):
                 stages[i].append(stage)
             if k == max_halvings:
                 break
@@ -238,12 +242,24 @@ def _flat(J: torch.Tensor) -> np.ndarray:
 
 
 def _check_step(step, step_tol, max_halvings) -> None:
-    if not (isinstance(step, (int, float)) and math.isfinite(step) and step > 0):
-        raise ValueError(f"fd_step must be a positive number of parameter units, got {step!r}")
+    """ValueError unless `step` is a positive number (or a sequence of them: one per θ), step_tol > 0 and
+    max_halvings an integer in [0, 12]."""
+    steps = step if isinstance(step, (list, tuple, np.ndarray)) else [step]
+    if len(steps) == 0 or not all(isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
+                                  and math.isfinite(v) and v > 0 for v in steps):
+        raise ValueError(f"fd_step must be a positive number of parameter units (or one per θ), got {step!r}")
     if not (isinstance(step_tol, (int, float)) and math.isfinite(step_tol) and step_tol > 0):
         raise ValueError(f"step_tol must be a positive number (e.g. 0.1: F within 10 %), got {step_tol!r}")
     if isinstance(max_halvings, bool) or int(max_halvings) != max_halvings or not 0 <= max_halvings <= 12:
         raise ValueError(f"max_halvings must be an integer in [0, 12], got {max_halvings!r}")
+
+
+def per_theta(step, T: int) -> np.ndarray:
+    """An FD step for each of T points (T,): one step for all, or one per θ (checked by `_check_step`)."""
+    steps = np.asarray(step, dtype=np.float64).reshape(-1)
+    if steps.size not in (1, T):
+        raise ValueError(f"fd_step: one step or one per θ ({T}), got {steps.size}")
+    return np.broadcast_to(steps, (T,)).copy()
 
 
 def _need_replicates(R) -> int:
