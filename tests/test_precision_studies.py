@@ -121,6 +121,16 @@ def test_a_small_first_step_up_to_a_theta_starts_the_quoted_bounds_there(tmp_pat
     assert "at ξ = 0.02" in rows[0.8], rows[0.8]
 
 
+def test_a_trials_study_starts_each_theta_stars_fd_step_where_asked(tmp_path):
+    """`fd_step: [0.005, 0.02]` at θ* = 0.3 and 0.7 (one halving): each θ*'s CRLB checks its own first step (the
+    reason names ξ = 0.005 at 0.3 and 0.02 at 0.7, and not the other's)."""
+    rc, out = _run(tmp_path, [{**TRIALS, "theta": [0.3, 0.7], "fd_step": [0.005, 0.02]}])
+    assert rc == 0
+    rows = {round(float(r["theta_x"]), 6): r["crlb_reason"] for r in read_csv(out / "t" / "bounds.csv")}
+    assert "at ξ = 0.005" in rows[0.3] and "0.02" not in rows[0.3], rows[0.3]
+    assert "at ξ = 0.02" in rows[0.7] and "0.005" not in rows[0.7], rows[0.7]
+
+
 def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     rc, out = _run(tmp_path, [TRIALS, BOUNDS])
     assert rc == 0
@@ -137,6 +147,8 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     ({**TRIALS, "precision_budget": 10**6}, "t.precision_budget: a budget needs a precision target"),
     ({**TRIALS, "precision": 0.2, "looks": 0}, "studies[0].looks: expected an integer in [1, 64], got 0"),
     ({**TRIALS, "precision": 0.2, "replicates": 2}, "t.replicates: a precision target needs >= 3 replicates"),
+    ({**TRIALS, "fd_step": [0.01, 0.02]}, "t.fd_step: one step, or one per θ* (1), got 2"),
+    ({**TRIALS, "fd_step": [0.01, -0.02]}, "studies[0].fd_step[1]: expected a finite number > 0"),
     ({**TRIALS, "precision": 0.2, "bounds": ["hcr_neff"]}, "t.precision: a precision target needs an interval bound"),
     ({**TRIALS, "mode": "bayesian", "theta": None, "hcr_grid": 5, "precision": 0.2},
      "t.precision: a precision target applies to the bounds at θ* (local mode)"),

@@ -114,6 +114,15 @@ ESTIMATOR = {
                                 "mixed | auto), step, rounds, crn, spp, ad, ad_params, verdicts; auto picks per "
                                 "parameter from `verdicts` (a gradients study's verdicts.json) or the prior"),
 }
+def positive_steps(value, path: str):
+    """A Field type: one FD step > 0, or a non-empty list of them (one per θ*; its length is checked by `plan`)."""
+    if isinstance(value, list):
+        if not value:
+            raise ConfigError(path, "expected a step > 0 or a list of one per θ*, got []")
+        return [positive_number(v, f"{path}[{k}]") for k, v in enumerate(value)]
+    return positive_number(value, path)
+
+
 SCHEMA = {
     "mode": Field(str, "local", "local: fixed θ*, the HCR interval and CRLB with a bias test; bayesian: θ* drawn "
                                 "from the prior per trial, the Bayesian MSE against the Ziv–Zakai bound",
@@ -141,7 +150,9 @@ SCHEMA = {
                                 "table (Bonferroni over its tests)"),
     "hcr_grid": Field(int, 21, "HCR test points (and the bank grid, and the ZZB grid) per parameter over Θ"),
     "hcr_offsets": Field(int, 4, "HCR test offsets ±ξ·2^k, k < hcr_offsets, along each parameter"),
-    "fd_step": Field(positive_number, 0.01, "ξ: FD step of the Δ → 0 term and the CRLB, and the smallest HCR offset"),
+    "fd_step": Field(positive_steps, 0.01, "ξ: first FD step of the Δ → 0 term and the CRLB, and the smallest HCR "
+                     "offset; one for every θ*, or a list of one per θ* (small where an edge crosses pixels, large "
+                     "where L(θ) is smooth)"),
     "step_tol": STEP_TOL,
     "max_halvings": MAX_HALVINGS,
     **precise.KEYS,
@@ -273,6 +284,8 @@ def plan(ctx, cfg: dict) -> Plan:
     if bayes and cfg["precision"] is not None:
         raise ConfigError(f"{sid}.precision", "a precision target applies to the bounds at θ* (local mode); "
                                               "bayesian mode has none")
+    if isinstance(cfg["fd_step"], list) and len(cfg["fd_step"]) != len(thetas):
+        raise ConfigError(f"{sid}.fd_step", f"one step, or one per θ* ({len(thetas)}), got {len(cfg['fd_step'])}")
     precise.check(cfg, sid, cfg["bounds"])
     noises = ctx.select_noises(cfg["noise"], f"{sid}.noise")
     settings = parse_settings(cfg["estimators"], f"{sid}.estimators", ctx.model)
@@ -461,7 +474,7 @@ def run(ctx, cfg: dict) -> dict:
             io.write_exr(folder / "images" / f"clean_{i:03d}.exr", mean.reshape(*mean.shape[:2], -1))
         want = cfg["bounds"]
         points = svc.at(p.thetas, p.bound_spp, want, cfg["seeds"], p.replicates, cfg["hcr_grid"], cfg["hcr_offsets"],
-                        cfg["fd_step"], cfg["levels"], noises=list(p.noises), step_tol=cfg["step_tol"],
+                        _steps(cfg, p), cfg["levels"], noises=list(p.noises), step_tol=cfg["step_tol"],
                         max_halvings=cfg["max_halvings"], **precise.at_kwargs(cfg)) if want else []
         precision = precise.records(points, len(p.thetas), params.names)
         bound_rows = [{"theta_index": i % len(p.thetas), **pt.row(params.names)} for i, pt in enumerate(points)]
@@ -537,6 +550,11 @@ def start_cov(params, theta: np.ndarray, width: float | None, est, grid_points: 
     return np.diag((width * span) ** 2 / 12), "truth"
 
 
+def _steps(cfg: dict, p: Plan) -> np.ndarray:
+    """The first FD step of each θ* (T,) from `fd_step` (one, or one per θ*: `plan` checked the length)."""
+    return np.broadcast_to(np.asarray(cfg["fd_step"], dtype=np.float64).reshape(-1), (len(p.thetas),)).copy()
+
+
 def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: BoundService) -> dict:
     """(noise, θ index, label) → each local-trials row's `Prediction` (or why none): the estimator's
     `predicted_variance` from a `Linearisation` at θ* built from the bank. J: the bound service's R independent
@@ -555,10 +573,11 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                 for s in p.settings for i in range(len(p.thetas)) for j in p.noises}
     reps = svc.replicates(p.thetas, p.bound_spp, cfg["seeds"], R, "bound renders at θ*").double()  # (R, T, *S)
     own = getattr(model, "noise_variance", None)
-    Js = svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, cfg["fd_step"])  # (R, T, P, N): the bound's own
+    xi = _steps(cfg, p)
+    Js = svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, xi)  # (R, T, P, N): the bound's own
     # the response J₀: the same rounds at the bound's finer steps ξ / 2^k (rendered by `at` where F rose), the
     # finest whose G = JᵀW J₀ is resolved (`predict.choose_response`)
-    steps = [cfg["fd_step"] / 2**k for k in range(1, cfg["max_halvings"] + 1)] if own is None else []
+    steps = [xi / 2**k for k in range(1, cfg["max_halvings"] + 1)] if own is None else []
     finer = [(h, svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, h)) for h in steps]
     out: dict = {}
     for si, s in enumerate(p.settings):
@@ -591,7 +610,7 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                     out[key] = getattr(est, "no_prediction", Estimator.no_prediction)
                     continue
                 Ji, wi = Js[:, i].reshape(R, params.dim, -1), weight(noise, L)
-                resp = choose_response(Ji.numpy(), [(h, J0[:, i].reshape(R, params.dim, -1).numpy())
+                resp = choose_response(Ji.numpy(), [(float(h[i]), J0[:, i].reshape(R, params.dim, -1).numpy())
                                                     for h, J0 in finer], wi)
                 lin = Linearisation(theta.copy(), Ji, wi, variance(noise, L), render_var(p.n_eff // p.clusters),
                                     render_var, jcov, np.zeros((params.dim, params.dim)), channels=C,
@@ -611,7 +630,7 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                 if pred is not None and steps:
                     pred = dataclasses.replace(pred, note=pred.note + (
                         f"; response from FD at ξ = {resp[0]:.3g}" if resp is not None else
-                        f"; response: the ξ = {cfg['fd_step']:g} Jacobian (no finer step resolved)"))
+                        f"; response: the ξ = {xi[i]:g} Jacobian (no finer step resolved)"))
                 out[key] = pred if pred is not None else est.no_prediction
     return out
 

@@ -105,8 +105,8 @@ class RenderSets:
             As in `at`.
         R : int
             The number of rounds (replicate sets 0 … R − 1).
-        step : float
-            The FD step ξ, parameter units (stencils clipped into Θ turn one-sided).
+        step : float or array_like of shape (T,)
+            The FD step ξ, parameter units (stencils clipped into Θ turn one-sided): one, or one per θ.
 
         Returns
         -------
@@ -115,7 +115,7 @@ class RenderSets:
         """
         _check(seeds, R)
         pts = np.asarray(thetas, dtype=np.float64).reshape(-1, self.params.dim)
-        stages = self._stages(pts, None, spp, seeds, R, float(step))
+        stages = self._stages(pts, None, spp, seeds, R, per_theta(step, len(pts)))
         return torch.from_numpy(np.stack([s.rounds["central"] for s in stages], axis=1))
 
     def _stages(self, thetas: np.ndarray, center: torch.Tensor | None, spp: int, seeds: str, R: int,
