@@ -670,10 +670,12 @@ def smoke(block: dict) -> dict:
     ≤ 20 bootstrap resamples, at most 3 iterations per fit (the budget, which caps plug-in estimators too)
     and the built-in estimators' options capped (`SMOKE_OPTIONS`: spp ≤ 4, also a lattice segment's, grid num ≤ 5,
     starts ≤ 2, ...);
-    gradient renders ≤ 4 spp and 1 FD round."""
+    gradient renders ≤ 4 spp and 1 FD round; a first FD step per θ* follows its θ*."""
     b = copy.deepcopy(block)
     if b["theta"] is not None:
         b["theta"] = smoke_grid(b["theta"], 2)
+    if isinstance(b["fd_step"], list):  # one per θ*: those of the θ* kept, the list's ends
+        b["fd_step"] = smoke_grid(b["fd_step"], 2)
     iters = b["budget"].get("iterations")
     b["budget"] = {**b["budget"], "iterations": min(iters or SMOKE_OPTIONS["iterations"], SMOKE_OPTIONS["iterations"])}
     b["estimators"] = [{**e, "options": _smoke_options(e["options"]), "gradient": _smoke_gradient(e["gradient"])}
