@@ -90,6 +90,27 @@ def test_fresh_rounds_go_only_where_the_target_is_unmet_and_the_maps_are_the_rep
         assert math.isclose(fp.precise[0].bounds["crlb"].point, -math.log10(F), rel_tol=1e-9)
 
 
+def test_one_look_renders_the_pilot_alone_and_quotes_it_at_the_full_level():
+    """`looks=1` with a target the pilot cannot meet (blob2d's x, rendering noise 2, seed 2, ±1 %): the same renders
+    as the call without a target (the pilot's 3 rounds, no fresh one), the CRLB's point its unbiased F from those
+    rounds, its ends at the full level 0.95, and the record says it was not met and what one fresh look would cost."""
+    def call(**kw):
+        bank = RenderBank(_blob(2.0), seed=2)
+        (fp,) = BoundService(bank, [nb.noise.AWGN(SIGMA)]).fisher([[0.35]], 16, **FD, **kw)
+        return fp, bank.renders
+
+    (plain, n_plain), (one, n_one) = call(), call(precision=0.01, looks=1)
+    pt = one.precise[0]
+    assert n_one == n_plain and one.rounds.shape[0] == 3
+    torch.testing.assert_close(one.rounds, plain.rounds, rtol=0, atol=0)
+    flat = one.rounds.reshape(3, -1)
+    G = flat @ flat.T
+    F = float((G.sum() - G.diagonal().sum()) / 6) / SIGMA**2
+    assert math.isclose(pt.bounds["crlb"].point, -math.log10(F), rel_tol=1e-9)
+    assert pt.bounds["crlb"].level == 0.95 and pt.precision.level == 0.95 and pt.precision.looks == 1
+    assert not pt.precision.met and 0 < pt.precision.extra_pixel_samples < math.inf
+
+
 @pytest.mark.parametrize("bad, match", [
     (dict(precision=0.2, rounds=2), "needs replicates >= 3"),
     (dict(budget=10**6), "a budget needs a precision target"),
