@@ -11,8 +11,8 @@ the model smoothed by ξ (flag "fd-smoothed": its ends are confidence limits of 
 `precision` target p, fresh FD rounds are added at each view only until its score's interval is within ±p for every
 noise model (the stopping rule of bounds.precision, within `precision_budget` pixel-samples per view): the score,
 F̂ and the maps are then the reported look's, at its level, and each row says whether the view met the target, or,
-once the whole map is known, whether its information is negligible (`resolution`: its upper limit ≤ 1 % of the
-map's largest) or left open.
+once the whole map is known, whether its information is negligible (`resolution`: each parameter's upper limit
+≤ 1 % of the map's largest) or left open.
 Beside the unbiased mean FI, `plugin_mean_fisher` is what the
 paper's method gives: one FD Jacobian's Ĵᵀ W Ĵ per pixel (averaged over the rounds, each one such estimate), whose
 expectation exceeds the information by the Jacobian's rendering noise Σ w Var(Ĵ): small where the object is seen,
@@ -102,6 +102,9 @@ def _viewpoint_task(model: ForwardModel, item: dict) -> tuple:
            "mean_fisher": [[float(np.mean(mp)) for mp in nm] for nm in maps],
            "plugin_mean_fisher": [[float(np.mean(mp)) for mp in nm] for nm in plugin],
            "infinite_pixels": [[int(np.isinf(mp).sum()) for mp in nm] for nm in maps],
+           # per noise and parameter: log10 of F̂_jj and of its upper limit (NaN where that end is not a limit)
+           "information": [[(-b.point, math.nan if b.lower_note else -b.lower) for b in fp.crlb[k]]
+                           for k in range(len(item["noises"]))],
            "scores": _scores(fp, item["noises"], model.channels), "renders": renders}
     if item["keep"]:
         rec["images"] = (fp.L.numpy(), maps)
@@ -235,6 +238,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                         "mean_fisher": rec["mean_fisher"][k][p],
                         "plugin_mean_fisher": rec["plugin_mean_fisher"][k][p],
                         "infinite_pixels": rec["infinite_pixels"][k][p],
+                        "log10_information": rec["information"][k][p][0] if "information" in rec else math.nan,
+                        "information_upper": rec["information"][k][p][1] if "information" in rec else math.nan,
                         **score_cells(rec["scores"][k], list(m.params.names)),
                         **({"score_met": rec["scores"][k]["met"], "score_reached": rec["scores"][k]["reached"],
                             "fd_rounds": rec["scores"][k]["rounds"],
@@ -244,8 +249,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                 )
     if cfg["precision"] is not None:  # met / negligible / open, once the whole map is known
         for noise in map(str, ctx.noises):
-            sel = {(r["i"], r["j"]): r for r in rows if r["noise"] == noise}
-            state = dict(zip(sel, resolution(list(sel.values())), strict=True))
+            state = resolution([r for r in rows if r["noise"] == noise])
             for r in rows:
                 if r["noise"] == noise:
                     r["score_resolution"] = state[r["i"], r["j"]]
@@ -268,25 +272,43 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     return summary  # the heat maps: report() draws them from viewpoints.csv
 
 
-#: a view whose A-optimal information (tr F̂⁻¹)⁻¹ has its upper limit at most this share of the map's largest
-#: (its score's lower limit ≥ the best view's score / NEGLIGIBLE) is resolved as negligible without meeting ±p
+#: a view not met is resolved as negligible where the upper limit of each parameter's information F̂_jj is at most
+#: this share of the map's largest F̂_jj (point) for that parameter
 NEGLIGIBLE = 0.01
 
 
-def resolution(views: list[dict]) -> list[str]:
-    """Per view of one noise model's map (rows with score_met, log10_score, score_lower in log10 m²): "met" (its score
-    within ±p), "negligible" (not met, but its information's upper limit 1/10^score_lower is at most NEGLIGIBLE × the
-    map's largest point 1/10^min(log10_score): the view is known to carry under 1 % of the best view's information),
-    else "open"."""
-    best = min((float(r["log10_score"]) for r in views if math.isfinite(float(r["log10_score"]))), default=math.inf)
-    out = []
-    for r in views:
-        if r["score_met"] in (True, "True"):
-            out.append("met")
-        elif r["score_lower_note"] == "" and float(r["score_lower"]) >= best - math.log10(NEGLIGIBLE):
-            out.append("negligible")
+def resolution(rows: list[dict]) -> dict[tuple, str]:
+    """Per view (i, j) of one noise model's map (its parameter rows, with score_met, log10_information and
+    information_upper in log10 of 1/units²): "met" (its A-optimal score within ±p); "negligible" (not met, but every
+    parameter's information has an upper limit at most NEGLIGIBLE × the map's largest point for that parameter: the
+    view is known to carry under 1 % of the best view's information about each, and tr F⁻¹ ≥ Σ_j 1/F_jj, so its score
+    is at least 100× the best view's Σ_j 1/F_jj); else "open". Rows without the information columns (older runs)
+    use the score instead: its lower limit at least the best view's score / NEGLIGIBLE."""
+    def num(r, key):
+        v = float(r.get(key, math.nan))
+        return v if math.isfinite(v) else math.nan
+
+    views: dict[tuple, list[dict]] = {}
+    for r in rows:
+        views.setdefault((r["i"], r["j"]), []).append(r)
+    per_param = any(math.isfinite(num(r, "information_upper")) for r in rows)
+    best: dict[str, float] = {}
+    for r in rows:
+        v = num(r, "log10_information") if per_param else -num(r, "log10_score")
+        if math.isfinite(v):
+            best[r["param"]] = max(best.get(r["param"], -math.inf), v)
+    cut = math.log10(NEGLIGIBLE)
+    out = {}
+    for key, vrows in views.items():
+        if vrows[0]["score_met"] in (True, "True"):
+            out[key] = "met"
+        elif per_param and all(num(r, "information_upper") <= best.get(r["param"], math.nan) + cut for r in vrows):
+            out[key] = "negligible"
+        elif not per_param and vrows[0]["score_lower_note"] == "" and \
+                -num(vrows[0], "score_lower") <= max(best.values(), default=math.nan) + cut:
+            out[key] = "negligible"
         else:
-            out.append("open")
+            out[key] = "open"
     return out
 
 
@@ -334,25 +356,26 @@ def _precision_lines(rows: list[dict], results: dict) -> list[str]:
         return []
     views = {(r["noise"], r["i"], r["j"]): r for r in rows}  # one score per view and noise (parameter rows repeat it)
     out = ["", f"**Precision.** Target: each view's A-optimal score (of the FD-smoothed model, ξ = "
-               f"{results['fd_step']:g}) within ±{results['precision'] * 100:.3g} %, or its information's upper limit "
-               f"at most {NEGLIGIBLE * 100:g} % of the map's largest (negligible). The open views' cost to meet the "
-               "target is each one's predicted fresh look, summed (∞ where no number of rounds is predicted to).", "",
+               f"{results['fd_step']:g}) within ±{results['precision'] * 100:.3g} %, or the upper limit of "
+               f"each parameter's information at most {NEGLIGIBLE * 100:g} % of the map's largest for it "
+               "(negligible). The open views' cost to meet the target is each one's predicted fresh look, summed "
+               "(∞ where no number of rounds is predicted to).", "",
            "| noise | views met | negligible | FD rounds (min–max) | open: cost to meet | open (offset cm: reached) |",
            "|---|---|---|---|---|---|"]
     u = float(results["step"]) * 100
     c = (int(results["num"]) - 1) / 2
     for noise in results["noises"]:
         sel = [r for (n, _, _), r in views.items() if n == noise]
-        state = resolution(sel)
-        missed = sorted((r for r, s in zip(sel, state, strict=True) if s == "open"),
-                        key=lambda r: -float(r["score_reached"]))
+        state = resolution([r for r in rows if r["noise"] == noise])
+        missed = sorted((r for r in sel if state[r["i"], r["j"]] == "open"), key=lambda r: -float(r["score_reached"]))
         rounds = [int(r["fd_rounds"]) for r in sel]
         named = ", ".join(f"({(int(r['i']) - c) * u:.3g}, {(int(r['j']) - c) * u:.3g}): "
                           f"±{float(r['score_reached']) * 100:.3g} %" for r in missed[:20])
         more = f" and {len(missed) - 20} more" if len(missed) > 20 else ""
         extra = sum(float(r.get("score_extra_pixel_samples", math.nan)) for r in missed)
         cost = "–" if not missed else "∞" if extra == math.inf else f"{extra:.3g} pixel-samples"
-        out.append(f"| {noise_text(noise)} | {state.count('met')} of {len(sel)} | {state.count('negligible')} | "
+        counts = list(state.values())
+        out.append(f"| {noise_text(noise)} | {counts.count('met')} of {len(sel)} | {counts.count('negligible')} | "
                    f"{min(rounds)}–{max(rounds)} | {cost} | {named + more or 'none'} |")
     return out
 
