@@ -15,22 +15,17 @@ import json
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from nlosbench.io import read_csv
-from nlosbench.studies import bayesopt
-
-SAME = ("at", "axes", "target", "fd_step", "reduce")
+from nlosbench.studies import bayesopt, viewpoint_search
 
 
 def _block(run: Path, kind: str) -> tuple[dict, dict, Path]:
-    """The run's config, its only study of type `kind` and that study's folder."""
-    cfg = yaml.safe_load((run / "config.yaml").read_text())
-    found = [(k, b) for k, b in enumerate(cfg["studies"]) if b["type"] == kind]
-    if len(found) != 1:
-        raise SystemExit(f"{run}: expected one `{kind}` study, found {len(found)}")
-    k, block = found[0]
-    return cfg, block, run / (block.get("id") or f"{k:02d}-{kind}")  # the runner's study folder
+    """`viewpoint_search.run_study`, its error as the script's."""
+    try:
+        return viewpoint_search.run_study(run, kind)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
 
 
 def _pixel_samples(run: Path, cfg: dict, block: dict, study: Path) -> int:
@@ -43,7 +38,7 @@ def _pixel_samples(run: Path, cfg: dict, block: dict, study: Path) -> int:
 def check(map_run: Path, search_run: Path, replays: int, quantile: float, seed: int) -> dict:
     mcfg, grid, gdir = _block(map_run, "viewpoints")
     scfg, search, sdir = _block(search_run, "viewpoint-search")
-    differ = [k for k in SAME if grid.get(k) != search.get(k)]
+    differ = [k for k in viewpoint_search.GRID_KEYS if grid[k] != search[k]]
     if differ or mcfg["scene"] != scfg["scene"] or mcfg["noise"] != scfg["noise"]:
         raise SystemExit(f"the map and the search differ in {', '.join(differ) or 'scene or noise'}")
     conf = read_csv(sdir / "confirmed.csv")

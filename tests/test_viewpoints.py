@@ -78,7 +78,8 @@ def test_the_reports_largest_transition_falls_where_the_camera_loses_sight_of_th
     ctx, _, res = study
     rows = list(csv.DictReader(open(ctx.dir / "vp" / "viewpoints.csv")))
     for noise in map(str, ctx.noises):
-        u0, med, q = viewpoints.profile(rows, noise, "object_position")
+        u0, q = viewpoints.profile(rows, noise, "object_position")
+        med = q[1]
         assert np.allclose(u0, [-0.3, 0.0, 0.3]) and np.all(q[0] <= med) and np.all(med <= q[2])
         steps = viewpoints.transitions(u0, med)
         assert [x for x, _ in steps] == pytest.approx([-0.15, 0.15])
@@ -146,25 +147,18 @@ def test_a_precision_target_per_view_resolves_the_seen_views_within_each_views_b
 def test_a_view_is_negligible_only_when_each_parameters_information_upper_limit_is_under_1_percent_of_the_best():
     """The rule on hand-made rows (log10 of F̂_jj and of its upper limit, 1/units², two parameters a and b): the
     map's largest points are 6 (a) and 4 (b), so a view not met is negligible when a's upper limit is ≤ 4 and b's ≤ 2;
-    one parameter above its cut, or an upper end that is not a limit (NaN), leaves it open; met stays met. Rows
-    without the information columns (older runs) fall back to the A-optimal score: its lower limit ≥ the best score
-    + 2 decades."""
+    one parameter above its cut, or an upper end that is not a limit (NaN), leaves it open; met stays met; an upper
+    limit of 0 (log10 −inf: the information shown below any positive value) is negligible."""
     def view(i, a, b, met=False):
         return [{"i": i, "j": 0, "param": n, "score_met": str(met), "log10_information": str(pt),
-                 "information_upper": str(up), "score_lower_note": ""} for n, (pt, up) in (("a", a), ("b", b))]
+                 "information_upper": str(up)} for n, (pt, up) in (("a", a), ("b", b))]
     rows = [*view(0, (6.0, 6.1), (3.0, 3.2), met=True), *view(1, (2.0, 4.0), (0.5, 2.0)),
             *view(2, (2.0, 4.1), (0.5, 1.0)), *view(3, (1.0, 3.0), (3.9, 4.0)), *view(4, (1.0, 2.0), (0.0, "nan")),
-            *view(5, (float("-inf"), 1.0), (float("-inf"), 0.5)), *view(6, (4.0, 4.5), (4.0, 4.2), met=True)]
+            *view(5, (float("-inf"), 1.0), (float("-inf"), 0.5)), *view(6, (4.0, 4.5), (4.0, 4.2), met=True),
+            *view(7, (float("-inf"), float("-inf")), (0.0, 1.0))]
     state = viewpoints.resolution(rows)
-    assert [state[i, 0] for i in range(7)] == ["met", "negligible", "open", "open", "open", "negligible", "met"]
-
-    def old(i, point, lower, met=False, note=""):
-        return {"i": i, "j": 0, "param": "a", "score_met": str(met), "log10_score": str(point),
-                "score_lower": str(lower), "score_lower_note": note}
-    rows = [old(0, -6.0, -6.1, met=True), old(1, -2.0, -3.9), old(2, -2.0, -4.0), old(3, -3.0, -4.1),
-            old(4, -1.0, -3.0, note="not a confidence limit"), old(5, float("inf"), 0.0)]
-    state = viewpoints.resolution(rows)
-    assert [state[i, 0] for i in range(6)] == ["met", "negligible", "negligible", "open", "open", "negligible"]
+    assert [state[i, 0] for i in range(8)] == ["met", "negligible", "open", "open", "open", "negligible", "met",
+                                               "negligible"]
 
 
 def test_camera_rig_moves_aims_and_restores_the_pose(study):

@@ -105,7 +105,7 @@ AIM = 0.8
 def check_precision(precision, budget, looks, want: Sequence[str], replicates: int) -> None:
     """ValueError (one line) unless precision is None or a finite number > 0 (relative half-width; or a sequence of
     them, one per θ), budget
-    None or a positive integer (pixel-samples, only with a precision), looks an integer ≥ 2, and, with a
+    None or a positive integer (pixel-samples, only with a precision), looks an integer ≥ 1, and, with a
     precision, an interval bound (hcr, crlb) is asked for from ≥ 3 replicates."""
     if budget is not None and (isinstance(budget, bool) or not isinstance(budget, (int, np.integer)) or budget < 1):
         raise ValueError(f"budget must be a positive integer number of pixel-samples or None, got {budget!r}")

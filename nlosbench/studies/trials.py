@@ -48,6 +48,7 @@ import torch
 from .. import estimators, io
 from ..bank import TRUTH
 from ..bounds import BoundService
+from ..bounds.service.renders import per_theta
 from ..diagnostics import resolve_gradient
 from ..diagnostics.images import label as gradient_label
 from ..estimators import BankGrid, Budget, Estimator, Problem
@@ -114,6 +115,8 @@ ESTIMATOR = {
                                 "mixed | auto), step, rounds, crn, spp, ad, ad_params, verdicts; auto picks per "
                                 "parameter from `verdicts` (a gradients study's verdicts.json) or the prior"),
 }
+
+
 def positive_steps(value, path: str):
     """A Field type: one FD step > 0, or a non-empty list of them (one per θ*; its length is checked by `plan`)."""
     if isinstance(value, list):
@@ -357,8 +360,8 @@ def cost(ctx, cfg: dict, p: Plan) -> Estimate:
                 # the response's FD stages at ξ/2 … ξ/2^max_halvings (the bound's own where it made them; ξ/2 counted)
                 k = T * R * 2 * P * max(cfg["max_halvings"] - (1 if want & {"hcr", "crlb"} else 0), 0)
                 renders, samples = renders + k, samples + k * bspp
-    for thetas, spp, sets, seeds in (g for gs in p.grids.values() for g in gs):  # made once by the bank; the bound
-        # grid's when they are the same
+    # made once by the bank; the bound grid's when they are the same
+    for thetas, spp, sets, seeds in (g for gs in p.grids.values() for g in gs):
         if not (spp == bspp and len(thetas) == G and sets <= R and seeds == cfg["seeds"]):
             renders, samples = renders + sets * len(thetas), samples + sets * len(thetas) * spp
     for s in p.settings:
@@ -474,7 +477,7 @@ def run(ctx, cfg: dict) -> dict:
             io.write_exr(folder / "images" / f"clean_{i:03d}.exr", mean.reshape(*mean.shape[:2], -1))
         want = cfg["bounds"]
         points = svc.at(p.thetas, p.bound_spp, want, cfg["seeds"], p.replicates, cfg["hcr_grid"], cfg["hcr_offsets"],
-                        _steps(cfg, p), cfg["levels"], noises=list(p.noises), step_tol=cfg["step_tol"],
+                        cfg["fd_step"], cfg["levels"], noises=list(p.noises), step_tol=cfg["step_tol"],
                         max_halvings=cfg["max_halvings"], **precise.at_kwargs(cfg)) if want else []
         precision = precise.records(points, len(p.thetas), params.names)
         bound_rows = [{"theta_index": i % len(p.thetas), **pt.row(params.names)} for i, pt in enumerate(points)]
@@ -550,11 +553,6 @@ def start_cov(params, theta: np.ndarray, width: float | None, est, grid_points: 
     return np.diag((width * span) ** 2 / 12), "truth"
 
 
-def _steps(cfg: dict, p: Plan) -> np.ndarray:
-    """The first FD step of each θ* (T,) from `fd_step` (one, or one per θ*: `plan` checked the length)."""
-    return np.broadcast_to(np.asarray(cfg["fd_step"], dtype=np.float64).reshape(-1), (len(p.thetas),)).copy()
-
-
 def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: BoundService) -> dict:
     """(noise, θ index, label) → each local-trials row's `Prediction` (or why none): the estimator's
     `predicted_variance` from a `Linearisation` at θ* built from the bank. J: the bound service's R independent
@@ -573,7 +571,7 @@ def predict(ctx, cfg: dict, p: Plan, cleans: dict, records: list[dict], svc: Bou
                 for s in p.settings for i in range(len(p.thetas)) for j in p.noises}
     reps = svc.replicates(p.thetas, p.bound_spp, cfg["seeds"], R, "bound renders at θ*").double()  # (R, T, *S)
     own = getattr(model, "noise_variance", None)
-    xi = _steps(cfg, p)
+    xi = per_theta(cfg["fd_step"], len(p.thetas))  # θ*'s first FD step (T,)
     Js = svc.fd_rounds(p.thetas, p.bound_spp, cfg["seeds"], R, xi)  # (R, T, P, N): the bound's own
     # the response J₀: the same rounds at the bound's finer steps ξ / 2^k (rendered by `at` where F rose), the
     # finest whose G = JᵀW J₀ is resolved (`predict.choose_response`)

@@ -146,26 +146,35 @@ def _matching(g: dict, cfg: dict, path: str, what: str) -> None:
                                 f"fd_rounds >= 3; it differs in {', '.join(differ)}")
 
 
-def _grid_from(ctx: RunContext, cfg: dict, sid: str) -> tuple[dict, Path]:
-    """The one `viewpoints` block of the run in `grid_from` (its config.yaml) and its
-    viewpoints.csv, checked to match this run's scene and noise models and this search."""
+def run_study(where: Path, kind: str) -> tuple[dict, dict, Path]:
+    """The config of the run in folder `where` (its config.yaml, which a run writes resolved: every default, every
+    study's id), its one study of type `kind` and that study's folder; ValueError (one line) otherwise."""
     import yaml
 
-    where, key = Path(cfg["grid_from"]), f"{sid}.grid_from"
-    try:  # a run writes its config resolved (every default, every study's id)
-        other = yaml.safe_load((where / "config.yaml").read_text())
+    try:
+        cfg = yaml.safe_load((Path(where) / "config.yaml").read_text())
     except (OSError, yaml.YAMLError) as e:
-        raise ConfigError(key, f"{where} is not a finished run's folder ({e})") from None
-    blocks = [(k, b) for k, b in enumerate(other.get("studies", [])) if b["type"] == "viewpoints"]
+        raise ValueError(f"{where} is not a finished run's folder ({e})") from None
+    blocks = [b for b in cfg.get("studies", []) if b["type"] == kind]
     if len(blocks) != 1:
-        raise ConfigError(key, f"{where} has {len(blocks)} `viewpoints` studies; one is needed")
-    k, g = blocks[0]
+        raise ValueError(f"{where} has {len(blocks)} `{kind}` studies; one is needed")
+    return cfg, blocks[0], Path(where) / blocks[0]["id"]
+
+
+def _grid_from(ctx: RunContext, cfg: dict, sid: str) -> tuple[dict, Path]:
+    """The one `viewpoints` block of the run in `grid_from` and its viewpoints.csv, checked to match this run's scene
+    and noise models and this search."""
+    where, key = cfg["grid_from"], f"{sid}.grid_from"
+    try:
+        other, g, folder = run_study(where, "viewpoints")
+    except ValueError as e:
+        raise ConfigError(key, str(e)) from None
     differ = [part for part in ("scene", "noise") if other[part] != ctx.config[part]]
     if differ:
         raise ConfigError(key, f"{where} was run with another {' and '.join(differ)}: its views are not this "
                                "run's")
     _matching(g, cfg, key, repr(str(where)))
-    csv = where / (g.get("id") or f"{k:02d}-viewpoints") / "viewpoints.csv"
+    csv = folder / "viewpoints.csv"
     if not csv.is_file():
         raise ConfigError(key, f"{csv} is missing (is the run finished?)")
     return g, csv
@@ -301,6 +310,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
         "batch": cfg["batch"], "found": None if found is None else found.tolist(),
         "posterior_log10": post_mean, "posterior_sd": post_sd,
         "pair": pair, "grid": p.grid_label, "grid_from": cfg["grid_from"] is not None,
+        # the grid's map for the report's plot: in this run (relative to its folder) or an earlier run's (as given)
         "grid_csv": None if p.grid_csv is None else str(p.grid_csv if cfg["grid_from"] else p.grid_csv.relative_to(
             ctx.dir)),
         "renders": sum(r["renders"] for r in done.values()),
@@ -389,14 +399,6 @@ def _fmt(lg) -> str:
     return "∞" if v == math.inf else "0" if v == -math.inf else "–" if math.isnan(v) else f"{10 ** v:.3g}"
 
 
-def _grid_csv(study_dir: Path, results: dict) -> Path:
-    """The grid's viewpoints.csv: in this run's folder (`grid`), or as given (`grid_from`: relative to the working
-    directory, as when the run was made)."""
-    if results.get("grid_from"):
-        return Path(results["grid_csv"])
-    return study_dir.parent / (results.get("grid_csv") or Path(results["grid"]) / "viewpoints.csv")
-
-
 def _path_plot(study_dir: Path, results: dict) -> Path:
     """The search's evaluations, numbered in order, over the offset box [cm] (and over a grid's A-optimal map of
     the same noise model when the run has one), with the returned view, the pair and the standard view."""
@@ -407,7 +409,8 @@ def _path_plot(study_dir: Path, results: dict) -> Path:
     fig, ax = plt.subplots(figsize=(6.2, 5))
     x = np.array([[float(r["offset_0"]), float(r["offset_1"])] for r in rows]) * 100
     score = np.array([float(r["log10_score"]) for r in rows])
-    grid = bayesopt.read_grid(_grid_csv(study_dir, results), noise) if results.get("grid") else None
+    grid = None if not results.get("grid") else bayesopt.read_grid(
+        Path(results["grid_csv"]) if results["grid_from"] else study_dir.parent / results["grid_csv"], noise)
     shown = np.concatenate([score] + ([grid[2].ravel()] if grid else []))
     shown = shown[np.isfinite(shown)]
     norm = {"vmin": shown.min(), "vmax": shown.max()} if shown.size else {}  # one colour scale: grid and path

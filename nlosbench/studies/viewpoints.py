@@ -238,12 +238,12 @@ def run(ctx: RunContext, cfg: dict) -> dict:
                         "mean_fisher": rec["mean_fisher"][k][p],
                         "plugin_mean_fisher": rec["plugin_mean_fisher"][k][p],
                         "infinite_pixels": rec["infinite_pixels"][k][p],
-                        "log10_information": rec["information"][k][p][0] if "information" in rec else math.nan,
-                        "information_upper": rec["information"][k][p][1] if "information" in rec else math.nan,
+                        "log10_information": rec["information"][k][p][0],
+                        "information_upper": rec["information"][k][p][1],
                         **score_cells(rec["scores"][k], list(m.params.names)),
                         **({"score_met": rec["scores"][k]["met"], "score_reached": rec["scores"][k]["reached"],
                             "fd_rounds": rec["scores"][k]["rounds"],
-                            "score_extra_pixel_samples": rec["scores"][k].get("extra", math.nan)}
+                            "score_extra_pixel_samples": rec["scores"][k]["extra"]}
                            if "met" in rec["scores"][k] else {}),
                     }
                 )
@@ -279,22 +279,15 @@ NEGLIGIBLE = 0.01
 
 def resolution(rows: list[dict]) -> dict[tuple, str]:
     """Per view (i, j) of one noise model's map (its parameter rows, with score_met, log10_information and
-    information_upper in log10 of 1/units²): "met" (its A-optimal score within ±p); "negligible" (not met, but every
-    parameter's information has an upper limit at most NEGLIGIBLE × the map's largest point for that parameter: the
-    view is known to carry under 1 % of the best view's information about each, and tr F⁻¹ ≥ Σ_j 1/F_jj, so its score
-    is at least 100× the best view's Σ_j 1/F_jj); else "open". Rows without the information columns (older runs)
-    use the score instead: its lower limit at least the best view's score / NEGLIGIBLE."""
-    def num(r, key):
-        v = float(r.get(key, math.nan))
-        return v if math.isfinite(v) else math.nan
-
+    information_upper in log10 of 1/units², NaN where that end is not a limit): "met" (its A-optimal score within
+    ±p); "negligible" (not met, but every parameter's information has an upper limit at most NEGLIGIBLE × the map's
+    largest point for that parameter: the view is known to carry under 1 % of the best view's information about each,
+    and tr F⁻¹ ≥ Σ_j 1/F_jj, so its score is at least 100× the best view's Σ_j 1/F_jj); else "open"."""
+    best: dict[str, float] = {}
     views: dict[tuple, list[dict]] = {}
     for r in rows:
         views.setdefault((r["i"], r["j"]), []).append(r)
-    per_param = any(math.isfinite(num(r, "information_upper")) for r in rows)
-    best: dict[str, float] = {}
-    for r in rows:
-        v = num(r, "log10_information") if per_param else -num(r, "log10_score")
+        v = float(r["log10_information"])
         if math.isfinite(v):
             best[r["param"]] = max(best.get(r["param"], -math.inf), v)
     cut = math.log10(NEGLIGIBLE)
@@ -302,18 +295,14 @@ def resolution(rows: list[dict]) -> dict[tuple, str]:
     for key, vrows in views.items():
         if vrows[0]["score_met"] in (True, "True"):
             out[key] = "met"
-        elif per_param and all(num(r, "information_upper") <= best.get(r["param"], math.nan) + cut for r in vrows):
-            out[key] = "negligible"
-        elif not per_param and vrows[0]["score_lower_note"] == "" and \
-                -num(vrows[0], "score_lower") <= max(best.values(), default=math.nan) + cut:
-            out[key] = "negligible"
+        elif all(float(r["information_upper"]) <= best.get(r["param"], math.nan) + cut for r in vrows):
+            out[key] = "negligible"  # a NaN (not a limit, or no finite point in the map) never compares true
         else:
             out[key] = "open"
     return out
 
 
-def profile(rows: list[dict], noise: str, param: str, column: str = "mean_fisher"
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def profile(rows: list[dict], noise: str, param: str, column: str = "mean_fisher") -> tuple[np.ndarray, np.ndarray]:
     """The map along its first axis: offsets u0 (n0,) [m] and the 10 %, 50 % and 90 % quantiles over the second axis
     of log10 `column` (3, n0) (non-finite or non-positive cells left out; NaN where a column has none)."""
     sel = [r for r in rows if r["noise"] == noise and r["param"] == param]
@@ -324,7 +313,7 @@ def profile(rows: list[dict], noise: str, param: str, column: str = "mean_fisher
         if math.isfinite(v) and v > 0:
             cols[int(np.searchsorted(u0, float(r["offset_0"])))].append(math.log10(v))
     q = np.array([np.quantile(c, (0.1, 0.5, 0.9)) if c else np.full(3, np.nan) for c in cols]).reshape(-1, 3).T
-    return u0, q[1], q
+    return u0, q
 
 
 def transitions(u0: np.ndarray, median: np.ndarray, top: int = 3) -> list[tuple[float, float]]:
@@ -343,8 +332,8 @@ def _transition_lines(rows: list[dict], results: dict) -> list[str]:
            "| noise | parameter | transitions |", "|---|---|---|"]
     for noise in results["noises"]:
         for name in results["params"]:
-            u0, med, _ = profile(rows, noise, name)
-            steps = ", ".join(f"{x * 100:+.3g} cm: {d:+.2f}" for x, d in transitions(u0, med))
+            u0, q = profile(rows, noise, name)
+            steps = ", ".join(f"{x * 100:+.3g} cm: {d:+.2f}" for x, d in transitions(u0, q[1]))
             out.append(f"| {noise_text(noise)} | {name} | {steps or 'none'} |")
     return out
 
@@ -435,7 +424,7 @@ def report(study_dir: Path, results: dict) -> str:
             )
     if rows and len({r["i"] for r in rows}) > 1:
         lines += _transition_lines(rows, results)
-        curves = {(noise, name): profile(rows, noise, name)[::2] for noise in results["noises"]
+        curves = {(noise, name): profile(rows, noise, name) for noise in results["noises"]
                   for name in results["params"]}
         prof = profile_plot(curves, study_dir, results)
         lines += ["", f"![profiles]({study_dir.name}/{prof.name})"]

@@ -102,7 +102,8 @@ class AtTheta(RenderSets):
             A cap on the pixel-samples (spp × H × W × renders) this call may spend (with a precision target only);
             None: the default ceiling, `bounds.precision.CEILING` × the pilot's.
         looks : int, optional
-            K ≥ 2: the pilot and at most K − 1 fresh looks, each on sets of its own; α spent along the path
+            K ≥ 1: the pilot and at most K − 1 fresh looks, each on sets of its own (K = 1: the pilot alone at the
+            full level); α spent along the path
             (the pilot α/20, the fresh looks the rest: `bounds.precision.spending`).
 
         Returns

@@ -127,7 +127,7 @@ class Curves(RenderSets):
             renders (with a precision target only); None: the default ceiling, `bounds.precision.CEILING` × the
             quoted bounds' pilot's.
         looks : int, optional
-            K ≥ 2: the pilot and at most K − 1 fresh looks for each quoted θ*, each on sets of its own; α spent
+            K ≥ 1: the pilot and at most K − 1 fresh looks for each quoted θ*, each on sets of its own; α spent
             along the path (the pilot α/20, the fresh looks the rest: `bounds.precision.spending`).
         quote : array_like of shape (Q,), optional
             The θ to quote (on or off the grid, inside Θ), parameter units; None: every grid θ (with a precision
@@ -202,8 +202,7 @@ class Curves(RenderSets):
         precise = [] if precision is None else self.at(
             quoted[:, None], spp, kinds, seeds, R, quote_test_grid(self.params, T), offsets,
             fd_step=quote_step if quote_step is not None else fd_step or float(np.diff(T).min()), noises=noises,
-            step_tol=step_tol,
-            max_halvings=max_halvings, precision=precision, budget=budget, looks=looks)
+            step_tol=step_tol, max_halvings=max_halvings, precision=precision, budget=budget, looks=looks)
         return Curve(points, zzbs, zzb_reason, precise)
 
     def _curve_stages(self, T: np.ndarray, Xd: torch.Tensor, spp: int, seeds: str, R: int, fd_step, gradient: str,

@@ -70,8 +70,9 @@ class FisherInformation(RenderSets):
             A cap on the pixel-samples (spp × H × W × renders) this call may spend (with a precision target only);
             None: the default ceiling, `bounds.precision.CEILING` × the pilot's.
         looks : int, optional
-            K ≥ 2: the pilot and at most K − 1 fresh looks, each on rounds of its own; α spent along the path
-            (the pilot α/20, the fresh looks the rest: `bounds.precision.spending`).
+            K ≥ 1: the pilot and at most K − 1 fresh looks, each on rounds of its own; α spent along the path
+            (the pilot α/20, the fresh looks the rest; K = 1 the pilot alone at the full level:
+            `bounds.precision.spending`).
         smoothed : bool, optional
             With `max_halvings` 0: quote the CRLBs of the model smoothed by the FD step (the information of
             (L(θ + ξ) − L(θ − ξ)) / 2ξ, what maps compared at one ξ show), whose ends are confidence limits of that

@@ -76,19 +76,18 @@ class RenderSets:
         pts = np.asarray(points, dtype=np.float64).reshape(-1, self.params.dim)
         return self.bank.sets(pts, spp, PURPOSE, range(first, first + R), seeds == "common", desc)
 
-    def _stencils(self, thetas: np.ndarray, step) -> tuple[np.ndarray, np.ndarray]:
-        """FD stencil points (T, P, 2, P): θ ± ξ e_j clipped into Θ (one-sided at its edge), ξ one step or one per
-        θ (T,), and their separations (T, P)."""
+    def _stencils(self, thetas: np.ndarray, xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """FD stencil points (T, P, 2, P): θ ± ξ e_j clipped into Θ (one-sided at its edge), ξ (T,) one per θ, and
+        their separations (T, P)."""
         p = self.params
         T = len(thetas)
-        xi = per_theta(step, T)
         st = np.repeat(thetas[:, None, None, :], 2, axis=2).repeat(p.dim, axis=1)  # (T, P, 2, P)
         for j in range(p.dim):
             st[:, j, 0, j] = np.minimum(thetas[:, j] + xi, p.upper[j])
             st[:, j, 1, j] = np.maximum(thetas[:, j] - xi, p.lower[j])
         sep = np.stack([st[:, j, 0, j] - st[:, j, 1, j] for j in range(p.dim)], axis=1).reshape(T, p.dim)
         if np.any(sep <= 0):
-            raise ValueError(f"FD step {step} leaves no room inside Θ")
+            raise ValueError(f"FD step {xi.tolist()} leaves no room inside Θ")
         return st, sep
 
     def fd_rounds(self, thetas, spp: int, seeds: str, R: int, step: float) -> torch.Tensor:
@@ -115,15 +114,15 @@ class RenderSets:
         """
         _check(seeds, R)
         pts = np.asarray(thetas, dtype=np.float64).reshape(-1, self.params.dim)
-        stages = self._stages(pts, None, spp, seeds, R, per_theta(step, len(pts)))
+        stages = self._stages(pts, None, spp, seeds, R, step)
         return torch.from_numpy(np.stack([s.rounds["central"] for s in stages], axis=1))
 
     def _stages(self, thetas: np.ndarray, center: torch.Tensor | None, spp: int, seeds: str, R: int,
                 step, first: int = 0, purpose: str = PURPOSE, sided: bool = True) -> list[Stage]:
         """One FD Stage at step ξ (one for all, or one per θ) per θ of thetas (T, P), R rounds, each independent of
-        the others and with
-        common random numbers inside each stencil: the central differences of round r's stencil renders (θ ± ξ e_j
-        clipped into Θ) and, from a render of θ under the stencil's seed, the forward and backward differences —
+        the others and with common random numbers inside each stencil: the central differences of round r's stencil
+        renders (θ ± ξ e_j clipped into Θ) and, from a render of θ under the stencil's seed, the forward and backward
+        differences —
         the one-sided variants the step check needs near a kink (`fd_step`). Common seeds: round r is replicate
         set r (every θ shares its seed) and θ's render is `center` (R, T, *S) of the same replicates (None: no
         one-sided variants); independent seeds: a seed per θ and round, shared by its stencil and θ's own render
