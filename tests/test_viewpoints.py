@@ -86,6 +86,13 @@ def test_the_reports_largest_transition_falls_where_the_camera_loses_sight_of_th
         assert sum(d for _, d in steps) == pytest.approx(med[2] - med[0]) and med[2] - med[0] < -1
     report = viewpoints.report(ctx.dir / "vp", res)
     assert "**Transitions**" in report and (ctx.dir / "vp" / "profiles.png").stat().st_size > 0
+    # the report's table is also transitions.csv (what the documentation quotes): both steps per noise, in order
+    table = list(csv.DictReader(open(ctx.dir / "vp" / "transitions.csv")))
+    for noise in map(str, ctx.noises):
+        sel = [r for r in table if r["noise"] == noise]
+        assert [r["order"] for r in sel] == ["1", "2"] and [float(r["offset"]) for r in sel] == pytest.approx(
+            [-0.15, 0.15])
+        assert f"{float(sel[0]['offset']) * 100:+.3g} cm: {float(sel[0]['decades']):+.2f}" in report
 
 
 def test_transitions_are_the_largest_steps_of_a_profile_in_order_along_the_axis():
@@ -142,6 +149,11 @@ def test_a_precision_target_per_view_resolves_the_seen_views_within_each_views_b
     assert {r["score_resolution"] for r in rows if r["i"] == "0"} == {"met"}
     assert all(r["score_resolution"] in ("negligible", "open") for r in rows if r["i"] == "2")
     assert "| AWGN, σ = 0.1 |" in viewpoints.report(tmp_path / "vp", res)
+    # resolution.csv (what the documentation quotes) counts each view once per noise model, as the rows classify it
+    for t in csv.DictReader(open(tmp_path / "vp" / "resolution.csv")):
+        states = [r["score_resolution"] for r in rows if r["noise"] == t["noise"]]
+        assert int(t["views"]) == 9 and [int(t[k]) for k in ("met", "negligible", "open")] == [
+            states.count(k) for k in ("met", "negligible", "open")] and int(t["met"]) >= 3
 
 
 def test_a_view_is_negligible_only_when_each_parameters_information_upper_limit_is_under_1_percent_of_the_best():

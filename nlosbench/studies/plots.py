@@ -675,14 +675,15 @@ def heat_maps(rows: list[dict], out: Path, summary: dict, column: str = "mean_fi
                 if r["noise"] == noise and r["param"] == name and math.isfinite(v) and v > 0:
                     grid[int(r["i"]), int(r["j"])] = math.log10(v)
             im = axes[0, p].imshow(grid.T, origin="lower", extent=ext, cmap="viridis", interpolation="nearest")
-            at = f", {theta_text(names, summary['theta'], summary['units'])}" if "theta" in summary else ""
             kind = "plug-in FI" if column == "plugin_mean_fisher" else "FI"
-            axes[0, p].set_title(f"{kind} for {name}{at}, {noise_text(noise)}", fontsize=9)
+            axes[0, p].set_title(f"{kind} for {name}", fontsize=9)
             axes[0, p].set_xlabel(f"camera offset along {_vec_label(summary['axes'][0])} [cm]")
             axes[0, p].set_ylabel(f"camera offset along {_vec_label(summary['axes'][1])} [cm]")
             fig.colorbar(
                 im, ax=axes[0, p], fraction=0.046, pad=0.04, label=f"log10 mean FI per pixel [1/{summary['units'][p]}²]"
             )
+        at = f"{theta_text(names, summary['theta'], summary['units'])}, " if "theta" in summary else ""
+        fig.suptitle(f"{at}{noise_text(noise)}", fontsize=10)  # once for the panels: theirs would overlap
         fig.tight_layout()
         path = out / (f"heatmap_plugin_noise{k}.png" if column == "plugin_mean_fisher" else f"heatmap_noise{k}.png")
         save_figure(fig, path, dpi=120)

@@ -325,25 +325,58 @@ def transitions(u0: np.ndarray, median: np.ndarray, top: int = 3) -> list[tuple[
     return [(float((u0[k] + u0[k + 1]) / 2), float(d[k])) for k in sorted(best)]
 
 
-def _transition_lines(rows: list[dict], results: dict) -> list[str]:
-    """Per noise model and parameter, the map's largest steps along the first axis (median over the second)."""
+def transition_table(rows: list[dict], results: dict) -> list[dict]:
+    """Per noise model and parameter, the map's largest steps along its first axis (`transitions` of the median
+    `profile`), in order along it: rows {noise, param, order (1, 2, …), offset (m, midway between the neighbouring
+    offsets), decades (signed change of log10 mean FI)}."""
+    out = []
+    for noise in results["noises"]:
+        for name in results["params"]:
+            u0, q = profile(rows, noise, name)
+            out += [{"noise": noise, "param": name, "order": k, "offset": x, "decades": d}
+                    for k, (x, d) in enumerate(transitions(u0, q[1]), 1)]
+    return out
+
+
+def _transition_lines(table: list[dict], results: dict) -> list[str]:
+    """The `transition_table` as the report's table."""
     out = ["", f"**Transitions** along {results['axes'][0]} (the median over the other axis of log10 mean FI; the "
                "three largest changes between neighbouring offsets, cm: decades):", "",
            "| noise | parameter | transitions |", "|---|---|---|"]
     for noise in results["noises"]:
         for name in results["params"]:
-            u0, q = profile(rows, noise, name)
-            steps = ", ".join(f"{x * 100:+.3g} cm: {d:+.2f}" for x, d in transitions(u0, q[1]))
+            steps = ", ".join(f"{r['offset'] * 100:+.3g} cm: {r['decades']:+.2f}" for r in table
+                              if r["noise"] == noise and r["param"] == name)
             out.append(f"| {noise_text(noise)} | {name} | {steps or 'none'} |")
     return out
 
 
-def _precision_lines(rows: list[dict], results: dict) -> list[str]:
-    """With a precision target: per noise model how many views met it, how many more are resolved as negligible
-    (`resolution`), the rounds they took, and the views left open (at most 20 named, with what each reached)."""
+def resolution_table(rows: list[dict], results: dict) -> list[dict]:
+    """With a precision target, per noise model: rows {noise, views, met, negligible, open (`resolution`),
+    rounds_min, rounds_max (FD rounds per view), open_pixel_samples (the open views' predicted cost to meet the
+    target, summed; inf where one is predicted never to)}; [] without a target."""
     if not results.get("precision") or not rows or "score_met" not in rows[0]:
         return []
     views = {(r["noise"], r["i"], r["j"]): r for r in rows}  # one score per view and noise (parameter rows repeat it)
+    out = []
+    for noise in results["noises"]:
+        sel = [r for (n, _, _), r in views.items() if n == noise]
+        state = resolution([r for r in rows if r["noise"] == noise])
+        rounds = [int(r["fd_rounds"]) for r in sel]
+        counts = list(state.values())
+        out.append({"noise": noise, "views": len(sel), "met": counts.count("met"),
+                    "negligible": counts.count("negligible"), "open": counts.count("open"),
+                    "rounds_min": min(rounds), "rounds_max": max(rounds),
+                    "open_pixel_samples": sum(float(r.get("score_extra_pixel_samples", math.nan)) for r in sel
+                                              if state[r["i"], r["j"]] == "open")})
+    return out
+
+
+def _precision_lines(rows: list[dict], table: list[dict], results: dict) -> list[str]:
+    """The `resolution_table` as the report's table, with the views left open (at most 20 named, with what each
+    reached)."""
+    if not table:
+        return []
     out = ["", f"**Precision.** Target: each view's A-optimal score (of the FD-smoothed model, ξ = "
                f"{results['fd_step']:g}) within ±{results['precision'] * 100:.3g} %, or the upper limit of "
                f"each parameter's information at most {NEGLIGIBLE * 100:g} % of the map's largest for it "
@@ -353,19 +386,18 @@ def _precision_lines(rows: list[dict], results: dict) -> list[str]:
            "|---|---|---|---|---|---|"]
     u = float(results["step"]) * 100
     c = (int(results["num"]) - 1) / 2
-    for noise in results["noises"]:
-        sel = [r for (n, _, _), r in views.items() if n == noise]
-        state = resolution([r for r in rows if r["noise"] == noise])
-        missed = sorted((r for r in sel if state[r["i"], r["j"]] == "open"), key=lambda r: -float(r["score_reached"]))
-        rounds = [int(r["fd_rounds"]) for r in sel]
+    views = {(r["noise"], r["i"], r["j"]): r for r in rows}
+    for t in table:
+        state = resolution([r for r in rows if r["noise"] == t["noise"]])
+        missed = sorted((r for (n, _, _), r in views.items() if n == t["noise"] and state[r["i"], r["j"]] == "open"),
+                        key=lambda r: -float(r["score_reached"]))
         named = ", ".join(f"({(int(r['i']) - c) * u:.3g}, {(int(r['j']) - c) * u:.3g}): "
                           f"±{float(r['score_reached']) * 100:.3g} %" for r in missed[:20])
         more = f" and {len(missed) - 20} more" if len(missed) > 20 else ""
-        extra = sum(float(r.get("score_extra_pixel_samples", math.nan)) for r in missed)
+        extra = t["open_pixel_samples"]
         cost = "–" if not missed else "∞" if extra == math.inf else f"{extra:.3g} pixel-samples"
-        counts = list(state.values())
-        out.append(f"| {noise_text(noise)} | {counts.count('met')} of {len(sel)} | {counts.count('negligible')} | "
-                   f"{min(rounds)}–{max(rounds)} | {cost} | {named + more or 'none'} |")
+        out.append(f"| {noise_text(t['noise'])} | {t['met']} of {t['views']} | {t['negligible']} | "
+                   f"{t['rounds_min']}–{t['rounds_max']} | {cost} | {named + more or 'none'} |")
     return out
 
 
@@ -423,12 +455,17 @@ def report(study_dir: Path, results: dict) -> str:
                 f"{np.median(ratio) if ratio else float('nan'):.3g} |"
             )
     if rows and len({r["i"] for r in rows}) > 1:
-        lines += _transition_lines(rows, results)
+        steps = transition_table(rows, results)
+        write_csv(study_dir / "transitions.csv", steps)
+        lines += _transition_lines(steps, results)
         curves = {(noise, name): profile(rows, noise, name) for noise in results["noises"]
                   for name in results["params"]}
         prof = profile_plot(curves, study_dir, results)
         lines += ["", f"![profiles]({study_dir.name}/{prof.name})"]
-    lines += _precision_lines(rows, results)
+    table = resolution_table(rows, results)
+    if table:
+        write_csv(study_dir / "resolution.csv", table)
+    lines += _precision_lines(rows, table, results)
     if results.get("infinite_cells"):
         lines.append(
             f"\n{results['infinite_cells']} cell(s) have infinite Fisher information (a Poisson pixel rendered "
