@@ -683,7 +683,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
     for i in range(T):  # where unmet: predicted from the reported look's own data, the sets of one more fresh look
         extra[i] = extra_px[i] = 0.0
         if worst(i) > goal[i]:  # (a fresh look's tested Δ may be a subset already: the plan's mask is over them)
-            pl = planned(i)
+            pl = plans[i] if st.looks[i] == 1 and i in plans else planned(i)  # the pilot's plan, made once
             extra[i] = math.inf if pl.sets is None else float(pl.sets)
             stages = pl.window.halvings + 1 if pl.window else st.stages[i]
             extra_px[i] = extra[i] * cost.one(i, stages, n_tested(pl)) * per_sample
