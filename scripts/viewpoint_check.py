@@ -56,7 +56,7 @@ def check(map_run: Path, search_run: Path, replays: int, quantile: float, seed: 
             "found_offsets": found["offsets"], "found_log10": float(found["log10_score"]), "found_upper_log10": upper,
             "found_within": bool(upper <= cut), "map_pixel_samples": px_map, "search_pixel_samples": px_search,
             "search_share": px_search / px_map, "replays": len(r.success), "replay_successes": int(r.success.sum()),
-            "replay_rate": r.rate, "replay_interval": [lo, hi], "replay_seed": seed,
+            "replay_rate": r.rate, "replay_lower": lo, "replay_upper": hi, "replay_seed": seed,
             "replay_evaluations": search["evaluations"]}
 
 
@@ -76,7 +76,7 @@ def main() -> None:
     print(f"found view {out['found_offsets']}: log10 tr F⁻¹ {out['found_log10']:.3f}, upper limit "
           f"{out['found_upper_log10']:.3f} against the map's {q:g} % quantile {out['map_quantile_log10']:.3f} "
           f"({'within' if out['found_within'] else 'not within'}); the map's best {out['map_best_log10']:.3f}")
-    lo, hi = out["replay_interval"]
+    lo, hi = out["replay_lower"], out["replay_upper"]
     print(f"replays: {out['replay_successes']} of {out['replays']} within the {q:g} % quantile "
           f"({out['replay_rate'] * 100:.3g} %, 95 % interval [{lo * 100:.3g}, {hi * 100:.3g}] %)")
 
