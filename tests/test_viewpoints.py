@@ -93,6 +93,12 @@ def test_the_reports_largest_transition_falls_where_the_camera_loses_sight_of_th
         assert [r["order"] for r in sel] == ["1", "2"] and [float(r["offset"]) for r in sel] == pytest.approx(
             [-0.15, 0.15])
         assert f"{float(sel[0]['offset']) * 100:+.3g} cm: {float(sel[0]['decades']):+.2f}" in report
+    # and profiles.csv holds the curves drawn: the medians' steps are the transitions' changes
+    prof = list(csv.DictReader(open(ctx.dir / "vp" / "profiles.csv")))
+    for noise in map(str, ctx.noises):
+        med = [float(r["median"]) for r in prof if r["noise"] == noise and r["param"] == "object_position"]
+        steps = [float(r["decades"]) for r in table if r["noise"] == noise]
+        assert np.diff(med) == pytest.approx(steps)
 
 
 def test_transitions_are_the_largest_steps_of_a_profile_in_order_along_the_axis():

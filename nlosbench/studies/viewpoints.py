@@ -460,6 +460,9 @@ def report(study_dir: Path, results: dict) -> str:
         lines += _transition_lines(steps, results)
         curves = {(noise, name): profile(rows, noise, name) for noise in results["noises"]
                   for name in results["params"]}
+        write_csv(study_dir / "profiles.csv", [  # the data of profiles.png (log10 mean FI, 1/units²)
+            {"noise": noise, "param": name, "offset": float(x), "q10": float(q[0, k]), "median": float(q[1, k]),
+             "q90": float(q[2, k])} for (noise, name), (u0, q) in curves.items() for k, x in enumerate(u0)])
         prof = profile_plot(curves, study_dir, results)
         lines += ["", f"![profiles]({study_dir.name}/{prof.name})"]
     table = resolution_table(rows, results)
