@@ -226,10 +226,16 @@ def test_the_study_runs_through_the_cli_with_a_grid(tmp_path):
     again = viewpoint_search.run(ctx, run_cfg["studies"][1])
     assert ctx.model.stats.renders - before == 7 + 5 * 7 and again["found"] == res["found"]
     assert {name: (out / "search" / name).read_text() for name in tables} == tables
-    # a search in a later run against this run's map (`grid_from`): the same grid-best view and candidates
-    later = {**raw, "studies": [{**raw["studies"][1], "grid": None, "grid_from": str(out)}]}
+    # a search in a later run against this run's map (`grid_from`): the same grid-best view and candidates. The
+    # later run is the smoke run's own config (its scene and settings as run), not a smoke run: a smoke leaves out
+    # grid_from, whose map is made at the full scene a smoke shrinks
+    smoked = yaml.safe_load((out / "config.yaml").read_text())
+    later = {**smoked, "name": "vs-later",
+             "studies": [{**smoked["studies"][1], "grid": None, "grid_from": str(out)}]}
     cfg.write_text(yaml.safe_dump(later))
-    assert main(["run", str(cfg), "--smoke", "--out", str(tmp_path / "later"), "--quiet"]) == 0
+    assert main(["run", str(cfg), "--smoke", "--out", str(tmp_path / "dry"), "--quiet"]) == 0  # no map: no grid-best
+    assert "grid-best" not in (tmp_path / "dry" / "search" / "confirmed.csv").read_text()
+    assert main(["run", str(cfg), "--out", str(tmp_path / "later"), "--quiet"]) == 0
     res2 = json.loads((tmp_path / "later" / "results.json").read_text())["studies"]["search"]["results"]
     assert res2["pair"]["candidates"] == 4 + 9 and res2["grid"] == str(out) and res2["found"] == res["found"]
     conf2 = {(r["confirm"], r["noise"]): r for r in csv.DictReader(open(tmp_path / "later" / "search" /
@@ -241,8 +247,8 @@ def test_the_study_runs_through_the_cli_with_a_grid(tmp_path):
                       ({"fd_step": 0.02}, "differs in fd_step")):
         cfg.write_text(yaml.safe_dump({**later, "studies": [{**later["studies"][0], **bad}]}))
         with pytest.raises(ConfigError, match=says):
-            prepare(cfg, out=tmp_path / "refused", smoke=True, quiet=True)
+            prepare(cfg, out=tmp_path / "refused", quiet=True, yes=True)
     cfg.write_text(yaml.safe_dump({**later, "noise": [{"model": "awgn", "sigma": 0.2}]}))
     with pytest.raises(ConfigError, match="another noise"):
-        prepare(cfg, out=tmp_path / "refused", smoke=True, quiet=True)
+        prepare(cfg, out=tmp_path / "refused", quiet=True, yes=True)
     assert not (tmp_path / "refused").exists()

@@ -341,8 +341,9 @@ def _grid_views(path: Path, noise: str, names: list[str]) -> tuple[list, list, i
 
 
 def smoke(block: dict) -> dict:
+    # an earlier run's map (grid_from) was made at the full scene, which a smoke run shrinks: the smoke searches alone
     return {**block, "spp": min(block["spp"], 16), "fd_rounds": 3, "confirm_rounds": 3, "initial": 3,
-            "evaluations": 4, "batch": 1}
+            "evaluations": 4, "batch": 1, "grid_from": None}
 
 
 def report(study_dir: Path, results: dict) -> str:
