@@ -325,17 +325,12 @@ def transitions(u0: np.ndarray, median: np.ndarray, top: int = 3) -> list[tuple[
     return [(float((u0[k] + u0[k + 1]) / 2), float(d[k])) for k in sorted(best)]
 
 
-def transition_table(rows: list[dict], results: dict) -> list[dict]:
-    """Per noise model and parameter, the map's largest steps along its first axis (`transitions` of the median
-    `profile`), in order along it: rows {noise, param, order (1, 2, …), offset (m, midway between the neighbouring
-    offsets), decades (signed change of log10 mean FI)}."""
-    out = []
-    for noise in results["noises"]:
-        for name in results["params"]:
-            u0, q = profile(rows, noise, name)
-            out += [{"noise": noise, "param": name, "order": k, "offset": x, "decades": d}
-                    for k, (x, d) in enumerate(transitions(u0, q[1]), 1)]
-    return out
+def transition_table(curves: dict) -> list[dict]:
+    """Per noise model and parameter, the map's largest steps along its first axis (`transitions` of the median of
+    its `profile`, curves[(noise, param)] = (u0, q)), in order along it: rows {noise, param, order (1, 2, …), offset
+    (m, midway between the neighbouring offsets), decades (signed change of log10 mean FI)}."""
+    return [{"noise": noise, "param": name, "order": k, "offset": x, "decades": d}
+            for (noise, name), (u0, q) in curves.items() for k, (x, d) in enumerate(transitions(u0, q[1]), 1)]
 
 
 def _transition_lines(table: list[dict], results: dict) -> list[str]:
@@ -355,20 +350,19 @@ def resolution_table(rows: list[dict], results: dict) -> list[dict]:
     """With a precision target, per noise model: rows {noise, views, met, negligible, open (`resolution`),
     rounds_min, rounds_max (FD rounds per view), open_pixel_samples (the open views' predicted cost to meet the
     target, summed; inf where one is predicted never to)}; [] without a target."""
-    if not results.get("precision") or not rows or "score_met" not in rows[0]:
+    if not results.get("precision") or not rows or "score_resolution" not in rows[0]:
         return []
     views = {(r["noise"], r["i"], r["j"]): r for r in rows}  # one score per view and noise (parameter rows repeat it)
     out = []
     for noise in results["noises"]:
         sel = [r for (n, _, _), r in views.items() if n == noise]
-        state = resolution([r for r in rows if r["noise"] == noise])
         rounds = [int(r["fd_rounds"]) for r in sel]
-        counts = list(state.values())
+        counts = [r["score_resolution"] for r in sel]  # `resolution`, as the run wrote it
         out.append({"noise": noise, "views": len(sel), "met": counts.count("met"),
                     "negligible": counts.count("negligible"), "open": counts.count("open"),
                     "rounds_min": min(rounds), "rounds_max": max(rounds),
-                    "open_pixel_samples": sum(float(r.get("score_extra_pixel_samples", math.nan)) for r in sel
-                                              if state[r["i"], r["j"]] == "open")})
+                    "open_pixel_samples": sum(float(r["score_extra_pixel_samples"]) for r in sel
+                                              if r["score_resolution"] == "open")})
     return out
 
 
@@ -388,8 +382,7 @@ def _precision_lines(rows: list[dict], table: list[dict], results: dict) -> list
     c = (int(results["num"]) - 1) / 2
     views = {(r["noise"], r["i"], r["j"]): r for r in rows}
     for t in table:
-        state = resolution([r for r in rows if r["noise"] == t["noise"]])
-        missed = sorted((r for (n, _, _), r in views.items() if n == t["noise"] and state[r["i"], r["j"]] == "open"),
+        missed = sorted((r for (n, _, _), r in views.items() if n == t["noise"] and r["score_resolution"] == "open"),
                         key=lambda r: -float(r["score_reached"]))
         named = ", ".join(f"({(int(r['i']) - c) * u:.3g}, {(int(r['j']) - c) * u:.3g}): "
                           f"±{float(r['score_reached']) * 100:.3g} %" for r in missed[:20])
@@ -455,11 +448,11 @@ def report(study_dir: Path, results: dict) -> str:
                 f"{np.median(ratio) if ratio else float('nan'):.3g} |"
             )
     if rows and len({r["i"] for r in rows}) > 1:
-        steps = transition_table(rows, results)
-        write_csv(study_dir / "transitions.csv", steps)
-        lines += _transition_lines(steps, results)
         curves = {(noise, name): profile(rows, noise, name) for noise in results["noises"]
                   for name in results["params"]}
+        steps = transition_table(curves)
+        write_csv(study_dir / "transitions.csv", steps)
+        lines += _transition_lines(steps, results)
         write_csv(study_dir / "profiles.csv", [  # the data of profiles.png (log10 mean FI, 1/units²)
             {"noise": noise, "param": name, "offset": float(x), "q10": float(q[0, k]), "median": float(q[1, k]),
              "q90": float(q[2, k])} for (noise, name), (u0, q) in curves.items() for k, x in enumerate(u0)])
