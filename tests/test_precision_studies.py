@@ -87,9 +87,10 @@ def test_the_bounds_report_counts_the_resolved_points_and_what_the_rest_would_co
 
 def test_a_bounds_target_without_precision_at_quotes_every_grid_theta(tmp_path):
     """`precision` without `precision_at`: every grid θ (0.2, 0.5, 0.8) is quoted from the curve's sets as the pilot,
-    each with its own record; a θ met at the pilot gets no fresh set while another gets some (the allocation is per
-    θ: blob2d's x with rendering noise 2 at ±16 %: 0.2 and 0.5 meet it at the pilot, whose ends are at 1 − α/20
-    (measured 0.154 and 0.144), 0.8 (0.173) after fresh sets)."""
+    each with its own record, and results.json counts per noise model the θ quoted and those that met the target
+    (as precise.csv's reached and target columns say); a θ met at the pilot gets no fresh set while another gets some
+    (the allocation is per θ: blob2d's x with rendering noise 2 at ±16 %: 0.2 and 0.5 meet it at the pilot, whose
+    ends are at 1 − α/20 (measured 0.154 and 0.144), 0.8 (0.173) after fresh sets)."""
     rc, out = _run(tmp_path, [{**BOUNDS, "precision": 0.16}])
     assert rc == 0
     recs = json.loads((out / "results.json").read_text())["studies"]["b"]["results"]["precision"]
@@ -97,7 +98,11 @@ def test_a_bounds_target_without_precision_at_quotes_every_grid_theta(tmp_path):
     assert all(r["met"] for r in recs), recs
     fresh = [r["fresh_sets"] for r in recs]
     assert min(fresh) == 0 < max(fresh), fresh
-    assert len(read_csv(out / "b" / "precise.csv")) == 3
+    precise = read_csv(out / "b" / "precise.csv")
+    assert len(precise) == 3
+    summary = json.loads((out / "results.json").read_text())["studies"]["b"]["results"]["noise"]
+    met = sum(float(r["precision_reached"]) <= float(r["precision_target"]) for r in precise)
+    assert [(v["quoted"], v["met"]) for v in summary.values()] == [(3, met)]
 
 
 def test_a_looser_target_beyond_a_theta_reaches_the_quoted_bounds_beyond_it(tmp_path):

@@ -18,8 +18,9 @@ fresh look would cost (`extra_pixel_samples`), a survey at a fixed cost.
   look 0, the pilot: the R0 replicate sets 0 … R0 − 1 at level 1 − α₀. θ* that meet p stop here (only then, or
       where no fresh look is made, is the pilot's interval reported).
   plan: for every other θ*, from the pilot alone, R* = the smallest number of fresh sets on the ladder
-      4, 6, 8, 12, 16, 24, … (at most what the budget allows) predicted to reach AIM·p at level 1 − α₁ (below;
-      the margin makes one fresh look usually enough), with the FD window (`Window`: which of the pilot's steps
+      4, 6, 8, 12, 16, 24, … (at most what the budget allows it alone) predicted to reach AIM·p at level 1 − α₁,
+      its FD step checks passing with probability POWER (below; the margins make one fresh look usually enough),
+      with the FD window (`Window`: which of the pilot's steps
       the looks render, the step check predicted too) and, where only interval bounds are asked for, the tested Δ
       (`tested_deltas`) that make it cheapest; where none is (the pilot's estimates, held fixed, say more sets
       never suffice: FD stages or λ̂ that disagree by noise alone look like that at a small pilot), an
@@ -27,7 +28,7 @@ fresh look would cost (`extra_pixel_samples`), a survey at a fixed cost.
   looks k = 1 … K − 1: R*·2^(k−1) sets of its own, disjoint from the pilot's and from every earlier look's
       (look 1 the sets R0 … R0 + R* − 1, look 2 the next 2R*, …), at level 1 − α_k; stop at the first look that
       meets p; a θ* whose look would take the call's worst-case cost over the budget (the θ* of a look admitted
-      cheapest first) gets no more looks.
+      cheapest first, exploratory ones after every planned one) gets no more looks.
 The reported interval is that of the last look made.
 
 Proof that P(reported interval misses the true value) ≤ α whatever the stopping. Let E_k be the event that look
@@ -84,6 +85,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.stats import norm
 
 from nlosbench.bounds.fd_step import Halving, Stage, StepFisher, crlb_term, one_sided_t, settled_from
 from nlosbench.bounds.hcr import LN10, log_expm1
@@ -101,6 +103,11 @@ EXPLORE = 4
 #: a plan asks for the sets predicted to reach AIM × the target: the pilot's estimates are noisy, and one fresh look
 #: must usually meet it (a second one is at a stricter level and on sets of its own)
 AIM = 0.8
+#: a plan predicts an FD step check passed only where it passes with probability ≈ POWER (if the pilot's estimates are
+#: right): the contrast's upper limit plus Φ⁻¹(POWER) of its SE below 0. At the look's level alone a check predicted to
+#: pass passes half the time (the decisive curve's looks planned so: 13 of its 27 NLOS points' checks did not pass)
+POWER = 0.9
+Z_POWER = float(norm.ppf(POWER))
 
 
 def check_precision(precision, budget, looks, want: Sequence[str], replicates: int) -> None:
@@ -427,7 +434,7 @@ class Fit:
                     est = (r - 1.0 - tol) * fa
                 se_r = se * float(ratio[name][j]) if name in ratio else se
                 t = one_sided_t(level, df * (R - 1.0) / (R0 - 1.0), se_r)
-                converged &= bool(est + t * se_r <= 0) and fa > 0
+                converged &= bool(est + (t + Z_POWER) * se_r <= 0) and fa > 0
                 rising |= bool(est - t * se_r > 0)
             extra = {name: _rescale(u, ratio[name], R) for name, u in h.extrapolated.items() if name in ratio}
             if scalar and not h.rising:  # the stages agree within the noise: the extrapolation adds nothing
@@ -656,15 +663,15 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         st.notes[i] = "met at the pilot" if i not in active else "" if K > 1 else "not met: the pilot alone (looks 1)"
     if K == 1:
         active = []
-    # plan from the pilot alone; the budget caps the first look's sets (each θ* with its planned window and Δ)
+    # plan from the pilot alone; the budget caps each θ*'s first look at what it could spend alone (with its planned
+    # window and Δ); the looks below then admit the θ* cheapest first while the whole look fits
     plans = {i: planned(i) for i in active}
-    affordable = [R for R in ladder(MAX_SETS) if active and spent() + cost.look(
-        {i: (0, R, 0, plans[i].window.halvings + 1 if plans[i].window else cost.stages, n_tested(plans[i]))
-         for i in active}, R) * per_sample <= cap]
-    r_max = max(affordable, default=0)
     star: dict[int, tuple[int, Plan]] = {}
     for i in active:
         pl = plans[i]
+        stages = pl.window.halvings + 1 if pl.window else cost.stages
+        r_max = max((R for R in ladder(MAX_SETS) if spent() + cost.look(
+            {i: (0, R, 0, stages, n_tested(pl))}, R) * per_sample <= cap), default=0)
         if pl.sets is None and r_max:  # the pilot's FD stages or λ̂ may disagree by noise alone: look anyway
             star[i] = (min(r_max, EXPLORE * R0), pl)
             st.notes[i] = (f"the pilot predicts no number of sets meets the target ({pl.predicted:.3g} at "
@@ -684,8 +691,9 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         now = {i: first[i] - R0 + sets[i] for i in todo}  # the test-grid sets after the pilot's it needs
         stages = {i: star[i][1].window.halvings + 1 if star[i][1].window else cost.stages for i in todo}
         new = {i: (0, sets[i], 0, stages[i], n_tested(star[i][1])) for i in todo}
-        # within the cap: the θ* whose look costs least first, the dearest left out (for good) until it fits
-        todo.sort(key=lambda i: (_worst_case(cost, new, now, [i], grid_done) * per_sample, i))
+        # within the cap: the θ* whose look costs least first, exploratory looks after every planned one, the last
+        # left out (for good) until it fits
+        todo.sort(key=lambda i: (star[i][1].sets is None, _worst_case(cost, new, now, [i], grid_done), i))
         while todo and spent() + _worst_case(cost, new, now, todo, grid_done) * per_sample > cap:
             i = todo.pop()
             c = _worst_case(cost, new, now, [i], grid_done) * per_sample

@@ -192,14 +192,15 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             "replicates": p.replicates, "level": p.level, "step_tol": p.step_tol, "los_until": cfg["los_until"],
             "parameter": names[0],
             "units": ctx.model.params.units[0], "zzb_reason": curve.zzb_reason,
-            "noise": summarize(read_csv(out / "bounds.csv"), zrows),
+            "noise": summarize(read_csv(out / "bounds.csv"), zrows, precision),
             **({"precision": precision, "seconds_per_sample": ctx.rate} if precision else {})}
 
 
-def summarize(rows: list[dict], zrows: list[dict]) -> dict:
+def summarize(rows: list[dict], zrows: list[dict], records: list[dict] = ()) -> dict:
     """Per noise model: the range of the HCR's lower end, where the Δ → 0 term sets it, θ with an open upper
     end, θ whose Δ → 0 lower end is not a confidence limit (FD step not converged), θ resolved (`plotstyle.resolved`:
-    both ends of the HCR and the CRLB confidence limits), and the ZZB with its ends."""
+    both ends of the HCR and the CRLB confidence limits), the ZZB with its ends, and with precision `records`
+    (`precise.records`) how many θ were quoted and how many met their target there (`quoted`, `met`)."""
     out = {}
     for noise in dict.fromkeys(r["noise"] for r in rows):
         rs = [r for r in rows if r["noise"] == noise]
@@ -216,6 +217,9 @@ def summarize(rows: list[dict], zrows: list[dict]) -> dict:
                       "zzb": None if z is None else {k: float(z[k]) for k in ("log10_zzb", "zzb_upper", "zzb_point",
                                                                                "prior_variance", "halved")} |
                       {"flags": z["zzb_flags"]}}
+        mine = [r for r in records if r["noise"] == noise]
+        if mine:
+            out[noise] |= {"quoted": len(mine), "met": sum(r["met"] for r in mine)}
     return out
 
 
