@@ -1,9 +1,9 @@
 """Committed runs that estimate the same CRLB by independent routes agree: a two-sided 5 % test on the log scale,
 each side's standard error read from its one-sided confidence ends at their stated level (the half-width over the
 normal quantile, the wider side; the ends are Student-t, so this overstates the SE: the test errs lenient).
-The routes: the decisive curve's quoted CRLB at 1.3 m (the bound service's `at`,
-the curve's sets as pilot, common seeds) against the reference FD rounds of curve_references and fisher_maps_nlos
-(independent rounds, a seed per stencil)."""
+The routes: the decisive curve's quoted CRLB (the bound service's `at`, the curve's sets as
+pilot, common seeds) against the reference FD rounds of curve_references and fisher_maps_nlos (independent rounds, a
+seed per stencil); each side's ends must be confidence limits."""
 import csv
 import math
 from pathlib import Path
@@ -21,6 +21,8 @@ def _crlb(path: Path, theta: float, noise: str, theta_key: str, level_key: str |
             point = float(r.get("crlb_point") or r["log10_crlb"])
             level = float(r[level_key]) if level_key else 0.95
             half = max(float(r["crlb_upper"]) - point, point - float(r["crlb_lower"]))
+            # both ends confidence limits: an open end or one that is not a limit says nothing to test against
+            assert math.isfinite(half) and not r.get("crlb_lower_note") and not r.get("crlb_upper_note"), r
             return point, half / norm.ppf(level)
     raise LookupError(f"{path}: no row at θ = {theta} for {noise}")
 
@@ -31,11 +33,14 @@ def _agree(a: tuple[float, float], b: tuple[float, float]) -> float:
     return 2 * norm.sf(abs(z))
 
 
-@pytest.mark.parametrize("noise, reference", [
-    ("AWGN", "curve_references/nlos/fisher.csv"), ("Poisson", "curve_references/nlos/fisher.csv"),
-    ("AWGN", "fisher_maps_nlos/00-fisher-maps/fisher.csv")])
-def test_the_decisive_curve_agrees_with_the_reference_crlb_beyond_the_corner(noise, reference):
-    curve = _crlb(RESULTS / "decisive_curve/00-bounds/precise.csv", 1.3, noise, "theta_object_position",
+@pytest.mark.parametrize("theta, noise, reference", [
+    (1.3, "AWGN", "curve_references/nlos/fisher.csv"), (1.3, "Poisson", "curve_references/nlos/fisher.csv"),
+    (1.3, "AWGN", "fisher_maps_nlos/00-fisher-maps/fisher.csv"),
+    (0.85, "AWGN", "curve_references/los/fisher.csv"), (0.85, "Poisson", "curve_references/los/fisher.csv")])
+def test_the_decisive_curve_agrees_with_the_reference_crlb(theta, noise, reference):
+    """Beyond the corner at 1.3 m and in line of sight at 0.85 m (the reference's FD step converged at 8 mm from
+    16 rounds of 4096 spp; the curve's 0.79 m is not a confidence limit yet, so it is not held to the one there)."""
+    curve = _crlb(RESULTS / "decisive_curve/00-bounds/precise.csv", theta, noise, "theta_object_position",
                   "crlb_level")
-    ref = _crlb(RESULTS / reference, 1.3, noise, "theta", None)
+    ref = _crlb(RESULTS / reference, theta, noise, "theta", None)
     assert _agree(curve, ref) > 0.05, (curve, ref)
