@@ -4,6 +4,7 @@ the data-dependent stopping; `BoundService.curve(..., precision=p, quote=...)` q
 Coverage is checked against exact bounds of the analytic toys, never against what the code itself computes."""
 import json
 import math
+import re
 
 import numpy as np
 import pytest
@@ -183,7 +184,8 @@ def test_a_dear_theta_over_the_budget_does_not_stop_the_looks_of_a_cheap_one():
 def test_a_budget_too_small_for_every_look_gives_the_cheapest_their_whole_plan():
     """The two θ* above, both at ±8 % (both miss it at the pilot), one fresh look, budgets between the pilot's cost
     and the unbudgeted call's: where the budget allows one θ*'s planned look but not both, that θ* gets the sets of
-    its plan (as without a budget) and the other a note that its look would exceed the budget. A cap on every θ*'s
+    its plan (as without a budget) and the other a note that its look, with the cheaper one, would exceed what is
+    left of the budget (both worst cases named). A cap on every θ*'s
     sets at once, so that all could look, gave both fewer sets than their plans (and left neither out)."""
     m, R0 = _blob(2.0), 3
     run = lambda budget: BoundService(RenderBank(m, seed=5), [nb.noise.AWGN(0.3)]).at(  # noqa: E731
@@ -199,6 +201,11 @@ def test_a_budget_too_small_for_every_look_gives_the_cheapest_their_whole_plan()
         if len(looked) == 1 and "would exceed the budget" in pts[1 - looked[0]].precision.note:
             split.append(budget)
             assert pts[looked[0]].precision.fresh_sets == plans[looked[0]]
+            # the note names the total that broke the budget: over what was left, and this look's part of it
+            one, total, left = map(int, re.search(r"worst case (\d+) pixel-samples\) and the 1 cheaper ones "
+                                                  r"admitted before it \(worst case (\d+) in all, (\d+) left\)",
+                                                  pts[1 - looked[0]].precision.note).groups())
+            assert one < total and total > left
     assert split, "no budget gave one θ* its whole plan and left the other out"
 
 def test_a_look_halves_its_step_beyond_the_pilots_where_the_pilot_saw_an_edge():

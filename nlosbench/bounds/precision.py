@@ -694,11 +694,12 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         # within the cap: the θ* whose look costs least first, exploratory looks after every planned one, the last
         # left out (for good) until it fits
         todo.sort(key=lambda i: (star[i][1].sets is None, _worst_case(cost, new, now, [i], grid_done), i))
-        while todo and spent() + _worst_case(cost, new, now, todo, grid_done) * per_sample > cap:
+        while todo and (total := _worst_case(cost, new, now, todo, grid_done) * per_sample) > cap - spent():
             i = todo.pop()
             c = _worst_case(cost, new, now, [i], grid_done) * per_sample
-            st.notes[i] = (f"not met: its look {k} (worst case {c} pixel-samples, {cap - spent()} left) would "
-                           f"exceed {cap_text}")
+            st.notes[i] = (f"not met: its look {k} (worst case {c} pixel-samples) and the {len(todo)} cheaper ones "
+                           f"admitted before it (worst case {total} in all, {cap - spent()} left) would exceed "
+                           f"{cap_text}")
             del star[i]
         if not todo:
             break
