@@ -405,11 +405,12 @@ def _heavy(rng: np.random.Generator, R: int, K: int = 1, M: int = 300) -> np.nda
 
 def test_the_planning_model_is_distribution_free_from_four_pilots():
     """variance_terms on heavy-tailed pixel errors (`_heavy`, channels grouped): (1) at the pilot's own R it is
-    `pixel_ustat`'s unbiased variance, a/R + b/(R(R − 1)) = SE² where neither is clipped at 0 (an identity of the
-    Hoeffding split); (2) the mean
+    `pixel_ustat`'s unbiased variance, a/R + b/(R(R − 1)) = SE² (checked where neither a nor b is 0; an identity of
+    the Hoeffding split); (2) the mean
     over 400 pilots of R0 = 4 of the variance it predicts at R = 12 is within [0.8, 1.4] of the variance of the
-    U-statistic over 4000 draws of 12 replicates (measured 1.08–1.18 over three pilot seeds: clipping a and b at 0
-    adds a little), where the Gaussian moments of 3-replicate pilots overstate it more than 4× (measured 18×)."""
+    U-statistic over 4000 draws of 12 replicates (measured 1.03–1.13 over three pilot seeds: clipping the noise part
+    to [0, V] adds a little), where the Gaussian moments of 3-replicate pilots overstate it more than 4× (measured
+    18×)."""
     X = _heavy(np.random.default_rng(0), 6, 20)
     a, b = variance_terms(X, 1.0, 3)
     kept = (a > 0) & (b > 0)  # neither clipped at 0

@@ -90,7 +90,16 @@ from scipy.stats import norm
 from nlosbench.bounds.fd_step import Halving, Stage, StepFisher, crlb_term, one_sided_t, settled_from
 from nlosbench.bounds.hcr import LN10, log_expm1
 from nlosbench.bounds.hcr_interval import hcr_interval
-from nlosbench.bounds.ustat import UStat, check_group, group_variances, grouped, pair_squares, pixel_terms, t_quantile
+from nlosbench.bounds.ustat import (
+    UStat,
+    check_group,
+    group_variances,
+    grouped,
+    noise_part,
+    pair_squares,
+    pixel_terms,
+    t_quantile,
+)
 
 #: interval bound kinds a precision target applies to
 KINDS = ("hcr", "crlb")
@@ -257,8 +266,9 @@ def variance_terms(X: np.ndarray, w, group: int = 1) -> tuple[np.ndarray, np.nda
 
     R ≥ 4: distribution-free. Per group m, with the kernel H_rs = Σ_{ω∈m} w x_r x_s, Hoeffding's parts ζ₁ = Cov(H_rs,
     H_rt) (signal × noise) and ζ₂ = Var H_rs give Var U_m = (4(R − 2)ζ₁ + 2ζ₂)/(R(R − 1)) exactly, so a = 4 Σ_m ζ₁ and
-    b = 2 Σ_m (ζ₂ − 2ζ₁). Both come from `ustat`'s unbiased estimates (the group variances v_m and Q_m = Σ_{r≠s} H_rs²;
-    `noise_part` splits them the same way), which need no distributional assumption: a path tracer's pixel errors are
+    b = 2 Σ_m (ζ₂ − 2ζ₁): b/(R(R − 1)) is the noise × noise part `ustat.noise_part` takes from the unbiased variance
+    (clipped to [0, V], so a, b ≥ 0 and a/R + b/(R(R − 1)) = V, the look's own SE²). Its estimates (the group variances
+    v_m and Q_m = Σ_{r≠s} H_rs²) need no distributional assumption: a path tracer's pixel errors are
     heavy-tailed (a few bright paths), and the Gaussian moments below overstate their s⁴ by the kurtosis (Π hallway
     40 × 30 at 1.12 m, central FD at 96 spp: b 2.3× the distribution-free value from 12 sets, 4.4× from 3, and a 35×
     from 3: a 3-set pilot plans far more sets than it needs).
@@ -277,8 +287,13 @@ def variance_terms(X: np.ndarray, w, group: int = 1) -> tuple[np.ndarray, np.nda
     X = np.asarray(X, dtype=np.float64)
     R, K, N = X.shape
     C = check_group(group, N)
-    if R >= 4:
-        return _free_terms(X, np.broadcast_to(np.asarray(w, dtype=np.float64), (K, N)), C)
+    w = np.broadcast_to(np.asarray(w, dtype=np.float64), (N,))
+    return (_free_terms if R >= 4 else _gaussian_terms)(X, w, C)
+
+
+def _gaussian_terms(X: np.ndarray, w: np.ndarray, C: int) -> tuple[np.ndarray, np.ndarray]:
+    """`variance_terms` under Gaussian errors (its docstring), X (R, K, N) float64, w (N,)."""
+    R, K, N = X.shape
     x = X.reshape(R, K, N // C, C)
     m = x.mean(axis=0)  # (K, M, C)
     dev = x - m
@@ -291,7 +306,7 @@ def variance_terms(X: np.ndarray, w, group: int = 1) -> tuple[np.ndarray, np.nda
         S2 = np.zeros_like(S)
         idx = np.arange(C)
         S2[..., idx, idx] = diag * diag * (R - 1.0) / (R + 1.0)
-    wv = np.broadcast_to(np.asarray(w, dtype=np.float64), (N,)).reshape(N // C, C)  # (M, C)
+    wv = w.reshape(N // C, C)  # (M, C)
     ww = wv[:, :, None] * wv[:, None, :]  # (M, C, C)
     wm = wv * m  # (K, M, C)
     a = 4.0 * (np.einsum("kmc,kmcd,kmd->k", wm, S, wm) - (ww * S2).sum(axis=(-2, -1)).sum(axis=-1) / R)
@@ -299,15 +314,21 @@ def variance_terms(X: np.ndarray, w, group: int = 1) -> tuple[np.ndarray, np.nda
 
 
 def _free_terms(X: np.ndarray, w: np.ndarray, C: int) -> tuple[np.ndarray, np.ndarray]:
-    """`variance_terms` from R ≥ 4 replicates X (R, K, N), weights w (K, N): Σ_m ζ₂ = Σ_m (Q_m/(R(R − 1)) − θ̂²_m) with
-    θ̂²_m = U_m² − v_m (the degree-4 U-statistic of θ_m²), Σ ζ₁ from V = Σ v_m = (4(R − 2)Σζ₁ + 2Σζ₂)/(R(R − 1))."""
-    R = X.shape[0]
-    per, lo = pixel_terms(X, w)
-    u, q = grouped(per, C), pair_squares([X], [1.0], w, C)
+    """`variance_terms` from R ≥ 4 replicates X (R, K, N), weights w (N,): the unbiased variance V = Σ_m v_m of the
+    U-statistic at R split by `ustat.noise_part` into its noise × noise part b/(R(R − 1)) and the rest a/R, so
+    a/R + b/(R(R − 1)) = V where V > 0. Where V ≤ 0 (signal and noise both tiny beside the spread of the estimate,
+    where `sum_terms` falls back to the jackknife) the Gaussian moments of `variance_terms` instead."""
+    R, K, N = X.shape
+    wk = np.broadcast_to(w, (K, N))
+    per, lo = pixel_terms(X, wk)
+    u, q = grouped(per, C), pair_squares([X], [1.0], wk, C)
     v = group_variances(u, grouped(lo, C), q, R)
-    z2 = (q / (R * (R - 1.0)) - u * u + v).sum(axis=1)
-    z1 = (v.sum(axis=1) * R * (R - 1.0) - 2.0 * z2) / (4.0 * (R - 2.0))
-    return np.clip(4.0 * z1, 0.0, None), np.clip(2.0 * z2 - 4.0 * z1, 0.0, None)
+    V, noise = v.sum(axis=1), noise_part(u, v, q, R)
+    a, b = R * (V - noise), R * (R - 1.0) * noise
+    if np.all(V > 0):
+        return a, b
+    ga, gb = _gaussian_terms(X, w, C)
+    return np.where(V > 0, a, ga), np.where(V > 0, b, gb)
 
 
 def _var(a, b, R: int):
