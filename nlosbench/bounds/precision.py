@@ -25,19 +25,22 @@ fresh look would cost (`extra_pixel_samples`), a survey at a fixed cost.
       (`tested_deltas`) that make it cheapest; where none is (the pilot's estimates, held fixed, say more sets
       never suffice: FD stages or λ̂ that disagree by noise alone look like that at a small pilot), an
       exploratory R* = EXPLORE·R0 within the budget;
-  looks k = 1 … K − 1: R*·2^(k−1) sets of its own, disjoint from the pilot's and from every earlier look's
-      (look 1 the sets R0 … R0 + R* − 1, look 2 the next 2R*, …), at level 1 − α_k; stop at the first look that
-      meets p; a θ* whose look would take the call's worst-case cost over the budget (the θ* of a look admitted
-      cheapest first, exploratory ones after every planned one) gets no more looks.
+  looks k = 1 … K − 1: R*·2^(k−1) sets of its own, after every set rendered before it at any θ* (look 1 of the
+      first wave the sets R0 … R0 + R* − 1), at level 1 − α_k; stop at the first look that meets p. Looks are made
+      in waves: those whose worst-case cost fits what is left of the budget (cheapest first, exploratory ones after
+      every planned one), then, against what they actually spent, the others; a θ* whose look fits in no wave gets
+      no more looks.
 The reported interval is that of the last look made.
 
 Proof that P(reported interval misses the true value) ≤ α whatever the stopping. Let E_k be the event that look
 k's interval misses and A_k the event that look k is made (A_0 always). The reported interval is that of some
 look made, so a miss implies E_k ∩ A_k for the k reported, and P(miss) ≤ Σ_k P(E_k ∩ A_k). Whether look k is made
-(and its R, FD window and tested Δ) is decided from the pilot and looks 1 … k − 1 alone (and the Poisson weight
-render, independent of every replicate set and the same at every look). Look k's sets are disjoint from theirs,
-and the bank derives their seeds from their replicate indices (nothing is drawn), so they are independent of
-that decision: given the past, look k is a fixed procedure on a fixed number of fresh sets, a fixed-R interval
+(and its R, FD window and tested Δ) is decided from the sets rendered before it: the pilot, its looks 1 … k − 1
+and the looks of other θ* in earlier waves (and the Poisson weight render, independent of every replicate set and
+the same at every look). Look k's sets come after all of those (with common seeds another θ*'s look renders
+this θ*'s sets too, as test points or FD neighbours, so "after its own earlier looks" would not be enough), and
+the bank derives their seeds from their replicate indices (nothing is drawn), so they are independent of that
+decision: given the past, look k is a fixed procedure on a fixed number of fresh sets, a fixed-R interval
 at level 1 − α_k, and P(E_k | past) ≤ α_k. Hence P(E_k ∩ A_k) = E[1_{A_k} P(E_k | past)] ≤ α_k P(A_k), and
 P(miss) ≤ Σ_k α_k P(A_k) ≤ α₀ + Σ_{k≥1} α_k = α. (Nested looks — look k's sets a prefix of look k + 1's — would
 break the independence: the miss of look k + 1 would not be independent of reaching it; a union bound over the
@@ -69,10 +72,11 @@ Budget: the call is charged by request (the bank's `Ledger`): every distinct ren
 costs its spp × H × W per render (an FD Jacobian 2 renders per parameter and round) whether it is rendered, read
 from the store or served from a cache, so its decisions are the same cold, warm, resumed or after another study.
 The pilot is always made; a θ*'s fresh look is made only if the pixel-samples charged so far plus the worst-case
-cost (every FD halving taken) of the look's θ* admitted with it stay within the budget: one dear θ* does not stop
-the looks of the others. (Which θ* a look admits depends on the others' data; each θ*'s look k is still a fixed
-procedure on its fixed sets, and the proof above bounds every look, made or not.) What this process rendered is
-reported beside it, never used.
+cost (every FD halving taken) of the looks admitted with it in its wave stay within the budget: one dear θ* does
+not stop the looks of the others, and what a wave did not spend (a look stops halving where its check passes) admits
+the next. (Which θ* a wave admits depends on the others' data; each θ*'s look k is still a fixed procedure on its
+fixed sets, after every set that decided it, and the proof above bounds every look, made or not.) What this
+process rendered is reported beside it, never used.
 A target without a budget never runs unbounded: its budget is the default ceiling, CEILING × the pixel-samples
 charged to its pilot (the pilot included: the whole call costs at most CEILING pilots), whichever caller asks
 (`BoundService.at`, `fisher`, the bounds `curve` quotes, `nlosbench bound --precision`). What it could not meet
@@ -156,7 +160,8 @@ def reached(b) -> float:
     ends = (b.lower, b.upper, b.point)
     if any(v is None or not math.isfinite(v) for v in ends) or b.lower_note or b.upper_note:
         return math.inf
-    return max(10.0 ** (b.upper - b.point), 10.0 ** (b.point - b.lower), 1.0) - 1.0
+    decades = max(b.upper - b.point, b.point - b.lower, 0.0)
+    return math.inf if decades > 300 else 10.0 ** decades - 1.0  # (an end hundreds of decades off overflows)
 
 
 @dataclass(frozen=True)
@@ -219,16 +224,16 @@ class SetCost:
 class Precision:
     """What a precision target got at one θ* for one noise model.
 
-    target: the relative half-width asked for; reached: {kind: precision reached} for this noise model;
-    met: every interval bound of every noise model at this θ* reached the target; looks: looks made for this
-    θ* (1: the pilot only); pilot_sets / fresh_sets: replicate sets of the pilot and of the reported look
-    (0: the pilot's are reported); level: the one-sided level of the reported look's ends (the pilot 1 − α/20, fresh
-    look k 1 − α_k: `spending`); pixel_samples: charged to the whole call (every θ*; spp × H × W per render
-    requested, however served: what the budget decides on);
-    rendered: the pixel-samples of those renders this process made (0 when all were cached); extra_sets /
-    extra_pixel_samples: the fresh sets and pixel-samples of one more look of its own predicted to meet it, from the
-    reported look's data (0 when met, +inf when no number of sets is predicted to); note: why it stopped; budget: the
-    pixel-samples the call was capped at (the budget given, else the default ceiling `ceiling`)."""
+    target: the relative half-width asked for; reached: {kind: precision reached} for this noise model; met: every
+    interval bound of every noise model at this θ* reached the target; looks: looks made for this θ* (1: the pilot
+    only); pilot_sets / fresh_sets: replicate sets of the pilot and of the reported look (0: the pilot's are reported),
+    from replicate index first_set on (0: the pilot's; a look made in a later wave starts past every set rendered before
+    it); level: the one-sided level of the reported look's ends (the pilot 1 − α/20, fresh look k 1 − α_k: `spending`);
+    pixel_samples: charged to the whole call (every θ*; spp × H × W per render requested, however served: what the
+    budget decides on); rendered: the pixel-samples of those renders this process made (0 when all were cached);
+    extra_sets / extra_pixel_samples: the fresh sets and pixel-samples of one more look of its own predicted to meet it,
+    from the reported look's data (0 when met, +inf when no number of sets is predicted to); note: why it stopped;
+    budget: the pixel-samples the call was capped at (the budget given, else the default ceiling `ceiling`)."""
 
     target: float
     reached: dict[str, float]
@@ -242,6 +247,7 @@ class Precision:
     extra_pixel_samples: float = 0.0
     note: str = ""
     budget: int = 0
+    first_set: int = 0
     #: what this process happened to render: not part of the result (records that decide alike compare equal)
     rendered: int = field(default=0, compare=False)
 
@@ -613,7 +619,7 @@ class _State:
     points: dict = field(default_factory=dict)  # (noise, θ index) → BoundPoint
     raws: dict = field(default_factory=dict)  # (noise, θ index) → Raw
     looks: dict = field(default_factory=dict)  # θ index → looks made
-    fresh: dict = field(default_factory=dict)  # θ index → fresh sets of the reported look (0: pilot)
+    fresh: dict = field(default_factory=dict)  # θ index → (first set, fresh sets) of the reported look ((0, 0): pilot)
     level: dict = field(default_factory=dict)  # θ index → the one-sided level of the reported look's ends
     stages: dict = field(default_factory=dict)  # θ index → FD stages of its last look
     notes: dict = field(default_factory=dict)
@@ -650,7 +656,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
                 st.points[j, int(i)] = pts[m * len(idx) + n]
                 st.raws[j, int(i)] = keep[j, n]
         for i in idx:
-            st.looks[int(i)], st.fresh[int(i)], st.level[int(i)] = k + 1, (R if first else 0), levels[k]
+            st.looks[int(i)], st.fresh[int(i)], st.level[int(i)] = k + 1, ((first, R) if first else (0, 0)), levels[k]
             st.stages[int(i)] = max(len(st.raws[j, int(i)].stages) for j in noises)
 
     def kinds(i: int) -> list[str]:
@@ -702,38 +708,42 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
             st.notes[i] = f"not met: {cap_text} allows no fresh look"
         else:
             star[i] = (min(pl.sets, r_max), pl)
-    grid_done = 0  # test-grid sets rendered after the pilot's (always a prefix: each θ*'s looks follow one another)
+    grid_done = 0  # test-grid sets rendered after the pilot's (a prefix: every look starts past it)
     first = {i: R0 for i in star}  # the next fresh set of each θ*
     for k in range(1, K):
-        todo = [i for i in star if worst(i) > goal[i]]
-        if not todo:
-            break
-        sets = {i: star[i][0] * 2 ** (k - 1) for i in todo}  # look k's own sets, disjoint from every earlier look's
-        now = {i: first[i] - R0 + sets[i] for i in todo}  # the test-grid sets after the pilot's it needs
-        stages = {i: star[i][1].window.halvings + 1 if star[i][1].window else cost.stages for i in todo}
-        new = {i: (0, sets[i], 0, stages[i], n_tested(star[i][1])) for i in todo}
-        # within the cap: the θ* whose look costs least first, exploratory looks after every planned one, the last
-        # left out (for good) until it fits
-        todo.sort(key=lambda i: (star[i][1].sets is None, _worst_case(cost, new, now, [i], grid_done), i))
-        while todo and (total := _worst_case(cost, new, now, todo, grid_done) * per_sample) > cap - spent():
-            i = todo.pop()
-            c = _worst_case(cost, new, now, [i], grid_done) * per_sample
-            st.notes[i] = (f"not met: its look {k} (worst case {c} pixel-samples) and the {len(todo)} cheaper ones "
-                           f"admitted before it (worst case {total} in all, {cap - spent()} left) would exceed "
-                           f"{cap_text}")
-            del star[i]
-        if not todo:
-            break
-        groups = {(first[i], sets[i], star[i][1].window) for i in todo}
-        for f, R, win in sorted(groups, key=lambda g: (g[0], g[1], repr(g[2]))):
-            idx = np.array([i for i in todo if (first[i], sets[i], star[i][1].window) == (f, R, win)])
-            run(idx, R, f, k, win, {int(i): star[int(i)][1].tested for i in idx})
-        grid_done = max(grid_done, max(now[i] for i in todo))  # the admitted θ* only
-        for i in todo:
-            first[i] += sets[i]
-        for i in todo:
-            st.notes[i] = (f"met at look {k}" if worst(i) <= goal[i] else f"not met after look {k}") + (
-                " (exploratory)" if "exploratory" in st.notes[i] else "")
+        waiting = [i for i in star if worst(i) > goal[i]]
+        # waves: the θ* whose look fits what is left, cheapest first, exploratory looks after every planned one; the
+        # others wait for the next wave, against what the looks before actually spent (a look stops halving where
+        # its check passes, so most spend far less than their worst case); left out for good when none fits
+        while waiting:
+            for i in waiting:  # past every set rendered so far (at any θ), so independent of what admits the look
+                first[i] = max(first[i], R0 + grid_done)
+            sets = {i: star[i][0] * 2 ** (k - 1) for i in waiting}  # look k's own sets, disjoint from earlier ones
+            now = {i: first[i] - R0 + sets[i] for i in waiting}  # the test-grid sets after the pilot's it needs
+            stages = {i: star[i][1].window.halvings + 1 if star[i][1].window else cost.stages for i in waiting}
+            new = {i: (0, sets[i], 0, stages[i], n_tested(star[i][1])) for i in waiting}
+            waiting.sort(key=lambda i: (star[i][1].sets is None, _worst_case(cost, new, now, [i], grid_done), i))
+            todo = []
+            for i in waiting:
+                if _worst_case(cost, new, now, [*todo, i], grid_done) * per_sample <= cap - spent():
+                    todo.append(i)
+            waiting = [i for i in waiting if i not in todo]
+            if not todo:  # each alone exceeds what is left
+                for i in waiting:
+                    st.notes[i] = (f"not met: its look {k} (worst case "
+                                   f"{_worst_case(cost, new, now, [i], grid_done) * per_sample} pixel-samples) "
+                                   f"would exceed {cap_text} ({cap - spent()} left)")
+                    del star[i]
+                break
+            groups = {(first[i], sets[i], star[i][1].window) for i in todo}
+            for f, R, win in sorted(groups, key=lambda g: (g[0], g[1], repr(g[2]))):
+                idx = np.array([i for i in todo if (first[i], sets[i], star[i][1].window) == (f, R, win)])
+                run(idx, R, f, k, win, {int(i): star[int(i)][1].tested for i in idx})
+            grid_done = max(grid_done, max(now[i] for i in todo))  # the admitted θ* only
+            for i in todo:
+                first[i] += sets[i]
+                st.notes[i] = (f"met at look {k}" if worst(i) <= goal[i] else f"not met after look {k}") + (
+                    " (exploratory)" if "exploratory" in st.notes[i] else "")
     total = spent()
     extra, extra_px = {}, {}
     for i in range(T):  # where unmet: predicted from the reported look's own data, the sets of one more fresh look
@@ -749,7 +759,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
             pt = st.points[j, i]
             pt.precision = Precision(
                 float(goal[i]), {k: reached(pt.bounds[k]) for k in kinds(i)}, bool(worst(i) <= goal[i]),
-                st.looks[i], R0, st.fresh[i], st.level[i], int(total), extra[i], extra_px[i], st.notes[i],
-                budget=int(cap), rendered=int(spend.rendered))
+                st.looks[i], R0, st.fresh[i][1], st.level[i], int(total), extra[i], extra_px[i], st.notes[i],
+                budget=int(cap), first_set=st.fresh[i][0], rendered=int(spend.rendered))
             out.append(pt)
     return out
