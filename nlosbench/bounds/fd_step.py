@@ -14,10 +14,12 @@ Stages. A `Stage` holds R independent FD rounds at one step ξ in one or more *v
 (paired), so F(ξ/2) − c·F(ξ) is a per-pixel contrast with its own SE (`ustat.sum_terms`).
 
 The rule (`converge`, used by the bound service):
-* halve ξ while, for some parameter, the paired one-sided upper limit of the central F(ξ/2)/F(ξ) exceeds
-  1 + step_tol (F is not shown to have stopped rising, the direction that breaks lower ends), at most
-  `max_halvings` times. The upper limit is Fieller's: F(ξ/2)/F(ξ) ≤ c is shown when the upper confidence
-  limit of F(ξ/2) − c·F(ξ) is ≤ 0. The central difference decides (the one-sided variants only where there is
+* halve ξ while, for some parameter, the paired one-sided upper limit of the central F(ξ/2)/F(ξ) exceeds 1 + step_tol (F
+  is not shown to have stopped rising, the direction that breaks lower ends), or its upper limit is below 1/(1 +
+  step_tol) (F shown to fall: the stencil at ξ reaches a larger F nearby, as where the object leaves the line of sight,
+  and F may fall further, the direction that breaks upper ends), at most `max_halvings` times. The upper limit is
+  Fieller's: F(ξ/2)/F(ξ) ≤ c is shown when the upper confidence limit of F(ξ/2) − c·F(ξ) is ≤ 0. The central difference
+  decides (the one-sided variants only where there is
   no central one): a one-sided difference of a smooth L is biased to first order, (J ± J'ξ/2)², so one side
   keeps rising by ≈ |J'/J|·ξ/2 at every halving — 6 % at ξ = 6 cm in the Π hallway's NLOS — and would never be
   shown settled at any affordable spp. The one-sided variants still enter every end (below) with their
@@ -25,12 +27,13 @@ The rule (`converge`, used by the bound service):
   θ*'s side, J⁺ beyond), a central F that does not move between ξ and ξ/2 (ξ ≫ d: about ((J⁻ + J⁺)/2)²) is not
   F(θ*) = (J⁻)², but the one-sided variant on θ*'s side measures (J⁻)² at every step, so the largest upper limit
   (lower end) and the smallest lower limit (upper end) over the variants still bracket it;
-* ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage and variant and the
-  central Richardson extrapolation of the last two stages to ξ → 0 (F that still creeps up within the tolerance
-  must not leave the lower end above the limit), upper ends from the *smallest* lower limit over the stages
-  from the last one shown to rise on (`settled_from`: a coarser stage is biased low, and finer ones guard
-  an F that falls), the point from the finest stage's central F. For a vector θ the same with
-  the jackknife limits of trace(F⁻¹). The extremes over candidates cost little coverage where the candidates share
+* ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage and variant and the central
+  Richardson extrapolation of the last two stages to ξ → 0 (F that still creeps up within the tolerance must not leave
+  the lower end above the limit), the stages before the last halving shown to fall left out (`peaked_from`: biased high,
+  they would hold the lower end down at any number of replicates), upper ends from the *smallest* lower limit over the
+  stages from the last one shown to rise on (`settled_from`: a coarser stage is biased low, and finer ones guard an F
+  that falls), the point from the finest stage's central F. For a vector θ the same with the jackknife limits of
+  trace(F⁻¹). The extremes over candidates cost little coverage where the candidates share
   their renders: on spot_rgb (common seeds, one halving) the seven lower-end candidates are one statistic
   (correlation 1.000) and the CRLB's lower end missed 3.55 % of 2000 seeds at a nominal 5 %, the finest central F
   alone 3.65 %; what remains is the jackknife's (`ustat`: at R = 3 it counts the noise × noise variance 4×; from
@@ -39,7 +42,9 @@ The rule (`converge`, used by the bound service):
   checked"; AD gradients (step NaN) and an F given directly are taken as they are;
 * not converged: the lower end is labelled "not a confidence limit: FD step not converged (F ×r ± se from ξ
   to ξ/2)", and `settle` says which step or spp would settle it. The upper end stays a limit: a rising F
-  only lowers the true bound below it, and the smallest lower limit over the stages covers a falling one;
+  only lowers the true bound below it, and the smallest lower limit over the stages covers a falling one that
+  has stopped falling; where the last halving still shows F falling, the upper end is labelled "not a confidence
+  limit: F still falls (…)" instead (the lower end stays a limit: a falling F only raises the true bound);
 * diverging (F shown to rise by more than 1 + step_tol at every one of ≥ 2 halvings, as where the derivative
   is infinite, L ∝ √|θ − θ₀|): the lower end is 0 and says why.
 """
@@ -72,7 +77,10 @@ class Stage:
 class Halving:
     """The paired comparison of F at one step with F at half of it: ratio F(ξ/2)/F(ξ) and its paired SE for
     the parameter that decides (the largest upper limit); converged: every deciding variant's upper limit
-    ≤ 1 + tol; rising: some deciding variant's lower limit > 1 + tol; contrasts: per (variant, parameter j) the paired
+    ≤ 1 + tol (F is not shown to rise: lower ends may be quoted); rising: some deciding variant's lower limit
+    > 1 + tol; falling: some deciding variant's upper limit < 1/(1 + tol) (the coarser step is biased high: it
+    reaches a larger F nearby, as where the object leaves the line of sight); steady: converged and not falling,
+    where the halving stops; contrasts: per (variant, parameter j) the paired
     contrast F(ξ/2) − (1 + tol)·F(ξ) as (estimate, SE, df, F(ξ)), which a precision plan rescales to predict the
     check at more rounds; extrapolated: per variant the Richardson extrapolation of F to ξ → 0 from the two
     stages (`extrapolate`)."""
@@ -84,6 +92,11 @@ class Halving:
     rising: bool
     contrasts: dict = field(default_factory=dict)
     extrapolated: dict = field(default_factory=dict)
+    falling: bool = False
+
+    @property
+    def steady(self) -> bool:
+        return self.converged and not self.falling
 
 
 @dataclass
@@ -114,7 +127,13 @@ class StepFisher:
 
     @property
     def converged(self) -> bool:
+        """The lower ends may be quoted: the last halving did not show F rising (`Halving.converged`)."""
         return (not self.checked) or self.halvings[-1].converged
+
+    @property
+    def falling(self) -> bool:
+        """The last halving showed F falling: the upper ends are not confidence limits (F may fall further)."""
+        return self.checked and self.halvings[-1].falling
 
     @property
     def diverging(self) -> bool:
@@ -126,14 +145,17 @@ class StepFisher:
             return ""
         parts = [f"F(ξ/2)/F(ξ) = {h.ratio:.3g} ± {h.se:.2g} at ξ = {h.step:.3g}" if math.isfinite(h.ratio)
                  else f"F unresolved at ξ = {h.step:.3g}" for h in self.halvings]
-        return "FD step " + ("converged" if self.converged else "not converged") + ": " + "; ".join(parts)
+        steady = self.converged and not self.falling
+        return "FD step " + ("converged" if steady else "not converged") + ": " + "; ".join(parts)
 
     def settle(self) -> str:
         """Which step and spp would settle an unconverged step ("" when converged)."""
-        if self.converged:
+        if self.converged and not self.falling:
             return ""
         h = self.halvings[-1]
         finer = f"ξ = {h.step / 4:.3g} (one more halving)"
+        if self.converged:
+            return f"F still falls: try {finer}"
         if not math.isfinite(h.ratio) or h.ratio >= 1 + self.step_tol or not h.se > 0:
             return f"F still rises or is unresolved: try {finer}, or more spp"
         # the upper limit r̂ + t·SE reaches 1 + tol when the SE shrinks by (1 + tol − r̂)/(t·SE): SE² ∝ 1/spp
@@ -168,7 +190,7 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
     variant where there is no central one), with the extrapolations of each shared variant."""
     c = 1.0 + tol
     worst = None
-    converged, rising = True, False
+    converged, rising, falling = True, False, False
     contrasts = {}
     shared = fine.rounds.keys() & coarse.rounds.keys()
     for name in sorted({"central"} & shared or shared):  # the central difference decides (module docstring)
@@ -185,13 +207,17 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
             up, down = est[0] + t * se[0], est[0] - t * se[0]
             converged &= bool(up <= 0) and fa > 0
             rising |= bool(down > 0)
+            est_f, _, se_f, df_f, _ = sum_terms(pb - pa / c, lb - la / c, R, fine.group,
+                                                _q(xa, xb, (-1.0 / c, 1.0), w, fine.group))
+            falling |= bool(est_f[0] + one_sided_t(level, df_f[0], se_f[0]) * se_f[0] < 0) and fa > 0
             ratio = fb / fa if fa > 0 and fb > 0 else math.nan
             r = ratio if math.isfinite(ratio) else 1.0
             _, _, rse, _, _ = sum_terms(pb - r * pa, lb - r * la, R, fine.group, _q(xa, xb, (-r, 1.0), w, fine.group))
             key = up / fa if fa > 0 else math.inf
             if worst is None or key > worst[0]:
                 worst = (key, ratio, float(rse[0] / fa) if fa > 0 else math.nan)
-    return Halving(coarse.step, worst[1], worst[2], converged, rising, contrasts, extrapolate(coarse, fine, w))
+    return Halving(coarse.step, worst[1], worst[2], converged, rising, contrasts, extrapolate(coarse, fine, w),
+                   falling)
 
 
 #: the share of the change from ξ to ξ/2 that the finer stage keeps, per variant: the smoothing error of a smooth
@@ -254,7 +280,8 @@ def one_sided_t(level: float, df: float, se: float) -> float:
 class CRLBTerm:
     """log10 of the CRLB term (trace F⁻¹; 1/F for a scalar θ) in units²: point, lower end (−inf: 0), upper
     end (+inf: open); lower_note: why the lower end is not a confidence limit ("" when it is); zero_note: why
-    a diverging derivative set the lower end to 0; loo: (R,) log10 point without each round (empty for R < 3)."""
+    a diverging derivative set the lower end to 0; loo: (R,) log10 point without each round (empty for R < 3);
+    upper_note: why the upper end is not a confidence limit (F still falls at the last halving)."""
 
     point: float
     lower: float
@@ -263,6 +290,7 @@ class CRLBTerm:
     zero_note: str
     loo: np.ndarray
     smoothed: bool = False
+    upper_note: str = ""
 
     @property
     def flags(self) -> tuple[str, ...]:
@@ -271,7 +299,7 @@ class CRLBTerm:
         if "not checked" in self.lower_note:
             return ("fd-step-not-checked",)
         return (("fd-step-diverging",) if self.zero_note else ()) + (
-            ("fd-step-not-converged",) if self.lower_note or self.zero_note else ())
+            ("fd-step-not-converged",) if self.lower_note or self.zero_note or self.upper_note else ())
 
 
 def crlb_term(sf: StepFisher, level: float, index: int | None = None, smoothed: bool = False) -> CRLBTerm:
@@ -294,14 +322,18 @@ def crlb_term(sf: StepFisher, level: float, index: int | None = None, smoothed: 
     elif not sf.checked and math.isfinite(sf.steps[-1]) and not smoothed:
         note = f"not a confidence limit: FD step not checked (one step, ξ = {sf.steps[-1]:.3g})"
     elif not sf.converged:
-        h = sf.halvings[-1]
-        change = (f"F ×{h.ratio:.3g} ± {h.se:.2g}" if math.isfinite(h.ratio) and math.isfinite(h.se) else
-                  "F unresolved")  # F̂ ≤ 0 at a step: rendering noise above the signal, no ratio to quote
-        note = f"not a confidence limit: FD step not converged ({change} from ξ = {h.step:.3g} to ξ/2)"
+        note = f"not a confidence limit: FD step not converged ({_change(sf.halvings[-1])})"
+    upper_note = f"not a confidence limit: F still falls ({_change(sf.halvings[-1])})" if sf.falling else ""
     final = sf.final
     loo = np.array([_log(inv_part(Fk, index)) for Fk in final.loo]) if final.loo.size else np.empty(0)
     return CRLBTerm(_log(point), _log(lower), _log(upper), note, zero, loo,
-                    smoothed and not sf.checked and not sf.diverging)
+                    smoothed and not sf.checked and not sf.diverging, upper_note)
+
+
+def _change(h: Halving) -> str:
+    """F's change at a halving, for a note ("F unresolved" where F̂ ≤ 0 at a step: noise above the signal)."""
+    change = f"F ×{h.ratio:.3g} ± {h.se:.2g}" if math.isfinite(h.ratio) and math.isfinite(h.se) else "F unresolved"
+    return f"{change} from ξ = {h.step:.3g} to ξ/2"
 
 
 def settled_from(sf: StepFisher) -> int:
@@ -313,12 +345,21 @@ def settled_from(sf: StepFisher) -> int:
     return rising[-1] + 1 if rising else 0
 
 
+def peaked_from(sf: StepFisher) -> int:
+    """The first stage that may set a lower end: the one after the last halving shown to fall (F(ξ/2) below
+    F(ξ)/(1 + step_tol) at the paired upper limit). A stage F is shown to exceed at a finer step is biased high (its
+    stencil reaches a larger F nearby); the finer stages and the last check bound F from above, and the coarse one
+    would hold the lower end at a value no number of replicates can raise."""
+    falling = [i for i, h in enumerate(sf.halvings) if h.falling]
+    return falling[-1] + 1 if falling else 0
+
+
 def lower_candidates(sf: StepFisher) -> list[UStat]:
-    """The F whose largest upper limit sets the lower end: every stage and variant, then the Richardson
-    extrapolations of F to ξ → 0 from the last two stages, per variant (`extrapolate`). Only lower ends use the
-    extrapolations (a candidate F, never a point): where F still creeps up within the step tolerance, the lower
-    end is not left above the limit."""
-    return [u for stage in sf.stats for u in stage.values()] + (
+    """The F whose largest upper limit sets the lower end: every stage and variant from `peaked_from` on, then the
+    Richardson extrapolations of F to ξ → 0 from the last two stages, per variant (`extrapolate`). Only lower ends
+    use the extrapolations (a candidate F, never a point): where F still creeps up within the step tolerance, the
+    lower end is not left above the limit."""
+    return [u for stage in sf.stats[peaked_from(sf):] for u in stage.values()] + (
         list(sf.halvings[-1].extrapolated.values()) if sf.halvings else [])
 
 

@@ -16,12 +16,13 @@ Student-t limits at level 1 − α (score-type where the noise × noise part of 
       limit over the FD stages and variants, `fd_step.lower_candidates`), every limit at one per-term level p
       from a joint critical value (below). Where that end is set by the CRLB term and the FD step did not
       converge, it is labelled "not a confidence limit" (`lower_note`);
-  upper end: the same with the lower limits λ_L and the CRLB term's upper end, each at α (one term suffices): the
-      HCR over the tested Δ and Δ → 0 is f at one fixed (unknown) term k*, the one whose true f is largest,
-      and max_k f(λ_L(Δ_k)) ≥ f(λ_L(Δ_k*)) ≥ f(λ(Δ_k*)) unless λ_L(Δ_k*) > λ(Δ_k*), an event of probability
-      ≤ α; so P(upper end ≥ HCR over the tested terms) ≥ 1 − α. If any tested Δ is unresolved (λ_L ≤ 0,
-      f(λ_L) = +∞ at that Δ), the upper end is open (+inf). It bounds the HCR over the tested Δ and Δ → 0 (a
-      sup over more Δ may be higher: the tested set is a grid);
+  upper end: the same with the lower limits λ_L and the CRLB term's upper end, each at α (one term suffices): the HCR
+      over the tested Δ and Δ → 0 is f at one fixed (unknown) term k*, the one whose true f is largest, and max_k
+      f(λ_L(Δ_k)) ≥ f(λ_L(Δ_k*)) ≥ f(λ(Δ_k*)) unless λ_L(Δ_k*) > λ(Δ_k*), an event of probability ≤ α; so P(upper end ≥
+      HCR over the tested terms) ≥ 1 − α. If any tested Δ is unresolved (λ_L ≤ 0, f(λ_L) = +∞ at that Δ), the upper end
+      is open (+inf). Where the CRLB term's upper end is not a confidence limit (F still falls at the last FD halving)
+      neither is this end (`upper_note`). It bounds the HCR over the tested Δ and Δ → 0 (a sup over more Δ may be
+      higher: the tested set is a grid);
   point: the same with the estimates themselves;
   point_loo: the point without each replicate (from the U-statistics' leave-one-outs), for jackknifes of
       functions of several bounds over the same replicate sets (e.g. a ratio of two models' bounds).
@@ -105,6 +106,9 @@ class HCRInterval:
         Why the lower end is not a confidence limit ("" when it is).
     step_flags : tuple of str, optional
         The FD step's flags.
+    upper_note : str, optional
+        Why a finite upper end is not a confidence limit: the CRLB term's (its F still falls), whatever term sets
+        the end (the true Δ → 0 term may exceed every other term's limit).
     point_loo : ndarray of shape (R,), optional
         log10 point estimate without replicate k (empty when R < 3).
     tested : int, optional
@@ -140,6 +144,7 @@ class HCRInterval:
     unresolved: list = field(default_factory=list)
     lower_note: str = ""
     step_flags: tuple = ()
+    upper_note: str = ""
     point_loo: np.ndarray = field(default_factory=lambda: np.empty(0), compare=False)
     tested: int = 0
     term_level: float = math.nan
@@ -312,4 +317,5 @@ def hcr_interval(lam: UStat, deltas, fisher: UStat | StepFisher, level: float = 
                        crlb=term.point, crlb_lower=term.lower, crlb_upper=upper_term.upper,
                        unresolved=[D[k].tolist() if P > 1 else float(D[k, 0]) for k in np.flatnonzero(unresolved)],
                        lower_note=term.lower_note if low_term == "Δ → 0" else "", step_flags=term.flags,
+                       upper_note="" if up == math.inf else upper_term.upper_note,
                        point_loo=point_loo, tested=int(valid.sum()), term_level=p)

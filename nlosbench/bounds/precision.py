@@ -452,7 +452,7 @@ class Fit:
                 break
             h = sf.halvings[k]  # the pilot's comparison of stages k and k + 1
             ratio = {name: _se_ratio(ab, R0, R) for name, ab in self.stages[k + 1].items()}
-            converged, rising = True, False
+            converged, rising, falling = True, False, False
             tol = sf.step_tol
             for (name, j), (est, se, df, fa) in h.contrasts.items():
                 if abs(est + tol * fa) <= t0 * se:  # F(ξ/2) − F(ξ) within the noise: predicted equal or, past an
@@ -463,12 +463,14 @@ class Fit:
                 t = one_sided_t(level, df * (R - 1.0) / (R0 - 1.0), se_r)
                 converged &= bool(est + (t + Z_POWER) * se_r <= 0) and fa > 0
                 rising |= bool(est - t * se_r > 0)
+                # F(ξ/2) − F(ξ)/(1 + tol) from the same contrast (its SE taken as the contrast's)
+                falling |= bool(est + (1.0 + tol - 1.0 / (1.0 + tol)) * fa + t * se_r < 0) and fa > 0
             extra = {name: _rescale(u, ratio[name], R) for name, u in h.extrapolated.items() if name in ratio}
             if scalar and not h.rising:  # the stages agree within the noise: the extrapolation adds nothing
                 extra = {name: replace(u, est=ref.est) for name, u in extra.items()}
             halvings.append(Halving(h.step, h.ratio, h.se * float(np.max(ratio.get("central", [1.0]))), converged,
-                                    rising, {}, extra))
-            if converged:
+                                    rising, {}, extra, falling))
+            if converged and not falling:
                 stats.append(stage(k + 1))
                 break
         steps = sf.steps[window.start:window.start + len(stats)]
@@ -476,9 +478,9 @@ class Fit:
 
     def bounds(self, kinds: Sequence[str], R: int, level: float,
                window: Window | None = None) -> dict[str, tuple[float, float, float, str]]:
-        """{kind: (lower, point, upper, lower_note)} log10 ends predicted at R fresh replicate sets through the
-        interval code itself (`hcr_interval`, `crlb_term`), the FD stages those of `window` (None: the first
-        window the pilot allows, as many halvings as it made)."""
+        """{kind: (lower, point, upper, lower_note, upper_note)} log10 ends predicted at R fresh replicate sets
+        through the interval code itself (`hcr_interval`, `crlb_term`), the FD stages those of `window` (None: the
+        first window the pilot allows, as many halvings as it made)."""
         raw = self.raw
         window = window or (self.windows() or [None])[0]
         if window is None:  # one stage (or AD): no step check to predict, every stage as it is
@@ -490,7 +492,7 @@ class Fit:
         out = {}
         if "crlb" in kinds:
             t = crlb_term(pred, level, smoothed=raw.smoothed)
-            out["crlb"] = (t.lower, t.point, t.upper, t.lower_note or t.zero_note)
+            out["crlb"] = (t.lower, t.point, t.upper, t.lower_note or t.zero_note, t.upper_note)
         if "hcr" in kinds and self.lam is not None:
             # a look's λ̂ ≤ 0 says nothing about λ (that Δ would never resolve): plan with the local quadratic
             # ΔᵀF̂Δ there instead (a guess for the plan only; the looks' limits do not depend on it)
@@ -499,7 +501,7 @@ class Fit:
             lam = _predict_ustat(raw.lam, self.lam, R)
             lam = replace(lam, est=np.where(raw.lam.est > 0, raw.lam.est, quad))
             iv = hcr_interval(lam, raw.deltas, pred, level, raw.lower, raw.upper)
-            out["hcr"] = (iv.lower, iv.point, iv.upper, iv.lower_note)
+            out["hcr"] = (iv.lower, iv.point, iv.upper, iv.lower_note, iv.upper_note)
         return out
 
 

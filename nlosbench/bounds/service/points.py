@@ -284,7 +284,8 @@ def interval_bound(iv: HCRInterval, extra_flags: tuple = (), step: StepFisher | 
     if step is not None and step.checked:
         reason += "; " + step.note() + (f" ({step.settle()})" if step.settle() else "")
     return Bound("hcr", iv.lower, None, iv.flags + tuple(extra_flags), reason, lower=iv.lower, upper=iv.upper,
-                 point=iv.point, level=iv.level, terms=terms, loo=iv.point_loo, lower_note=iv.lower_note)
+                 point=iv.point, level=iv.level, terms=terms, loo=iv.point_loo, lower_note=iv.lower_note,
+                 upper_note=iv.upper_note)
 
 
 def crlb_bound(sf: StepFisher | UStat, level: float, extra_flags: tuple = (), index: int | None = None,
@@ -310,7 +311,8 @@ def crlb_bound(sf: StepFisher | UStat, level: float, extra_flags: tuple = (), in
     if index is not None:
         reason += f"; (F̂⁻¹)_{index}{index} of the full {sf.final.est.shape[0]}-parameter F̂: the others unknown"
     return Bound(kind, term.point, flags=tuple(flags), reason=reason, lower=term.lower, upper=term.upper,
-                 point=term.point, level=level if R >= 3 else None, loo=term.loo, lower_note=term.lower_note)
+                 point=term.point, level=level if R >= 3 else None, loo=term.loo, lower_note=term.lower_note,
+                 upper_note=term.upper_note)
 
 
 def _barankin(L0, L_alt, deltas, noise, lower, upper) -> Bound:

@@ -172,7 +172,7 @@ class RenderSets:
                 break
             if k:
                 active = np.array([i for i in active if not all(
-                    halving(stages[i][-2], stages[i][-1], w[i], self.level, step_tol).converged
+                    halving(stages[i][-2], stages[i][-1], w[i], self.level, step_tol).steady
                     for w in weights.values())], dtype=np.int64)
                 if active.size == 0:
                     break
