@@ -163,13 +163,17 @@ def test_no_number_a_run_printed_is_typed_into_the_docs_or_readme():
 
 def test_the_readmes_numbers_are_the_committed_runs():
     """GitHub shows the README as written, so its few numbers are checked here against the files they come
-    from: the jump of the HCR's lower end across the corner (LOS 0.79 m → NLOS 1.3 m) and the demo's time.
-    The site's front page shows the same figure with the jump in its alt text, where no role can go."""
+    from: the rise of the decisive curve's quoted HCR lower end (AWGN) from 0.85 m (line of sight) to 1.3 m (beyond
+    the corner), that run's minutes and pixel-samples, and the demo's time. The site's front page shows the same
+    figure with the rise in its alt text, where no role can go."""
     readme = (ROOT / "README.md").read_text()
-    jump = float(resolve(f"{AT_13} hcr_lower :.3f").replace("−", "-")) - float(
-        resolve(f"{BOUNDS}[noise_index=0, theta_object_position=0.79] hcr_lower :.3f").replace("−", "-"))
-    assert readme.count(f"{jump:.1f} decades") == 2, jump  # the figure's alt text and its caption
+    quoted = "decisive_curve/00-bounds/precise.csv[noise_index=0, theta_object_position={}] hcr_lower :.3f"
+    rise = float(resolve(quoted.format(1.3)).replace("−", "-")) - float(resolve(quoted.format(0.85)).replace("−", "-"))
+    assert readme.count(f"{rise:.1f} decades") == 2, rise  # the figure's alt text and its caption
     index = (ROOT / "docs" / "index.md").read_text()  # the same figure on the site's front page
-    assert index.count(f"{jump:.1f} decades") == 2, jump
+    assert index.count(f"{rise:.1f} decades") == 2, rise
+    minutes = float(resolve("decisive_curve/machine.json seconds_total :.1f")) / 60
+    samples = float(resolve("decisive_curve/00-bounds/precise.csv max(precision_pixel_samples) :.3g"))
+    assert f"{minutes:.0f} min, {samples:.2g} pixel-samples".replace("e+0", "e") in readme, (minutes, samples)
     seconds = float(resolve("quick/machine.json seconds_total :.1f"))
-    assert f"its studies {seconds:.0f} s" in readme, seconds
+    assert f"its studies in {seconds:.0f} s" in readme, seconds
