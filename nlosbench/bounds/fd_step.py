@@ -14,30 +14,30 @@ Stages. A `Stage` holds R independent FD rounds at one step ξ in one or more *v
 (paired), so F(ξ/2) − c·F(ξ) is a per-pixel contrast with its own SE (`ustat.sum_terms`).
 
 The rule (`converge`, used by the bound service):
-* halve ξ while, for some parameter, the paired one-sided upper limit of the central F(ξ/2)/F(ξ) exceeds 1 + step_tol (F
-  is not shown to have stopped rising, the direction that breaks lower ends), or its upper limit is below 1/(1 +
-  step_tol) (F shown to fall: the stencil at ξ reaches a larger F nearby, as where the object leaves the line of sight,
-  and F may fall further, the direction that breaks upper ends), at most `max_halvings` times. The upper limit is
-  Fieller's: F(ξ/2)/F(ξ) ≤ c is shown when the upper confidence limit of F(ξ/2) − c·F(ξ) is ≤ 0. The central difference
-  decides (the one-sided variants only where there is
-  no central one): a one-sided difference of a smooth L is biased to first order, (J ± J'ξ/2)², so one side
-  keeps rising by ≈ |J'/J|·ξ/2 at every halving — 6 % at ξ = 6 cm in the Π hallway's NLOS — and would never be
-  shown settled at any affordable spp. The one-sided variants still enter every end (below) with their
-  Richardson extrapolations, which remove that first-order drift. Near a kink at distance d from θ* (J⁻ on
-  θ*'s side, J⁺ beyond), a central F that does not move between ξ and ξ/2 (ξ ≫ d: about ((J⁻ + J⁺)/2)²) is not
-  F(θ*) = (J⁻)², but the one-sided variant on θ*'s side measures (J⁻)² at every step, so the largest upper limit
-  (lower end) and the smallest lower limit (upper end) over the variants still bracket it;
+* halve ξ while, for some parameter, the paired one-sided upper limit of the central F(ξ/2)/F(ξ) exceeds 1 +
+  step_tol (F is not shown to have stopped rising, the direction that breaks lower ends), or is below 1/(1 +
+  step_tol) (F shown to fall: the stencil at ξ reaches a larger F nearby, as where the object leaves the line of
+  sight, and F may fall further, the direction that breaks upper ends), at most `max_halvings` times. The upper
+  limit is Fieller's: F(ξ/2)/F(ξ) ≤ c is shown when the upper confidence limit of F(ξ/2) − c·F(ξ) is ≤ 0. The
+  central difference decides (the one-sided variants only where there is no central one): a one-sided difference of
+  a smooth L is biased to first order, (J ± J'ξ/2)², so one side keeps rising by ≈ |J'/J|·ξ/2 at every halving — 6 %
+  at ξ = 6 cm in the Π hallway's NLOS — and would never be shown settled at any affordable spp. The one-sided
+  variants still enter every end (below) with their Richardson extrapolations, which remove that first-order drift.
+  Near a kink at distance d from θ* (J⁻ on θ*'s side, J⁺ beyond), a central F that does not move between ξ and ξ/2
+  (ξ ≫ d: about ((J⁻ + J⁺)/2)²) is not F(θ*) = (J⁻)², but the one-sided variant on θ*'s side measures (J⁻)² at every
+  step, so the largest upper limit (lower end) and the smallest lower limit (upper end) over the variants still
+  bracket it;
 * ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage and variant and the central
-  Richardson extrapolation of the last two stages to ξ → 0 (F that still creeps up within the tolerance must not leave
-  the lower end above the limit), the stages before the last halving shown to fall left out (`peaked_from`: biased high,
-  they would hold the lower end down at any number of replicates), upper ends from the *smallest* lower limit over the
-  stages from the last one shown to rise on (`settled_from`: a coarser stage is biased low, and finer ones guard an F
-  that falls), the point from the finest stage's central F. For a vector θ the same with the jackknife limits of
-  trace(F⁻¹). The extremes over candidates cost little coverage where the candidates share
-  their renders: on spot_rgb (common seeds, one halving) the seven lower-end candidates are one statistic
-  (correlation 1.000) and the CRLB's lower end missed 3.55 % of 2000 seeds at a nominal 5 %, the finest central F
-  alone 3.65 %; what remains is the jackknife's (`ustat`: at R = 3 it counts the noise × noise variance 4×; from
-  R = 4 on the SE is the unbiased one and the ends miss ≈ 5 %);
+  Richardson extrapolation of the last two stages to ξ → 0 (F that still creeps up within the tolerance must not
+  leave the lower end above the limit), the stages before the last halving shown to fall left out (`peaked_from`:
+  biased high, they would hold the lower end down at any number of replicates), upper ends from the *smallest* lower
+  limit over the stages from the last one shown to rise on (`settled_from`: a coarser stage is biased low, and finer
+  ones guard an F that falls), the point from the finest stage's central F. For a vector θ the same with the
+  jackknife limits of trace(F⁻¹). The extremes over candidates cost little coverage where the candidates share their
+  renders: on spot_rgb (common seeds, one halving) the seven lower-end candidates are one statistic (correlation
+  1.000) and the CRLB's lower end missed 3.55 % of 2000 seeds at a nominal 5 %, the finest central F alone 3.65 %;
+  what remains is the jackknife's (`ustat`: at R = 3 it counts the noise × noise variance 4×; from R = 4 on the SE
+  is the unbiased one and the ends miss ≈ 5 %);
 * one FD step only (no check asked for): the lower end is labelled "not a confidence limit: FD step not
   checked"; AD gradients (step NaN) and an F given directly are taken as they are;
 * not converged: the lower end is labelled "not a confidence limit: FD step not converged (F ×r ± se from ξ
@@ -136,6 +136,11 @@ class StepFisher:
         return self.checked and self.halvings[-1].falling
 
     @property
+    def steady(self) -> bool:
+        """Both ends may be quoted: converged and not falling (where the halving stops)."""
+        return self.converged and not self.falling
+
+    @property
     def diverging(self) -> bool:
         return len(self.halvings) >= 2 and all(h.rising for h in self.halvings)
 
@@ -145,12 +150,11 @@ class StepFisher:
             return ""
         parts = [f"F(ξ/2)/F(ξ) = {h.ratio:.3g} ± {h.se:.2g} at ξ = {h.step:.3g}" if math.isfinite(h.ratio)
                  else f"F unresolved at ξ = {h.step:.3g}" for h in self.halvings]
-        steady = self.converged and not self.falling
-        return "FD step " + ("converged" if steady else "not converged") + ": " + "; ".join(parts)
+        return "FD step " + ("converged" if self.steady else "not converged") + ": " + "; ".join(parts)
 
     def settle(self) -> str:
         """Which step and spp would settle an unconverged step ("" when converged)."""
-        if self.converged and not self.falling:
+        if self.steady:
             return ""
         h = self.halvings[-1]
         finer = f"ξ = {h.step / 4:.3g} (one more halving)"
