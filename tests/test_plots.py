@@ -129,7 +129,8 @@ def test_the_caption_counts_the_resolved_points_and_what_the_rest_would_cost():
     2 on each side, B 1 of 2 and 2 of 2); without a precision target the rest get no cost but the way to have one
     predicted; with records at the quoted θ (A's 0.2 unmet, 1e8 extra
     pixel-samples, 0.3 met; B's 0.2 predicted never to meet it) the line sums the extra, times it at the measured
-    rate (10 ns per pixel-sample: 1e8 → 1 s) and names what no number of sets meets."""
+    rate (10 ns per pixel-sample: 1e8 → 1 s) and names what no number of sets meets; with the curve's own prediction
+    instead, the median and the largest count of fresh sets of the whole grid and those that need a finer step."""
     from nlosbench.studies.bounds import resolution
 
     lines = resolution(SYNTHETIC, "x", [], None, 0.95)
@@ -152,6 +153,22 @@ def test_the_caption_counts_the_resolved_points_and_what_the_rest_would_cost():
                         "at its measured 10 ns per pixel-sample).")
     assert lines[3].startswith("- Poisson, scale = 300: 3 of 4 points resolved; of the other 1, 1 are predicted to "
                                "need more than any number of replicate sets")
+    # the curve's own prediction (no quoted θ): A's 0.2, 0.3 and 0.4 need 8, 32 and 16 fresh sets of the whole grid (1e8
+    # pixel-samples each), B's 0.2 a finer FD step; the cost of half of A's is the median count's, of all the largest's
+    def own(noise, theta, sets, note=""):
+        return {"noise": noise, "theta": {"x": theta}, "target": 0.25, "met": False, "extra_sets": sets,
+                "extra_pixel_samples": sets * 1e8, "note": note}
+
+    pred = [own(A, 0.2, 8.0), own(A, 0.3, 32.0), own(A, 0.4, 16.0),
+            own(B, 0.2, math.inf, "no number of sets at the curve's FD step: F still rises at its finest step")]
+    lines = resolution(SYNTHETIC, "x", [], 1e-8, 0.95, predicted=pred)
+    assert lines[2] == ("- AWGN, σ = 0.05: 2 of 4 points resolved; what ±25 % would cost, predicted from the curve's "
+                        "own sets (nothing rendered for it): 3 of the 4 θ miss it; 3 would meet it with fresh "
+                        "replicate sets of the whole grid, one set serving every θ (from 8 sets): half of them with 16 "
+                        "sets, 1.6e+09 pixel-samples, ≈ 16 s, all 3 with 32 sets, 3.2e+09 pixel-samples, ≈ 32 s on "
+                        "this machine at its measured 10 ns per pixel-sample."), lines[2]
+    assert lines[3].endswith("1 of the 4 θ miss it; 1 need a finer FD step than the grid's (F still rises at it: an "
+                             "edge), which a `precision` target quotes through the bound service's `at`."), lines[3]
 
 
 def test_values_decades_away_are_marked_off_scale_and_do_not_stretch_the_axis(rows):

@@ -562,9 +562,36 @@ def test_a_curve_quotes_its_bounds_through_at_with_its_own_sets_as_pilot():
     (dict(quote=[0.5]), "quote needs a precision target"),
     (dict(precision=0.2, quote=[]), "quote must hold at least one θ"),
     (dict(precision=0.2, crlb=False, max_halvings=13), "max_halvings must be an integer in"),
+    (dict(predict=0.0), "precision must be a finite number > 0"),
+    (dict(predict=[0.2, 0.3]), "predict: one target or one per grid θ"),
+    (dict(predict=0.2, replicates=2), "needs replicates >= 3"),
+    (dict(predict=0.2, gradient="ad"), "predict: the cost of more sets is predicted for FD gradients only"),
 ])
 def test_a_curve_with_bad_precision_arguments_raises_before_any_render(bad, match):
     bank = RenderBank(_blob(2.0))
     with pytest.raises(ValueError, match=match) as e:
         BoundService(bank, [nb.noise.AWGN(0.3)]).curve(np.linspace(0.2, 0.8, 5), 16, **bad)
     assert bank.renders == 0 and "\n" not in str(e.value)
+
+
+def test_a_curves_own_prediction_of_fresh_grid_sets_is_met_by_that_many_and_not_by_far_fewer():
+    """`curve(predict=p)` on blob2d's x (41 points at 1 cm, 4 spp, rendering noise 2.5, AWGN 0.05): from a pilot curve
+    of 3 sets (seed 0) every θ is predicted to need fresh sets of the whole grid (the pilot meets ±25 % nowhere); a
+    fresh curve (seed 100, its level the prediction's) with the median count the pilot asked for meets ±25 % at every
+    θ that asked for no more, and one with 4 sets, below every count asked for, at fewer than half: the plan's model,
+    from 3 sets, tracks what the renders then give. Each prediction costs its sets × 41 renders × 4 spp × 24 × 24
+    pixels. ≈ 6 s."""
+    from nlosbench.bounds.precision import spending
+
+    model = nb.scenes.get("blob2d", render_noise=2.5).restrict(["x"])
+    grid, noise = np.linspace(0.3, 0.7, 41), [nb.noise.AWGN(0.05)]
+    pilot = BoundService(RenderBank(model, seed=0), noise).curve(grid, 4, predict=0.25, zzb=False)
+    asked = np.array([p.precision.extra_sets for p in pilot.points])
+    assert not any(p.precision.met for p in pilot.points) and np.all(np.isfinite(asked)) and asked.min() > 4, asked
+    assert all(p.precision.extra_pixel_samples == p.precision.extra_sets * 41 * 4 * 24 * 24 for p in pilot.points)
+    level = 1.0 - spending(0.05, 2)[1]
+    for sets in (int(np.median(asked)), 4):
+        fresh = BoundService(RenderBank(model, seed=100), noise, level=level).curve(grid, 4, replicates=sets,
+                                                                                    predict=0.25, zzb=False)
+        met = np.array([p.precision.met for p in fresh.points])
+        assert met[asked <= sets].all() if sets > 4 else met.mean() < 0.5, (sets, met)

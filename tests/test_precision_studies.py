@@ -106,13 +106,18 @@ def test_a_bounds_target_without_precision_at_quotes_every_grid_theta(tmp_path):
 
 
 def test_a_looser_target_beyond_a_theta_reaches_the_quoted_bounds_beyond_it(tmp_path):
-    """`precision_beyond: [0.6, 0.5]` with `precision: 0.15`: the records at 0.2 and 0.5 carry 0.15, the one at 0.8
-    carries 0.5."""
+    """`precision_beyond: [0.6, 0.5]` with `precision: 0.15` and `precision_predict: 0.15`: the quoted records and
+    the curve's own predictions at 0.2 and 0.5 carry 0.15, those at 0.8 carry 0.5; a prediction's pixel-samples are
+    its fresh sets of the whole grid, each 3 θ × (the θ + 2 steps × 2 stencils) renders of 16 spp × 24 × 24."""
     rc, out = _run(tmp_path, [{**BOUNDS, "precision": 0.15, "precision_beyond": [0.6, 0.5], "hcr_offsets": 0,
-                               "precision_fd_step": 0.02}])
+                               "precision_fd_step": 0.02, "precision_predict": 0.15}])
     assert rc == 0
-    recs = json.loads((out / "results.json").read_text())["studies"]["b"]["results"]["precision"]
-    assert sorted((round(r["theta"]["x"], 6), r["target"]) for r in recs) == [(0.2, 0.15), (0.5, 0.15), (0.8, 0.5)]
+    res = json.loads((out / "results.json").read_text())["studies"]["b"]["results"]
+    for key in ("precision", "predicted"):
+        got = sorted((round(r["theta"]["x"], 6), r["target"]) for r in res[key])
+        assert got == [(0.2, 0.15), (0.5, 0.15), (0.8, 0.5)], (key, got)
+    finite = [r for r in res["predicted"] if math.isfinite(r["extra_sets"]) and not r["met"]]
+    assert all(r["extra_pixel_samples"] == r["extra_sets"] * 3 * 5 * 16 * 24 * 24 for r in finite), finite
 
 
 def test_a_small_first_step_up_to_a_theta_starts_the_quoted_bounds_there(tmp_path):
@@ -161,7 +166,9 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     ({**BOUNDS, "precision_budget": 10**6, "precision": None}, "b.precision_budget: a budget needs a precision"),
     ({**BOUNDS, "precision_at": [0.5]}, "b.precision_at: quoting bounds at θ needs a `precision` target"),
     ({**BOUNDS, "precision": 0.2, "precision_at": [0.5, 0.95]}, "b.precision_at[1]: θ out of range"),
-    ({**BOUNDS, "precision_beyond": [0.6, 0.5]}, "b.precision_beyond: needs a `precision` target"),
+    ({**BOUNDS, "precision_beyond": [0.6, 0.5]}, "b.precision_beyond: needs a `precision` or `precision_predict`"),
+    ({**BOUNDS, "precision_predict": 0.0}, "b.precision_predict: expected a target > 0 (e.g. 0.25) or null, got 0.0"),
+    ({**BOUNDS, "precision_predict": 0.2, "replicates": 2}, "b.replicates: a precision target needs >= 3 replicates"),
     ({**BOUNDS, "precision": 0.2, "precision_beyond": [0.6]}, "b.precision_beyond: expected [θ₀, p₀] with p₀ > 0"),
     ({**BOUNDS, "precision": 0.2, "precision_fd_step": -0.01}, "b.precision_fd_step: expected a step > 0"),
     ({**BOUNDS, "precision_fd_step_until": [0.5, 0.005]}, "b.precision_fd_step_until: needs a `precision` target"),

@@ -9,6 +9,9 @@ on or off the grid; every grid θ when it is empty): after the curve, the servic
 as pilot (its test grid the curve's own when the grid is `params.grid(G)`), which adds fresh replicate sets where an
 interval is wider than asked (`bounds.precision`): precise.csv (a row per noise and quoted θ, with the precision_*
 columns), a report table "Precision at the quoted θ" and those points on the plot.
+With `precision_predict`, the curve predicts from its own sets what meeting that target at each grid θ would cost in
+fresh replicate sets of the whole grid (nothing is rendered for it; results.json `predicted`), and the report says
+what the points it did not resolve would cost.
 Report: from those and results.json only.
 """
 from __future__ import annotations
@@ -49,9 +52,13 @@ SCHEMA = {
                                     "the `precision` target (needs `precision`); empty with a `precision`: every "
                                     "grid θ", items=float),
     **precise.KEYS,
-    "precision_beyond": Field(list, [], "[θ₀, p₀]: beyond θ₀ the quoted bounds' target is p₀ instead of `precision` "
-                              "(where the information is small a looser target decides as much; needs `precision`)",
-                              items=float),
+    "precision_predict": Field(float, None, "a target p for the curve's own points: from its sets, the fresh "
+                               "replicate sets of the whole grid each θ would need for ±p (nothing is rendered for "
+                               "it; one set serves every θ), so the report says what the curve would cost at p",
+                               nullable=True),
+    "precision_beyond": Field(list, [], "[θ₀, p₀]: beyond θ₀ the target of the quoted bounds and of the curve's "
+                              "prediction is p₀ instead of `precision` / `precision_predict` (where the information "
+                              "is small a looser target decides as much; needs one of them)", items=float),
     "precision_fd_step": Field(float, None, "the quoted bounds' first FD step ξ, halved per θ until F settles (at most "
                                "`max_halvings` times): large where L(θ) is smooth, the halvings reach an edge's step; "
                                "null: `fd_step`, else the grid spacing", nullable=True),
@@ -112,7 +119,16 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.level", f"expected a confidence level in (0, 1), got {cfg['level']}")
     if cfg["precision_at"] and cfg["precision"] is None:
         raise ConfigError(f"{sid}.precision_at", "quoting bounds at θ needs a `precision` target")
-    for key in ("precision_beyond", "precision_fd_step", "precision_fd_step_until"):
+    if cfg["precision_predict"] is not None and not (math.isfinite(cfg["precision_predict"]) and
+                                                     cfg["precision_predict"] > 0):
+        raise ConfigError(f"{sid}.precision_predict", f"expected a target > 0 (e.g. 0.25) or null, got "
+                                                      f"{cfg['precision_predict']}")
+    if cfg["precision_predict"] is not None and cfg["replicates"] < 3:
+        raise ConfigError(f"{sid}.replicates", f"a precision target needs >= 3 replicates (confidence limits), got "
+                                               f"{cfg['replicates']}")
+    if cfg["precision_beyond"] and cfg["precision"] is None and cfg["precision_predict"] is None:
+        raise ConfigError(f"{sid}.precision_beyond", "needs a `precision` or `precision_predict` target")
+    for key in ("precision_fd_step", "precision_fd_step_until"):
         if cfg[key] not in (None, []) and cfg["precision"] is None:
             raise ConfigError(f"{sid}.{key}", "needs a `precision` target")
     if cfg["precision_beyond"] and (len(cfg["precision_beyond"]) != 2 or not cfg["precision_beyond"][1] > 0):
@@ -164,16 +180,21 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     svc = BoundService(ctx.bank, ctx.noises, p.level)
     # with a target, the quoted θ (None: every grid θ) to it, the curve's sets their pilot
     kw = precise.at_kwargs(cfg)
-    if cfg["precision_beyond"]:  # a target per quoted θ
-        (edge, looser), base = cfg["precision_beyond"], kw["precision"]
-        kw["precision"] = np.where(p.precision_at > edge, looser, base)
+    predict = cfg["precision_predict"]
+    if cfg["precision_beyond"]:  # a target per quoted θ, and per grid θ for the curve's prediction
+        edge, looser = cfg["precision_beyond"]
+        if kw["precision"] is not None:
+            kw["precision"] = np.where(p.precision_at > edge, looser, kw["precision"])
+        if predict is not None:
+            predict = np.where(p.thetas > edge, looser, predict)
     step = cfg["precision_fd_step"]
     if cfg["precision_fd_step_until"]:  # a first FD step per quoted θ
         (edge, small) = cfg["precision_fd_step_until"]
         step = np.where(p.precision_at <= edge, small, step or p.fd_step or float(np.diff(p.thetas).min()))
     curve = svc.curve(p.thetas, p.spp, p.seeds, p.replicates, crlb=p.crlb, barankin=p.barankin, zzb=p.zzb,
                       fd_step=p.fd_step, step_tol=p.step_tol, quote=cfg["precision_at"] or None,
-                      max_halvings=cfg["max_halvings"], offsets=cfg["hcr_offsets"], quote_step=step, **kw)
+                      max_halvings=cfg["max_halvings"], offsets=cfg["hcr_offsets"], quote_step=step,
+                      predict=predict, **kw)
     names = ctx.model.params.names
     write_csv(out / "bounds.csv", [pt.row(names) for pt in curve.points])
     precision = []
@@ -193,7 +214,9 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             "parameter": names[0],
             "units": ctx.model.params.units[0], "zzb_reason": curve.zzb_reason,
             "noise": summarize(read_csv(out / "bounds.csv"), zrows, precision),
-            **({"precision": precision, "seconds_per_sample": ctx.rate} if precision else {})}
+            **({"precision": precision} if precision else {}),
+            **({"predicted": precise.records(curve.points, len(p.thetas), names)} if predict is not None else {}),
+            **({"seconds_per_sample": ctx.rate} if precision or predict is not None else {})}
 
 
 def summarize(rows: list[dict], zrows: list[dict], records: list[dict] = ()) -> dict:
@@ -224,13 +247,15 @@ def summarize(rows: list[dict], zrows: list[dict], records: list[dict] = ()) -> 
 
 
 def resolution(rows: list[dict], parameter: str, records: list[dict], seconds_per_sample: float | None,
-               level: float, los_until: float | None = None) -> list[str]:
+               level: float, los_until: float | None = None, predicted: list[dict] = ()) -> list[str]:
     """The caption's lines under the curve: per noise model how many θ of `rows` (bounds.csv) are resolved
     (`plotstyle.resolved`; with `los_until`, also in line of sight, θ < los_until, and beyond), and for the others
     what the precision `records` (`precise.records`, at the quoted θ; [] without a target) say: met there, the
     predicted extra pixel-samples summed over θ with their time at `seconds_per_sample` (the run's measured rate;
-    None: no time), none predicted to suffice, or not quoted; without records, how to have the cost predicted. Each
-    end is a pointwise one-sided limit at `level`."""
+    None: no time), none predicted to suffice, or not quoted; else what the curve's own prediction (`predicted`, its
+    records per grid θ: `BoundService.curve(predict=...)`) says: the fresh sets of the whole grid that would meet the
+    target there (one set serves every θ: the largest count is the cost), or none at the curve's FD step; else how to
+    have the cost predicted. Each end is a pointwise one-sided limit at `level`."""
     lines = [f"Resolved: both ends of the HCR and of the CRLB are one-sided {level:.0%} confidence limits (no open "
              f"end, none labelled not a confidence limit); each end holds pointwise, so about {1 - level:.0%} of the "
              "ends may miss.", ""]
@@ -247,6 +272,10 @@ def resolution(rows: list[dict], parameter: str, records: list[dict], seconds_pe
             lines.append(text + ".")
             continue
         mine = [r for r in records if r["noise"] == noise]
+        own = [r for r in predicted if r["noise"] == noise and not r["met"]]
+        if not mine and own:
+            lines.append(text + "; " + _curve_cost(own, len(rs), seconds_per_sample))
+            continue
         if not mine:
             lines.append(text + f"; the other {len(rest)}: no cost predicted without a precision target (set "
                          "`precision`, e.g. 0.25, and the bound service predicts at each θ what more replicate sets "
@@ -272,6 +301,39 @@ def resolution(rows: list[dict], parameter: str, records: list[dict], seconds_pe
             parts.append(f"{len(rest) - len(quoted)} were not quoted (no prediction)")
         lines.append(text + f"; of the other {len(rest)}, " + ", ".join(parts) + ".")
     return lines
+
+
+def _curve_cost(own: list[dict], G: int, seconds_per_sample: float | None) -> str:
+    """What the curve's own prediction says of the θ that did not meet its target (`own`, records of one noise
+    model; G grid θ in all): how many fresh sets of the whole grid meet it where a count is predicted, the
+    largest count's pixel-samples and time (one set serves every θ), and how many no number of sets at the curve's
+    FD step would."""
+    targets = " / ".join(f"±{fmt(100 * g, 3)} %" for g in sorted({r["target"] for r in own}))
+    finite = [r for r in own if math.isfinite(r["extra_sets"])]
+    parts = []
+    if finite:
+        counts = sorted(r["extra_sets"] for r in finite)
+        per_set = finite[0]["extra_pixel_samples"] / finite[0]["extra_sets"]  # a set of the whole grid
+
+        def cost(sets: float) -> str:
+            px = sets * per_set
+            return (f"{fmt(sets, 3)} sets, {px:.3g} pixel-samples" +
+                    (f", ≈ {describe(px * seconds_per_sample)}" if seconds_per_sample else ""))
+
+        half = counts[(len(counts) - 1) // 2]
+        parts.append(f"{len(finite)} would meet it with fresh replicate sets of the whole grid, one set serving every "
+                     f"θ (from {fmt(counts[0], 3)} sets): half of them with {cost(half)}, all {len(finite)} with "
+                     f"{cost(counts[-1])}" + (f" on this machine at its measured {seconds_per_sample * 1e9:.3g} ns per "
+                                              "pixel-sample" if seconds_per_sample else ""))
+    rising = sum("still rises" in r["note"] for r in own)
+    if rising:
+        parts.append(f"{rising} need a finer FD step than the grid's (F still rises at it: an edge), which a "
+                     "`precision` target quotes through the bound service's `at`")
+    if len(own) - len(finite) - rising:
+        parts.append(f"{len(own) - len(finite) - rising} are predicted to need more than any number of sets at "
+                     "this spp")
+    return (f"what {targets} would cost, predicted from the curve's own sets (nothing rendered for it): {len(own)} of "
+            f"the {G} θ miss it; " + "; ".join(parts) + ".")
 
 
 def smoke(block: dict) -> dict:
@@ -312,7 +374,8 @@ def report(study_dir: Path, results: dict) -> str:
              "for every estimator, biased or not (one number per noise model).", "",
              f"![bounds]({study_dir.name}/bounds.png)", "",
              *resolution(rows, results.get("parameter", "θ"), results.get("precision", []),
-                         results.get("seconds_per_sample"), results["level"], results.get("los_until")), "",
+                         results.get("seconds_per_sample"), results["level"], results.get("los_until"),
+                         results.get("predicted", [])), "",
              "| noise | log10 HCR lower end, min – max | θ where Δ → 0 sets it | θ with open upper end | "
              f"θ whose lower end is not a confidence limit | ZZB point [{lvl} ends] |", "|---|---|---|---|---|---|"]
     for noise, s in results["noise"].items():

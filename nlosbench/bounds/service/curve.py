@@ -11,7 +11,7 @@ from nlosbench.bounds.fd_step import Stage, converge
 from nlosbench.bounds.grid import pairwise_lambda
 from nlosbench.bounds.hcr import hcr_from_lambda
 from nlosbench.bounds.hcr_interval import hcr_interval
-from nlosbench.bounds.precision import check_precision
+from nlosbench.bounds.precision import MAX_PREDICT, Precision, Raw, check_precision, plan, reached, spending
 from nlosbench.bounds.service.points import (
     Bound,
     BoundPoint,
@@ -65,7 +65,7 @@ class Curves(RenderSets):
               barankin: bool = False, zzb: bool = True, prior=None, noises=None, fd_step: float | None = None,
               gradient: str = "fd", ad: dict | None = None, check_step: bool = True, step_tol: float = 0.1,
               precision=None, budget: int | None = None, looks: int = 2, quote=None,
-              max_halvings: int = 3, offsets: int = 4, quote_step=None) -> Curve:
+              max_halvings: int = 3, offsets: int = 4, quote_step=None, predict=None) -> Curve:
         """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders; with a precision target, the
         interval bounds at the θ it quotes to that target.
 
@@ -87,6 +87,11 @@ class Curves(RenderSets):
         smallest spacing,
         halved at most `max_halvings` times, and fresh replicate sets where an interval is wider than ±p
         (`bounds.precision`), in `Curve.precise`.
+
+        With a `predict` target p (nothing rendered for it), each grid point's `precision` record says whether the
+        curve's own sets met ±p and, where not, how many fresh replicate sets of the whole grid the planning model
+        (`bounds.precision.plan`, from the curve's sets) predicts would: one such set serves every grid θ, so what
+        the curve would cost at p is the largest prediction (`predicted`).
 
         Parameters
         ----------
@@ -141,6 +146,9 @@ class Curves(RenderSets):
             The quoted bounds' first FD step ξ (halved per θ until F settles), one for all or one per quoted θ;
             None: `fd_step`, else the grid's smallest spacing. Where L(θ) is smooth over centimetres a large start
             costs the fewest renders; where an edge crosses pixels a small one saves the halvings down to it.
+        predict : float or array_like of shape (G,), optional
+            A target p > 0 (relative half-width, linear units; one, or one per grid θ) for the curve's own points:
+            their `precision` records with the fresh sets of the whole grid predicted to meet it (FD gradients only).
 
         Returns
         -------
@@ -160,6 +168,13 @@ class Curves(RenderSets):
             raise ValueError(f"offsets must be an integer >= 0, got {offsets!r}")
         kinds = ("hcr", "crlb") if crlb else ("hcr",)
         check_precision(precision, budget, looks, kinds, R)
+        if predict is not None:
+            check_precision(predict, None, looks, kinds, R)
+            if gradient != "fd":
+                raise ValueError("predict: the cost of more sets is predicted for FD gradients only (an AD pass is not "
+                                 "a render)")
+            if np.size(predict) not in (1, T.size):
+                raise ValueError(f"predict: one target or one per grid θ ({T.size}), got {np.size(predict)}")
         if quote is not None and precision is None:
             raise ValueError("quote needs a precision target (precision=...)")
         quoted = T if quote is None else np.array(
@@ -179,31 +194,45 @@ class Curves(RenderSets):
             uniform_spacing(T)
         except ValueError as e:
             zzb_reason = str(e)
-        points, zzbs = [], {}
-        for j, noise in self._select(noises).items():
-            Wflat = np.stack([w for w, _ in weights[j]])
-            plug = pairwise_lambda(pooled, noise) if not isinstance(noise, Poisson) else _plugin_poisson(pooled, Wflat)
-            for g, t in enumerate(T):
-                others = np.flatnonzero(np.arange(G) != g)
-                deltas = T[others] - t
-                flags = weights[j][g][1]
-                sf = converge(stages[g], Wflat[g], self.level, step_tol, spp)
+        selected = self._select(noises)
+        plugs = {j: pairwise_lambda(pooled, noise) if not isinstance(noise, Poisson) else
+                 _plugin_poisson(pooled, np.stack([w for w, _ in weights[j]])) for j, noise in selected.items()}
+        goal = None if predict is None else np.broadcast_to(np.asarray(predict, dtype=np.float64).reshape(-1), (G,))
+        per_set = None if predict is None else G * (1 + (0 if fd_step is None and seeds == "common" else
+                                                         2 * len(stages[0]) + (seeds == "independent")))
+        points: dict[tuple[int, int], BoundPoint] = {}
+        for g, t in enumerate(T):
+            others = np.flatnonzero(np.arange(G) != g)
+            deltas = T[others] - t
+            D = (Xd[:, others] - Xd[:, g:g + 1]).reshape(R, G - 1, -1).numpy()  # replicate differences (R, G − 1, N)
+            raws = []
+            for j, noise in selected.items():
+                w, flags = weights[j][g]
+                sf = converge(stages[g], w, self.level, step_tol, spp)
                 # row g of the pairwise λ (`pairwise_ustat`), with the per-pixel terms the lower end's joint level uses
-                sub = pixel_ustat((Xd[:, others] - Xd[:, g:g + 1]).reshape(R, G - 1, -1).numpy(), Wflat[g], self.group)
+                sub = pixel_ustat(D, w, self.group)
                 b: dict[str, Bound] = {}
                 b["hcr"] = interval_bound(hcr_interval(sub, deltas, sf, self.level, lo - t, hi - t), flags, sf)
                 if crlb:
                     b["crlb"] = crlb_bound(sf, self.level, flags)
-                b["hcr_neff"] = hcr_bound(hcr_from_lambda(plug[g, others], deltas, lo - t, hi - t))
+                b["hcr_neff"] = hcr_bound(hcr_from_lambda(plugs[j][g, others], deltas, lo - t, hi - t))
                 if barankin:
                     b["barankin"] = _barankin(pooled[g], pooled[others], deltas, noise, lo - t, hi - t)
-                points.append(BoundPoint(j, str(noise), np.array([t]), b))
-            zzbs[j] = self._zzb(Xd, T, noise, Wflat, prior, spp) if zzb and not zzb_reason else None
+                points[j, g] = BoundPoint(j, str(noise), np.array([t]), b)
+                raws.append(Raw(D, sub, sf, stages[g], w, deltas, lo - t, hi - t, int(np.prod(Xd.shape[2:4])),
+                                self.group))
+            if goal is not None:
+                mine = [points[j, g] for j in selected]
+                for pt, pr in zip(mine, predicted(mine, raws, kinds, float(goal[g]), self.level, R, per_set, spp),
+                                  strict=True):
+                    pt.precision = pr
+        zzbs = {j: self._zzb(Xd, T, noise, np.stack([w for w, _ in weights[j]]), prior, spp)
+                if zzb and not zzb_reason else None for j, noise in selected.items()}
         precise = [] if precision is None else self.at(
             quoted[:, None], spp, kinds, seeds, R, quote_test_grid(self.params, T), offsets,
             fd_step=quote_step if quote_step is not None else fd_step or float(np.diff(T).min()), noises=noises,
             step_tol=step_tol, max_halvings=max_halvings, precision=precision, budget=budget, looks=looks)
-        return Curve(points, zzbs, zzb_reason, precise)
+        return Curve([points[j, g] for j in selected for g in range(G)], zzbs, zzb_reason, precise)
 
     def _curve_stages(self, T: np.ndarray, Xd: torch.Tensor, spp: int, seeds: str, R: int, fd_step, gradient: str,
                       ad, check_step: bool) -> list[list[Stage]]:
@@ -254,6 +283,32 @@ class Curves(RenderSets):
         return Bound("zzb", z.lower, None, flags, reason, lower=z.lower, upper=z.upper, point=z.point,
                      level=None if z.estimate_only else z.level,
                      extra={"prior_variance": z.prior_variance, "halved": z.halved})
+
+
+def predicted(points: list[BoundPoint], raws: list[Raw], kinds: tuple[str, ...], target: float, level: float,
+              R: int, per_set: int, spp: int) -> list[Precision]:
+    """What one grid θ's curve points (one per noise model, with their `raws`) reached against `target` and, where
+    they did not meet it, the fresh replicate sets of the whole grid predicted to (`precision.plan` from the curve's
+    own sets, at the level of a first fresh look, `spending`), each set `per_set` renders of `spp` samples shared by
+    every grid θ: so the curve's cost to meet the target at several θ is the largest of their predictions, not the
+    sum. Nothing is rendered."""
+    pixels = raws[0].pixels
+    reach = [{k: reached(pt.bounds[k]) for k in kinds} for pt in points]
+    met = max(max(r.values()) for r in reach) <= target
+    sets, note = 0.0, "met by the curve's own sets"
+    if not met:
+        pl = plan(raws, kinds, target, 1.0 - spending(1.0 - level, 2)[1], MAX_PREDICT)
+        sets = math.inf if pl.sets is None else float(pl.sets)
+        if pl.sets is not None:
+            note = f"predicted from the curve's sets: {pl.sets} fresh sets of the whole grid ({per_set} renders each)"
+        elif any(r.sf.halvings and r.sf.halvings[-1].rising for r in raws):
+            note = ("no number of sets at the curve's FD step: F still rises at its finest step (an edge: a finer "
+                    "step, quoted with a precision target, may settle it)")
+        else:
+            note = (f"no number of sets is predicted to meet it at this spp ({pl.predicted:.3g} at {MAX_PREDICT} sets, "
+                    "holding the curve's estimates fixed)")
+    return [Precision(target, r, bool(met), 1, R, 0, level, R * per_set * spp * pixels, sets,
+                      sets * per_set * spp * pixels, note) for r in reach]
 
 
 def _plugin_poisson(pooled: torch.Tensor, Wflat: np.ndarray) -> np.ndarray:
