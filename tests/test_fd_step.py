@@ -286,3 +286,25 @@ def test_a_step_that_reaches_where_the_object_was_visible_is_halved_until_f_stop
         b = pt.bounds[kind]
         assert b.upper_note.startswith("not a confidence limit: F still falls (F ×0.48"), (kind, b.upper_note)
         assert not b.lower_note and 10 ** b.lower <= exact
+
+
+def test_the_step_is_not_halved_past_a_check_no_finer_step_resolves(cornell):
+    """cornell_ball's ball_x at 0.1 (AWGN σ = 0.1, 3 rounds, ξ = 4 cm, up to 4 halvings). At 2 spp the first check's
+    SE is above HOPELESS_SE (F ×1.54 ± 0.74): the service stops there (15 renders, not 33), and its note asks for more
+    spp; the halvings it did not make, rendered here on the same seeds, are no better resolved (every SE above
+    HOPELESS_SE: this renderer's FD noise does not shrink with the step). At 64 spp the same call halves 4 times."""
+    from nlosbench.bounds.fd_step import HOPELESS_SE, halving
+
+    model = cornell.restrict(["ball_x"])
+    reasons = {}
+    for spp in (2, 64):
+        bank = RenderBank(model, seed=3)
+        svc = BoundService(bank, [nb.noise.AWGN(0.1)])
+        (pt,) = svc.at([[0.1]], spp, ("crlb",), test_grid=3, offsets=0, fd_step=0.04, max_halvings=4)
+        reasons[spp] = (bank.renders, pt.bounds["crlb"].reason)
+    renders, reason = reasons[2]
+    assert renders == 15 and reason.count("F(ξ/2)/F(ξ) =") == 1 and reason.endswith("more spp per round)"), reason
+    stages = [svc._stages(np.array([[0.1]]), None, 2, "common", 3, xi)[0] for xi in (0.02, 0.01, 0.005, 0.0025)]
+    ses = [halving(a, b, 100.0, 0.95, 0.1).se for a, b in zip(stages, stages[1:], strict=False)]
+    assert min(ses) > HOPELESS_SE, ses
+    assert reasons[64][0] == 33 and reasons[64][1].count("F(ξ/2)/F(ξ) =") == 4, reasons[64]

@@ -17,7 +17,9 @@ The rule (`converge`, used by the bound service):
 * halve ξ while, for some parameter, the paired one-sided upper limit of the central F(ξ/2)/F(ξ) exceeds 1 +
   step_tol (F is not shown to have stopped rising, the direction that breaks lower ends), or is below 1/(1 +
   step_tol) (F shown to fall: the stencil at ξ reaches a larger F nearby, as where the object leaves the line of
-  sight, and F may fall further, the direction that breaks upper ends), at most `max_halvings` times. The upper
+  sight, and F may fall further, the direction that breaks upper ends), at most `max_halvings` times, and not past a
+  halving whose check is hopeless (`Halving.hopeless`: the ratio's SE above HOPELESS_SE, or F unresolved; a finer
+  step has no smaller SE, so only more spp per round can settle it). The upper
   limit is Fieller's: F(ξ/2)/F(ξ) ≤ c is shown when the upper confidence limit of F(ξ/2) − c·F(ξ) is ≤ 0. The
   central difference decides (the one-sided variants only where there is no central one): a one-sided difference of
   a smooth L is biased to first order, (J ± J'ξ/2)², so one side keeps rising by ≈ |J'/J|·ξ/2 at every halving — 6 %
@@ -73,6 +75,10 @@ class Stage:
     group: int = 1
 
 
+#: the paired SE of F(ξ/2)/F(ξ) beyond which a halving is `Halving.hopeless` and the step is halved no further
+HOPELESS_SE = 0.5
+
+
 @dataclass
 class Halving:
     """The paired comparison of F at one step with F at half of it: ratio F(ξ/2)/F(ξ) and its paired SE for
@@ -97,6 +103,16 @@ class Halving:
     @property
     def steady(self) -> bool:
         return self.converged and not self.falling
+
+    @property
+    def hopeless(self) -> bool:
+        """The ratio's paired SE exceeds HOPELESS_SE, or F is unresolved (ratio not finite): the check could pass
+        only at a ratio ≤ 1 + tol − t·SE (< 0.3) and show a fall only below 1/(1 + tol) − t·SE (< 0.1), and where a
+        path tracer's FD noise does not cancel between θ ± ξ a finer step has no smaller SE (cornell_ball at 2 spp:
+        0.74, then 0.64–1.5; the Π hallway beyond the corner at 4 × 384 spp: 0.16, 0.39, 0.7, 2.5 from 6 cm down), so
+        halving on only spends renders; more spp per round would resolve it. (An analytic toy whose noise is smooth
+        in θ cancels under common seeds, and its SE shrinks with the step: it never reaches HOPELESS_SE.)"""
+        return not (math.isfinite(self.ratio) and self.se <= HOPELESS_SE)
 
 
 @dataclass
@@ -158,6 +174,9 @@ class StepFisher:
             return ""
         h = self.halvings[-1]
         finer = f"ξ = {h.step / 4:.3g} (one more halving)"
+        if h.hopeless:
+            return (f"the check is unresolved at this spp ({_change(h)}), and a finer step would not resolve it: "
+                    "more spp per round")
         if self.converged:
             return f"F still falls: try {finer}"
         if not math.isfinite(h.ratio) or h.ratio >= 1 + self.step_tol or not h.se > 0:

@@ -27,9 +27,9 @@ fresh look would cost (`extra_pixel_samples`), a survey at a fixed cost.
       exploratory R* = EXPLORE·R0 within the budget;
   looks k = 1 … K − 1: R*·2^(k−1) sets of its own, after every set rendered before it at any θ* (look 1 of the
       first wave the sets R0 … R0 + R* − 1), at level 1 − α_k; stop at the first look that meets p. Looks are made
-      in waves: those whose worst-case cost fits what is left of the budget (cheapest first, exploratory ones after
-      every planned one), then, against what they actually spent, the others; a θ* whose look fits in no wave gets
-      no more looks.
+      in waves: those whose worst-case cost fits what is left of the budget (cheapest first), then, against what
+      they actually spent, the others; exploratory looks only once every planned one has been admitted or left out;
+      a θ* whose look fits in no wave gets no more looks.
 The reported interval is that of the last look made.
 
 Proof that P(reported interval misses the true value) ≤ α whatever the stopping. Let E_k be the event that look
@@ -470,7 +470,7 @@ class Fit:
                 extra = {name: replace(u, est=ref.est) for name, u in extra.items()}
             halvings.append(Halving(h.step, h.ratio, h.se * float(np.max(ratio.get("central", [1.0]))), converged,
                                     rising, {}, extra, falling))
-            if halvings[-1].steady:
+            if halvings[-1].steady or halvings[-1].hopeless:  # where the look's own halving stops
                 stats.append(stage(k + 1))
                 break
         steps = sf.steps[window.start:window.start + len(stats)]
@@ -714,9 +714,10 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
     first = {i: R0 for i in star}  # the next fresh set of each θ*
     for k in range(1, K):
         waiting = [i for i in star if worst(i) > goal[i]]
-        # waves: the θ* whose look fits what is left, cheapest first, exploratory looks after every planned one; the
-        # others wait for the next wave, against what the looks before actually spent (a look stops halving where
-        # its check passes, so most spend far less than their worst case); left out for good when none fits
+        # waves: the θ* whose look fits what is left, cheapest first; the others wait for the next wave, against what
+        # the looks before actually spent (a look stops halving where its check passes, so most spend far less than
+        # their worst case); left out for good when none fits. Exploratory looks come only after every planned one
+        # has been admitted or left out: a planned look is predicted to meet its target, an exploratory one is not
         while waiting:
             for i in waiting:  # past every set rendered so far (at any θ), so independent of what admits the look
                 first[i] = max(first[i], R0 + grid_done)
@@ -726,17 +727,22 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
             new = {i: (0, sets[i], 0, stages[i], n_tested(star[i][1])) for i in waiting}
             waiting.sort(key=lambda i: (star[i][1].sets is None, _worst_case(cost, new, now, [i], grid_done), i))
             todo = []
+            sure = [i for i in waiting if star[i][1].sets is not None]  # planned: predicted to meet the target
             for i in waiting:
+                if star[i][1].sets is None and any(j not in todo for j in sure):
+                    continue  # exploratory looks only once every planned one is admitted or left out
                 if _worst_case(cost, new, now, [*todo, i], grid_done) * per_sample <= cap - spent():
                     todo.append(i)
             waiting = [i for i in waiting if i not in todo]
-            if not todo:  # each alone exceeds what is left
-                for i in waiting:
+            if not todo:  # each alone exceeds what is left: the planned ones are out, then the exploratory ones
+                out = [i for i in waiting if i in sure] or waiting
+                for i in out:
                     st.notes[i] = (f"not met: its look {k} (worst case "
                                    f"{_worst_case(cost, new, now, [i], grid_done) * per_sample} pixel-samples) "
                                    f"would exceed {cap_text} ({cap - spent()} left)")
                     del star[i]
-                break
+                waiting = [i for i in waiting if i not in out]
+                continue
             groups = {(first[i], sets[i], star[i][1].window) for i in todo}
             for f, R, win in sorted(groups, key=lambda g: (g[0], g[1], repr(g[2]))):
                 idx = np.array([i for i in todo if (first[i], sets[i], star[i][1].window) == (f, R, win)])

@@ -159,8 +159,9 @@ class RenderSets:
     def _refine(self, thetas: np.ndarray, stage_fn, weights: dict, step, step_tol: float,
                 max_halvings: int) -> list[list[Stage]]:
         """FD stages (coarse to fine) per θ of thetas (T, P): ξ, then ξ/2, ξ/4 … (ξ one step, or one per θ) for
-        the θ whose step has not converged (`fd_step.halving`) for every weight in `weights` ({noise index: [w per
-        θ]}), at most `max_halvings` times. stage_fn(index array, ξ (one per index)) gives the stages of those θ."""
+        the θ whose last check is, for some weight in `weights` ({noise index: [w per θ]}), neither steady nor
+        hopeless (`fd_step.halving`: converged and not falling; an SE no halving can shrink), at most `max_halvings`
+        times. stage_fn(index array, ξ (one per index)) gives the stages of those θ."""
         _check_step(step, step_tol, max_halvings)
         xi = per_theta(step, len(thetas))
         stages: list[list[Stage]] = [[] for _ in thetas]
@@ -171,9 +172,10 @@ class RenderSets:
             if k == max_halvings:
                 break
             if k:
-                active = np.array([i for i in active if not all(
-                    halving(stages[i][-2], stages[i][-1], w[i], self.level, step_tol).steady
-                    for w in weights.values())], dtype=np.int64)
+                checks = {i: [halving(stages[i][-2], stages[i][-1], w[i], self.level, step_tol)
+                              for w in weights.values()] for i in active}
+                active = np.array([i for i in active if not all(h.steady or h.hopeless for h in checks[i])],
+                                  dtype=np.int64)
                 if active.size == 0:
                     break
         return stages
