@@ -83,7 +83,6 @@ def pytest_xdist_make_scheduler(config, log):
     return FileOrTest(config, log)
 
 
-
 def pytest_configure(config):
     """Under `pytest -n N` with N ≥ 2 (`make test`) each worker process computes on one thread, torch's and Dr.Jit's:
     N processes with a thread per core each oversubscribe the cores (measured on 2 cores, one run each: a CPU-bound

@@ -167,7 +167,7 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     ({**BOUNDS, "precision_at": [0.5]}, "b.precision_at: quoting bounds at θ needs a `precision` target"),
     ({**BOUNDS, "precision": 0.2, "precision_at": [0.5, 0.95]}, "b.precision_at[1]: θ out of range"),
     ({**BOUNDS, "precision_beyond": [0.6, 0.5]}, "b.precision_beyond: needs a `precision` or `precision_predict`"),
-    ({**BOUNDS, "precision_predict": 0.0}, "b.precision_predict: expected a target > 0 (e.g. 0.25) or null, got 0.0"),
+    ({**BOUNDS, "precision_predict": 0.0}, "studies[0].precision_predict: expected a finite number > 0, got 0.0"),
     ({**BOUNDS, "precision_predict": 0.2, "replicates": 2}, "b.replicates: a precision target needs >= 3 replicates"),
     ({**BOUNDS, "precision": 0.2, "precision_beyond": [0.6]}, "b.precision_beyond: expected [θ₀, p₀] with p₀ > 0"),
     ({**BOUNDS, "precision": 0.2, "precision_fd_step": -0.01}, "b.precision_fd_step: expected a step > 0"),

@@ -114,6 +114,11 @@ class Halving:
         in θ cancels under common seeds, and its SE shrinks with the step: it never reaches HOPELESS_SE.)"""
         return not (math.isfinite(self.ratio) and self.se <= HOPELESS_SE)
 
+    @property
+    def stops(self) -> bool:
+        """Where the halving stops: steady, or hopeless."""
+        return self.steady or self.hopeless
+
 
 @dataclass
 class StepFisher:

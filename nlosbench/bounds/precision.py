@@ -470,7 +470,7 @@ class Fit:
                 extra = {name: replace(u, est=ref.est) for name, u in extra.items()}
             halvings.append(Halving(h.step, h.ratio, h.se * float(np.max(ratio.get("central", [1.0]))), converged,
                                     rising, {}, extra, falling))
-            if halvings[-1].steady or halvings[-1].hopeless:  # where the look's own halving stops
+            if halvings[-1].stops:  # where the look's own halving stops
                 stats.append(stage(k + 1))
                 break
         steps = sf.steps[window.start:window.start + len(stats)]

@@ -25,7 +25,7 @@ import numpy as np
 from ..bounds import BoundService
 from ..bounds.service import quote_test_grid
 from ..io import read_csv, write_csv, write_exr
-from ..schema import GRID, MAX_HALVINGS, STEP_TOL, ConfigError, Field, grid_values, smoke_grid
+from ..schema import GRID, MAX_HALVINGS, STEP_TOL, ConfigError, Field, grid_values, positive_number, smoke_grid
 from . import precise
 from .context import RunContext
 from .estimate import Estimate, describe, pixels
@@ -52,7 +52,7 @@ SCHEMA = {
                                     "the `precision` target (needs `precision`); empty with a `precision`: every "
                                     "grid θ", items=float),
     **precise.KEYS,
-    "precision_predict": Field(float, None, "a target p for the curve's own points: from its sets, the fresh "
+    "precision_predict": Field(positive_number, None, "a target p for the curve's own points: from its sets, the fresh "
                                "replicate sets of the whole grid each θ would need for ±p (nothing is rendered for "
                                "it; one set serves every θ), so the report says what the curve would cost at p",
                                nullable=True),
@@ -119,13 +119,9 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.level", f"expected a confidence level in (0, 1), got {cfg['level']}")
     if cfg["precision_at"] and cfg["precision"] is None:
         raise ConfigError(f"{sid}.precision_at", "quoting bounds at θ needs a `precision` target")
-    if cfg["precision_predict"] is not None and not (math.isfinite(cfg["precision_predict"]) and
-                                                     cfg["precision_predict"] > 0):
-        raise ConfigError(f"{sid}.precision_predict", f"expected a target > 0 (e.g. 0.25) or null, got "
-                                                      f"{cfg['precision_predict']}")
-    if cfg["precision_predict"] is not None and cfg["replicates"] < 3:
-        raise ConfigError(f"{sid}.replicates", f"a precision target needs >= 3 replicates (confidence limits), got "
-                                               f"{cfg['replicates']}")
+    if cfg["precision_predict"] is not None:  # the same needs as a target the study spends
+        precise.check({**cfg, "precision": cfg["precision_predict"], "precision_budget": None}, sid,
+                      ("hcr", "crlb") if cfg["crlb"] else ("hcr",))
     if cfg["precision_beyond"] and cfg["precision"] is None and cfg["precision_predict"] is None:
         raise ConfigError(f"{sid}.precision_beyond", "needs a `precision` or `precision_predict` target")
     for key in ("precision_fd_step", "precision_fd_step_until"):

@@ -195,8 +195,9 @@ class Curves(RenderSets):
         except ValueError as e:
             zzb_reason = str(e)
         selected = self._select(noises)
+        Wflat = {j: np.stack([w for w, _ in weights[j]]) for j in selected}  # (G, N) per noise model
         plugs = {j: pairwise_lambda(pooled, noise) if not isinstance(noise, Poisson) else
-                 _plugin_poisson(pooled, np.stack([w for w, _ in weights[j]])) for j, noise in selected.items()}
+                 _plugin_poisson(pooled, Wflat[j]) for j, noise in selected.items()}
         goal = None if predict is None else np.broadcast_to(np.asarray(predict, dtype=np.float64).reshape(-1), (G,))
         per_set = None if predict is None else G * (1 + (0 if fd_step is None and seeds == "common" else
                                                          2 * len(stages[0]) + (seeds == "independent")))
@@ -219,14 +220,15 @@ class Curves(RenderSets):
                 if barankin:
                     b["barankin"] = _barankin(pooled[g], pooled[others], deltas, noise, lo - t, hi - t)
                 points[j, g] = BoundPoint(j, str(noise), np.array([t]), b)
-                raws.append(Raw(D, sub, sf, stages[g], w, deltas, lo - t, hi - t, int(np.prod(Xd.shape[2:4])),
-                                self.group))
+                if goal is not None:  # what the prediction's plan needs
+                    raws.append(Raw(D, sub, sf, stages[g], w, deltas, lo - t, hi - t, int(np.prod(Xd.shape[2:4])),
+                                    self.group))
             if goal is not None:
                 mine = [points[j, g] for j in selected]
                 for pt, pr in zip(mine, predicted(mine, raws, kinds, float(goal[g]), self.level, R, per_set, spp),
                                   strict=True):
                     pt.precision = pr
-        zzbs = {j: self._zzb(Xd, T, noise, np.stack([w for w, _ in weights[j]]), prior, spp)
+        zzbs = {j: self._zzb(Xd, T, noise, Wflat[j], prior, spp)
                 if zzb and not zzb_reason else None for j, noise in selected.items()}
         precise = [] if precision is None else self.at(
             quoted[:, None], spp, kinds, seeds, R, quote_test_grid(self.params, T), offsets,

@@ -172,10 +172,9 @@ class RenderSets:
             if k == max_halvings:
                 break
             if k:
-                checks = {i: [halving(stages[i][-2], stages[i][-1], w[i], self.level, step_tol)
-                              for w in weights.values()] for i in active}
-                active = np.array([i for i in active if not all(h.steady or h.hopeless for h in checks[i])],
-                                  dtype=np.int64)
+                active = np.array([i for i in active if not all(
+                    halving(stages[i][-2], stages[i][-1], w[i], self.level, step_tol).stops
+                    for w in weights.values())], dtype=np.int64)
                 if active.size == 0:
                     break
         return stages
