@@ -218,7 +218,7 @@ def test_a_look_no_budget_admitted_with_the_others_is_made_against_what_they_spe
     kw = dict(replicates=3, test_grid=5, offsets=0, fd_step=0.032, max_halvings=6)
 
     def run(budget):
-        bank = RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=1)
+        bank = RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=18)
         return BoundService(bank, [nb.noise.AWGN(0.05)]).at([[0.501], [0.437]], 16, precision=0.2, budget=budget,
                                                             **kw)
 
@@ -598,22 +598,23 @@ def test_a_curves_own_prediction_of_fresh_grid_sets_is_met_by_that_many_and_not_
 
 
 def test_exploratory_looks_wait_until_every_planned_look_is_admitted_or_left_out():
-    """edge1d at 0.501, 0.437 and 0.7 (rendering noise 1, seed 1, AWGN σ = 0.05), ξ = 32 mm, up to 6 halvings, ±20 %:
+    """edge1d at 0.501, 0.437 and 0.7 (rendering noise 1, seed 18, AWGN σ = 0.05), ξ = 32 mm, up to 6 halvings, ±20 %:
     0.437's pilot predicts that no number of sets suffices (an exploratory look), 0.7's plan asks for 32 sets. With
-    0.84 × the unbudgeted spend, 0.7's planned look does not fit beside 0.501's in the first wave but does against
+    0.88 × the unbudgeted spend, 0.7's planned look does not fit beside 0.501's in the first wave but does against
     what 0.501's actually spent, so it is made in a second wave (past the first's sets) and meets the target; the
-    exploratory look, which would have fitted in the first wave (and then left no room for 0.7's: measured with the
-    rule before), comes after it and is left out, and the call spends no more than its budget."""
+    exploratory look comes after it and is left out, and the call spends no more than its budget. (Admitted first, as
+    the rule before did, the exploratory look left no room for 0.7's: measured at seed 1, where the scenario was
+    before the FD ends' one-sided rule moved its plans.)"""
     kw = dict(replicates=3, test_grid=5, offsets=0, fd_step=0.032, max_halvings=6)
 
     def run(budget):
-        bank = RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=1)
+        bank = RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=18)
         return BoundService(bank, [nb.noise.AWGN(0.05)]).at([[0.501], [0.437], [0.7]], 16, precision=0.2,
                                                             budget=budget, **kw)
 
     full = run(None)
     assert "exploratory" in full[1].precision.note and full[2].precision.fresh_sets == 32
-    budget = int(0.84 * full[0].precision.pixel_samples)
+    budget = int(0.88 * full[0].precision.pixel_samples)
     a, e, b = (p.precision for p in run(budget))
     assert b.met and b.looks == 2 and b.first_set >= 3 + a.fresh_sets, b
     assert e.looks == 1 and "would exceed the budget" in e.note, e

@@ -17,29 +17,30 @@ The rule (`converge`, used by the bound service):
 * halve ξ while, for some parameter, the paired one-sided upper limit of the central F(ξ/2)/F(ξ) exceeds 1 +
   step_tol (F is not shown to have stopped rising, the direction that breaks lower ends), or is below 1/(1 +
   step_tol) (F shown to fall: the stencil at ξ reaches a larger F nearby, as where the object leaves the line of
-  sight, and F may fall further, the direction that breaks upper ends), at most `max_halvings` times, and not past a
+  sight, and F may fall further, the direction that breaks upper ends) or its estimate is (a fall more rounds would
+  show: `Halving.dropping`), at most `max_halvings` times, and not past a
   halving whose check is hopeless (`Halving.hopeless`: the ratio's SE above HOPELESS_SE, or F unresolved; a finer
   step has no smaller SE, so only more spp per round can settle it). The upper
   limit is Fieller's: F(ξ/2)/F(ξ) ≤ c is shown when the upper confidence limit of F(ξ/2) − c·F(ξ) is ≤ 0. The
   central difference decides (the one-sided variants only where there is no central one): a one-sided difference of
   a smooth L is biased to first order, (J ± J'ξ/2)², so one side keeps rising by ≈ |J'/J|·ξ/2 at every halving — 6 %
-  at ξ = 6 cm in the Π hallway's NLOS — and would never be shown settled at any affordable spp. The one-sided
-  variants still enter every end (below) with their Richardson extrapolations, which remove that first-order drift.
+  at ξ = 6 cm in the Π hallway's NLOS — and would never be shown settled at any affordable spp.
   Near a kink at distance d from θ* (J⁻ on θ*'s side, J⁺ beyond), a central F that does not move between ξ and ξ/2
   (ξ ≫ d: about ((J⁻ + J⁺)/2)²) is not F(θ*) = (J⁻)², but the one-sided variant on θ*'s side measures (J⁻)² at every
   step, so the largest upper limit (lower end) and the smallest lower limit (upper end) over the variants still
-  bracket it;
-* ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage and variant and the central
-  Richardson extrapolation of the last two stages to ξ → 0 (F that still creeps up within the tolerance must not
-  leave the lower end above the limit), the stages before the last halving shown to fall left out (`peaked_from`:
-  biased high, they would hold the lower end down at any number of replicates), upper ends from the *smallest* lower
-  limit over the stages from the last one shown to rise on (`settled_from`: a coarser stage is biased low, and finer
-  ones guard an F that falls), the point from the finest stage's central F. For a vector θ the same with the
-  jackknife limits of trace(F⁻¹). The extremes over candidates cost little coverage where the candidates share their
-  renders: on spot_rgb (common seeds, one halving) the seven lower-end candidates are one statistic (correlation
-  1.000) and the CRLB's lower end missed 3.55 % of 2000 seeds at a nominal 5 %, the finest central F alone 3.65 %;
-  what remains is the jackknife's (`ustat`: at R = 3 it counts the noise × noise variance 4×; from R = 4 on the SE
-  is the unbiased one and the ends miss ≈ 5 %);
+  bracket it. The finest stage's one-sided variants do that at least as well as a coarser stage's (on θ*'s side
+  every step is exact; on the other side a finer step reaches the kink less often), and on a smooth slope they are
+  the least biased (±(ξ/2)·F'/F: the Π hallway at 1.3 m, ±14 % at 6 cm, ±7 % at 3 cm), so only they enter the ends;
+* ends (`crlb_term`): lower ends from the *largest* upper limit of F over every stage's central F, the finest stage's
+  one-sided variants and the central Richardson extrapolation of the last two stages to ξ → 0 (F that still creeps up
+  within the tolerance must not leave the lower end above the limit), the stages before the last halving shown to fall
+  left out (`peaked_from`: biased high, they would hold the lower end down at any number of replicates), upper ends from
+  the *smallest* lower limit over the same from the last stage shown to rise on (`settled_from`: a coarser stage is
+  biased low, and finer ones guard an F that falls), the point from the finest stage's central F. For a vector θ the
+  same with the jackknife limits of trace(F⁻¹). The extremes over candidates cost little coverage where the candidates
+  share their renders: on spot_rgb at θ = 0.5 (render noise 0.3, 16 spp, AWGN σ = 0.05, common seeds, ξ = 1 cm halved
+  once) the candidates are nearly one statistic, and over 2000 seeds the CRLB's lower end missed 5.15 % at R = 3 and
+  4.7 % at R = 4, the upper end 2.9 % and 2.4 %, at a nominal 5 %;
 * one FD step only (no check asked for): the lower end is labelled "not a confidence limit: FD step not
   checked"; AD gradients (step NaN) and an F given directly are taken as they are;
 * not converged: the lower end is labelled "not a confidence limit: FD step not converged (F ×r ± se from ξ
@@ -85,8 +86,9 @@ class Halving:
     the parameter that decides (the largest upper limit); converged: every deciding variant's upper limit
     ≤ 1 + tol (F is not shown to rise: lower ends may be quoted); rising: some deciding variant's lower limit
     > 1 + tol; falling: some deciding variant's upper limit < 1/(1 + tol) (the coarser step is biased high: it
-    reaches a larger F nearby, as where the object leaves the line of sight); steady: converged and not falling,
-    where the halving stops; contrasts: per (variant, parameter j) the paired
+    reaches a larger F nearby, as where the object leaves the line of sight); dropping: some deciding variant's
+    estimate is below 1/(1 + tol) (a fall not shown yet); steady: converged and not falling; contrasts: per
+    (variant, parameter j) the paired
     contrast F(ξ/2) − (1 + tol)·F(ξ) as (estimate, SE, df, F(ξ)), which a precision plan rescales to predict the
     check at more rounds; extrapolated: per variant the Richardson extrapolation of F to ξ → 0 from the two
     stages (`extrapolate`)."""
@@ -99,6 +101,7 @@ class Halving:
     contrasts: dict = field(default_factory=dict)
     extrapolated: dict = field(default_factory=dict)
     falling: bool = False
+    dropping: bool = False
 
     @property
     def steady(self) -> bool:
@@ -116,8 +119,11 @@ class Halving:
 
     @property
     def stops(self) -> bool:
-        """Where the halving stops: steady, or hopeless."""
-        return self.steady or self.hopeless
+        """Where the halving stops: steady with F's ratio not estimated below 1/(1 + tol), or hopeless. A steady check
+        whose estimate says F falls (`dropping`: the Π hallway just past the corner at 4 × 384 spp, ×0.76 – 0.82
+        ± 0.05 – 0.09 from 6 to 3 cm, the coarse stencil reaching back to where the teapot was visible) would show
+        the fall at more rounds, and then no look on these stages could quote an upper end: the step halves on."""
+        return (self.steady and not self.dropping) or self.hopeless
 
 
 @dataclass
@@ -218,7 +224,7 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
     variant where there is no central one), with the extrapolations of each shared variant."""
     c = 1.0 + tol
     worst = None
-    converged, rising, falling = True, False, False
+    converged, rising, falling, dropping = True, False, False, False
     contrasts = {}
     shared = fine.rounds.keys() & coarse.rounds.keys()
     for name in sorted({"central"} & shared or shared):  # the central difference decides (module docstring)
@@ -239,13 +245,14 @@ def halving(coarse: Stage, fine: Stage, w, level: float, tol: float) -> Halving:
                                                 _q(xa, xb, (-1.0 / c, 1.0), w, fine.group))
             falling |= bool(est_f[0] + one_sided_t(level, df_f[0], se_f[0]) * se_f[0] < 0) and fa > 0
             ratio = fb / fa if fa > 0 and fb > 0 else math.nan
+            dropping |= fa > 0 and fb < fa / c
             r = ratio if math.isfinite(ratio) else 1.0
             _, _, rse, _, _ = sum_terms(pb - r * pa, lb - r * la, R, fine.group, _q(xa, xb, (-r, 1.0), w, fine.group))
             key = up / fa if fa > 0 else math.inf
             if worst is None or key > worst[0]:
                 worst = (key, ratio, float(rse[0] / fa) if fa > 0 else math.nan)
     return Halving(coarse.step, worst[1], worst[2], converged, rising, contrasts, extrapolate(coarse, fine, w),
-                   falling)
+                   falling, dropping)
 
 
 #: the share of the change from ξ to ξ/2 that the finer stage keeps, per variant: the smoothing error of a smooth
@@ -337,9 +344,8 @@ def crlb_term(sf: StepFisher, level: float, index: int | None = None, smoothed: 
     information of (L(θ + ξ) − L(θ − ξ)) / 2ξ), whose ends are confidence limits of that quantity: no label, the
     flag "fd-smoothed" (what a map that compares views at one ξ quotes)."""
     point = inv_part(sf.final.est, index)
-    settled = settled_from(sf)
     lows = _ends(lower_candidates(sf), level, index)[0]
-    ups = _ends([u for stage in sf.stats[settled:] for u in stage.values()], level, index)[1]
+    ups = _ends(upper_candidates(sf), level, index)[1]
     lower, upper = float(np.min(lows)), float(np.max(ups))
     note = zero = ""
     if sf.diverging:
@@ -387,8 +393,20 @@ def lower_candidates(sf: StepFisher) -> list[UStat]:
     Richardson extrapolations of F to ξ → 0 from the last two stages, per variant (`extrapolate`). Only lower ends
     use the extrapolations (a candidate F, never a point): where F still creeps up within the step tolerance, the
     lower end is not left above the limit."""
-    return [u for stage in sf.stats[peaked_from(sf):] for u in stage.values()] + (
+    return _stage_candidates(sf, peaked_from(sf)) + (
         list(sf.halvings[-1].extrapolated.values()) if sf.halvings else [])
+
+
+def upper_candidates(sf: StepFisher) -> list[UStat]:
+    """The F whose smallest lower limit sets the upper end: the stages from `settled_from` on (`_stage_candidates`)."""
+    return _stage_candidates(sf, settled_from(sf))
+
+
+def _stage_candidates(sf: StepFisher, start: int) -> list[UStat]:
+    """The central F of every stage from `start` on and the one-sided variants of the finest stage only."""
+    last = len(sf.stats) - 1
+    return [u for k, stage in enumerate(sf.stats[start:], start) for name, u in stage.items()
+            if k == last or name == "central" or "central" not in stage]
 
 
 def _ends(us: list[UStat], level: float, index: int | None = None) -> tuple[np.ndarray, np.ndarray]:

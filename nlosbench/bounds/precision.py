@@ -452,7 +452,7 @@ class Fit:
                 break
             h = sf.halvings[k]  # the pilot's comparison of stages k and k + 1
             ratio = {name: _se_ratio(ab, R0, R) for name, ab in self.stages[k + 1].items()}
-            converged, rising, falling = True, False, False
+            converged, rising, falling, dropping = True, False, False, False
             tol = sf.step_tol
             for (name, j), (est, se, df, fa) in h.contrasts.items():
                 if abs(est + tol * fa) <= t0 * se:  # F(ξ/2) − F(ξ) within the noise: predicted equal or, past an
@@ -465,11 +465,12 @@ class Fit:
                 rising |= bool(est - t * se_r > 0)
                 # F(ξ/2) − F(ξ)/(1 + tol) from the same contrast (its SE taken as the contrast's)
                 falling |= bool(est + (1.0 + tol - 1.0 / (1.0 + tol)) * fa + t * se_r < 0) and fa > 0
+                dropping |= bool(est + (1.0 + tol - 1.0 / (1.0 + tol)) * fa < 0) and fa > 0
             extra = {name: _rescale(u, ratio[name], R) for name, u in h.extrapolated.items() if name in ratio}
             if scalar and not h.rising:  # the stages agree within the noise: the extrapolation adds nothing
                 extra = {name: replace(u, est=ref.est) for name, u in extra.items()}
             halvings.append(Halving(h.step, h.ratio, h.se * float(np.max(ratio.get("central", [1.0]))), converged,
-                                    rising, {}, extra, falling))
+                                    rising, {}, extra, falling, dropping))
             if halvings[-1].stops:  # where the look's own halving stops
                 stats.append(stage(k + 1))
                 break
