@@ -265,7 +265,7 @@ def extrapolate(coarse: Stage, fine: Stage, w) -> dict[str, UStat]:
     k = `RICHARDSON`[variant], of the central variant (of each shared variant where there is none). A one-sided
     extrapolation would add nothing but noise (4× the fine stage's variance and more): for a smooth L it has the
     central one's target, F(θ*); near a kink the one-sided variant on θ*'s side is exact at every step that does
-    not reach the kink, and its stages are candidates themselves. The two stages share each round's seeds, so the
+    not reach the kink, and its finest stage is a candidate itself. The two stages share each round's seeds, so the
     contrast is a paired U-statistic: for a scalar θ its SE from the per-pixel terms of (1 + k)·F(ξ/2) − k·F(ξ)
     (`ustat.sum_terms`, Satterthwaite df); for a vector θ the leave-one-outs combine round by round (the
     jackknife of trace F⁻¹ uses them)."""
