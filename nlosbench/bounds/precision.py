@@ -464,8 +464,9 @@ class Fit:
                 converged &= bool(est + (t + Z_POWER) * se_r <= 0) and fa > 0
                 rising |= bool(est - t * se_r > 0)
                 # F(ξ/2) − F(ξ)/(1 + tol) from the same contrast (its SE taken as the contrast's)
-                falling |= bool(est + (1.0 + tol - 1.0 / (1.0 + tol)) * fa + t * se_r < 0) and fa > 0
-                dropping |= bool(est + (1.0 + tol - 1.0 / (1.0 + tol)) * fa < 0) and fa > 0
+                below = est + (1.0 + tol - 1.0 / (1.0 + tol)) * fa
+                falling |= bool(below + t * se_r < 0) and fa > 0
+                dropping |= bool(below < 0) and fa > 0
             extra = {name: _rescale(u, ratio[name], R) for name, u in h.extrapolated.items() if name in ratio}
             if scalar and not h.rising:  # the stages agree within the noise: the extrapolation adds nothing
                 extra = {name: replace(u, est=ref.est) for name, u in extra.items()}
