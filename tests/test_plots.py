@@ -155,12 +155,11 @@ def test_the_caption_counts_the_resolved_points_and_what_the_rest_would_cost():
                                "need more than any number of replicate sets")
     # the curve's own prediction (no quoted θ): A's 0.2, 0.3 and 0.4 need 8, 32 and 16 fresh sets of the whole grid (1e8
     # pixel-samples each), B's 0.2 a finer FD step; the cost of half of A's is the median count's, of all the largest's
-    def own(noise, theta, sets, note=""):
+    def own(noise, theta, sets, finer_step=False):
         return {"noise": noise, "theta": {"x": theta}, "target": 0.25, "met": False, "extra_sets": sets,
-                "extra_pixel_samples": sets * 1e8, "note": note}
+                "extra_pixel_samples": sets * 1e8, "note": "", "finer_step": finer_step}
 
-    pred = [own(A, 0.2, 8.0), own(A, 0.3, 32.0), own(A, 0.4, 16.0),
-            own(B, 0.2, math.inf, "no number of sets at the curve's FD step: F still rises at its finest step")]
+    pred = [own(A, 0.2, 8.0), own(A, 0.3, 32.0), own(A, 0.4, 16.0), own(B, 0.2, math.inf, finer_step=True)]
     lines = resolution(SYNTHETIC, "x", [], 1e-8, 0.95, predicted=pred)
     assert lines[2] == ("- AWGN, σ = 0.05: 2 of 4 points resolved; what ±25 % would cost, predicted from the curve's "
                         "own sets (nothing rendered for it): 3 of the 4 θ miss it; 3 would meet it with fresh "

@@ -233,7 +233,9 @@ class Precision:
     budget decides on); rendered: the pixel-samples of those renders this process made (0 when all were cached);
     extra_sets / extra_pixel_samples: the fresh sets and pixel-samples of one more look of its own predicted to meet it,
     from the reported look's data (0 when met, +inf when no number of sets is predicted to); note: why it stopped;
-    budget: the pixel-samples the call was capped at (the budget given, else the default ceiling `ceiling`)."""
+    budget: the pixel-samples the call was capped at (the budget given, else the default ceiling `ceiling`);
+    finer_step: no number of sets is predicted to meet it at this FD step because F still rises at its finest step
+    (an edge: a finer step may settle it)."""
 
     target: float
     reached: dict[str, float]
@@ -248,6 +250,7 @@ class Precision:
     note: str = ""
     budget: int = 0
     first_set: int = 0
+    finer_step: bool = False
     #: what this process happened to render: not part of the result (records that decide alike compare equal)
     rendered: int = field(default=0, compare=False)
 

@@ -321,7 +321,7 @@ def _curve_cost(own: list[dict], G: int, seconds_per_sample: float | None) -> st
                      f"θ (from {fmt(counts[0], 3)} sets): half of them with {cost(half)}, all {len(finite)} with "
                      f"{cost(counts[-1])}" + (f" on this machine at its measured {seconds_per_sample * 1e9:.3g} ns per "
                                               "pixel-sample" if seconds_per_sample else ""))
-    rising = sum("still rises" in r["note"] for r in own)
+    rising = sum(r["finer_step"] for r in own)
     if rising:
         parts.append(f"{rising} need a finer FD step than the grid's (F still rises at it: an edge), which a "
                      "`precision` target quotes through the bound service's `at`")

@@ -77,7 +77,7 @@ def records(points: Sequence, T: int, names: Sequence[str]) -> list[dict]:
     """What a run keeps (results.json) of each BoundPoint's `Precision`: noise, θ index, θ, per interval bound
     its log10 point and ends and the precision reached, and the record's target, met, looks, level, pixel-samples
     charged to the whole call (by request) and rendered by this process, predicted extra sets and pixel-samples,
-    note. [] without a precision target."""
+    note, and whether only a finer FD step would meet it (`finer_step`). [] without a precision target."""
     out = []
     for n, pt in enumerate(points):
         pr = pt.precision
@@ -90,7 +90,7 @@ def records(points: Sequence, T: int, names: Sequence[str]) -> list[dict]:
                     "target": pr.target, "met": pr.met, "looks": pr.looks, "fresh_sets": pr.fresh_sets,
                     "level": pr.level, "pixel_samples": pr.pixel_samples,
                     "rendered_pixel_samples": pr.rendered, "extra_sets": pr.extra_sets,
-                    "extra_pixel_samples": pr.extra_pixel_samples, "note": pr.note})
+                    "extra_pixel_samples": pr.extra_pixel_samples, "note": pr.note, "finer_step": pr.finer_step})
     return out
 
 

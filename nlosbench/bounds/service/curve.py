@@ -297,20 +297,21 @@ def predicted(points: list[BoundPoint], raws: list[Raw], kinds: tuple[str, ...],
     pixels = raws[0].pixels
     reach = [{k: reached(pt.bounds[k]) for k in kinds} for pt in points]
     met = max(max(r.values()) for r in reach) <= target
-    sets, note = 0.0, "met by the curve's own sets"
+    sets, note, finer = 0.0, "met by the curve's own sets", False
     if not met:
         pl = plan(raws, kinds, target, 1.0 - spending(1.0 - level, 2)[1], MAX_PREDICT)
         sets = math.inf if pl.sets is None else float(pl.sets)
+        finer = pl.sets is None and any(r.sf.halvings and r.sf.halvings[-1].rising for r in raws)
         if pl.sets is not None:
             note = f"predicted from the curve's sets: {pl.sets} fresh sets of the whole grid ({per_set} renders each)"
-        elif any(r.sf.halvings and r.sf.halvings[-1].rising for r in raws):
+        elif finer:
             note = ("no number of sets at the curve's FD step: F still rises at its finest step (an edge: a finer "
                     "step, quoted with a precision target, may settle it)")
         else:
             note = (f"no number of sets is predicted to meet it at this spp ({pl.predicted:.3g} at {MAX_PREDICT} sets, "
                     "holding the curve's estimates fixed)")
     return [Precision(target, r, bool(met), 1, R, 0, level, R * per_set * spp * pixels, sets,
-                      sets * per_set * spp * pixels, note) for r in reach]
+                      sets * per_set * spp * pixels, note, finer_step=finer) for r in reach]
 
 
 def _plugin_poisson(pooled: torch.Tensor, Wflat: np.ndarray) -> np.ndarray:
