@@ -234,8 +234,9 @@ class Precision:
     extra_sets / extra_pixel_samples: the fresh sets and pixel-samples of one more look of its own predicted to meet it,
     from the reported look's data (0 when met, +inf when no number of sets is predicted to); note: why it stopped;
     budget: the pixel-samples the call was capped at (the budget given, else the default ceiling `ceiling`);
-    finer_step: no number of sets is predicted to meet it at this FD step because F still rises at its finest step
-    (an edge: a finer step may settle it)."""
+    finer_step: set by a curve's prediction (`BoundService.curve(predict=…)`; False elsewhere): no number of sets is
+    predicted to meet it at the grid's FD step because F still rises at its finest step (an edge: a finer step may
+    settle it)."""
 
     target: float
     reached: dict[str, float]
