@@ -56,17 +56,20 @@ def test_frozen_equals_traced_with_several_passes(cornell):
         assert torch.equal(f, t)
 
 
-def test_new_theta_and_seed_replay_without_recording(cornell):
-    """One recording per pass spp: θ (geometry and colour) and the seed are inputs, not baked in."""
-    cornell.render(THETAS[0], 16, 1)
-    n = cornell._renderer.n_recordings
-    imgs = [cornell.render(t, 16, s) for s, t in enumerate(THETAS, start=2)]
-    assert cornell._renderer.n_recordings == n
+def test_new_theta_and_seed_replay_without_recording():
+    """One recording per pass spp: θ (geometry and colour) and the seed are inputs, not baked in. A model of its own:
+    the session's cornell has recorded whichever pass spp other tests in the same process rendered before (13 spp is
+    passes of 8, 4 and 1: one new recording there after the several-passes test, three on a fresh model)."""
+    model = nb.scenes.get("cornell_ball")
+    model.render(THETAS[0], 16, 1)  # traced: the first render allocates the film
+    model.render(THETAS[1], 16, 0)  # the first recording at 16 spp
+    n = model._renderer.n_recordings
+    imgs = [model.render(t, 16, s) for s, t in enumerate(THETAS, start=2)]
+    assert model._renderer.n_recordings == n
     assert len({float(i.sum()) for i in imgs}) == len(imgs)
-    # a pass spp not seen before records once (13: no other test renders the session's cornell at it; at 2 spp the
-    # FD-step tests do, in whichever order pytest-xdist runs them)
-    cornell.render(THETAS[0], 13, 1)
-    assert cornell._renderer.n_recordings == n + 1
+    assert [s for s, _ in model._passes(32, 1)] == [32]
+    model.render(THETAS[0], 32, 1)  # one pass, of an spp not seen before: one recording
+    assert model._renderer.n_recordings == n + 1
 
 
 def test_primal_render_after_ad_passes_is_unchanged_and_stops_recording(cornell):
