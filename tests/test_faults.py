@@ -220,7 +220,7 @@ def test_trials_resume_with_another_n_is_refused_before_config_yaml_is_written(t
 def test_a_second_resume_into_a_running_folder_is_refused_at_once(tmp_path, capsys):
     """Row 4. Two resumes of one trials folder at once (a real second process holds the folder): the second
     exits 2 at once naming the holder's PID; the holder finishes with exactly one record per trial."""
-    slow = {**TRIALS, "n": 40, "estimators": [{"name": "mle-adam", "options": {"iterations": 60, "spp": 1, "tol": 0}}]}
+    slow = {**TRIALS, "n": 16, "estimators": [{"name": "mle-adam", "options": {"iterations": 60, "spp": 1, "tol": 0}}]}
     cfg = config(tmp_path, EDGE, [slow])
     run = tmp_path / "run"
     holder = spawn("run", cfg, "--out", run, "--resume", "--quiet")
@@ -236,9 +236,9 @@ def test_a_second_resume_into_a_running_folder_is_refused_at_once(tmp_path, caps
         _, err = holder.communicate(timeout=300)
     assert holder.returncode == 0, err
     records = RecordLog(log).read()
-    assert len(records) == 40 and len({(r["trial"], r["estimator"]) for r in records}) == 40
+    assert len(records) == 16 and len({(r["trial"], r["estimator"]) for r in records}) == 16
     results = json.loads((run / "results.json").read_text())
-    assert results["studies"]["00-trials"]["results"]["summary"][0]["n"] == 40
+    assert results["studies"]["00-trials"]["results"]["summary"][0]["n"] == 16
 
 
 # -- row 5 and 12: input types ---------------------------------------------------------------------------------
