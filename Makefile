@@ -5,8 +5,9 @@ CONFIG ?= configs/quick.yaml
 
 # examples/own_scene.py's run: made by the test suite, shown by the documentation's own-scene tutorial
 OWN_SCENE ?= runs/own_scene
-# -W --keep-going: every warning is an error, all reported; -n: every cross-reference must resolve
-SPHINX := $(PY) -m sphinx -W --keep-going -n -q
+# -W --keep-going: every warning is an error, all reported; -n: every cross-reference must resolve; -j auto: pages
+# read and written on every core (80 s against 88 s on 2 cores)
+SPHINX := $(PY) -m sphinx -W --keep-going -n -q -j auto
 
 .PHONY: setup demo test test-slow lint docs docs-check docs-build bench bench-gpu clean
 
