@@ -48,7 +48,7 @@ def _trials():
     theta = np.array([[0.4, 0.6], [0.55, 0.45]])
     cleans = {i: model.render(t, 256, i) for i, t in enumerate(theta)}
     settings = [Setting("mle-adam", {"iterations": 25, "spp": 16}, gradient=GradientSettings("ad")),
-                Setting("gauss-newton", {"spp": 16})]
+                Setting("gauss-newton", {"spp": 16, "iterations": 6})]  # 6 renders per iteration
     return model, make_trials(theta, 3, settings, {0: noise}, cleans, seed=9)
 
 
