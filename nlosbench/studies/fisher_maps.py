@@ -191,14 +191,13 @@ def report(study_dir: Path, results: dict) -> str:
                   "fisher.csv).", ""]
         lines += precise.table(results["precision"], f"{results['units'][0]}²" if len(results["params"]) == 1
                                else "parameter units²", results.get("seconds_per_sample"))
-    notes = [r["crlb_lower_note"] for r in rows if r.get("crlb_lower_note")]
-    if notes:
-        why = ("the FD step was not checked (one step: the CRLB of the derivative smoothed over ±ξ)"
-               if all("not checked" in n for n in notes) else
-               "the FD step did not converge (the note in fisher.csv says which step or spp would settle it)"
-               if not any("not checked" in n for n in notes) else
-               "the FD step was not checked or did not converge (fisher.csv's note says which)")
-        lines += ["", f"† not a confidence limit: {why}."]
+    unchecked = {"not checked" in r["crlb_lower_note"] for r in rows if r.get("crlb_lower_note")}  # `crlb_term`'s notes
+    why = {frozenset({True}): "the FD step was not checked (one step: the CRLB of the derivative smoothed over ±ξ)",
+           frozenset({False}): "the FD step did not converge (the note in fisher.csv says which step or spp would "
+                               "settle it)",
+           frozenset({True, False}): "the FD step was not checked or did not converge (fisher.csv's note says which)"}
+    if unchecked:
+        lines += ["", f"† not a confidence limit: {why[frozenset(unchecked)]}."]
     if pooled:
         lines += ["", f"Pooled maps (right-hand panels, first noise model): pixels pooled into quadtree cells chosen "
                       f"on half of the {results['fd_rounds']} FD rounds (a cell is split while its parts stay "
