@@ -136,3 +136,23 @@ def test_the_lower_end_holds_jointly_over_tied_terms_and_pays_nothing_for_one_st
     sf = single(fisher_stat(D / 0.1, 1.0))  # 1/F̂ = 0.1²/λ̂
     iv = nb.bounds.hcr_interval(pixel_ustat(D * s[:, None], 1.0), 0.1 * s, sf)
     assert iv.term_level == pytest.approx(1 - 0.95 * 0.05, abs=0.004), iv.term_level
+
+
+def test_an_exact_model_with_four_identical_sets_gets_its_closed_form_crlb():
+    """blob2d's x without rendering noise, AWGN σ = 0.3, 4 replicate sets (identical: the renders are exact), AD
+    Jacobians: every λ and F statistic has jackknife variance 0 while its unbiased SE can be a float32 residue
+    (measured 4.6e-6 on F), so the lower end's joint level took correlations from 0/0 and the curve stopped with
+    "confidence level must lie in (0, 1), got nan". Each CRLB is σ²/Σ(∂L/∂x)² from torch's Jacobian of the clean
+    image (an independent route) to float32 rounding, and the HCR's lower end, whose sup includes that term, is
+    never below the CRLB's."""
+    m = nb.scenes.get("blob2d").restrict(["x"])
+    thetas = np.linspace(0.3, 0.7, 5)
+    curve = BoundService(RenderBank(m, seed=0), [nb.noise.AWGN(0.3)]).curve(thetas, 16, replicates=4,
+                                                                             gradient="ad")
+    for t, p in zip(thetas, curve.points, strict=True):
+        J = torch.func.jacrev(lambda v: m.base.clean(torch.stack([v[0], torch.tensor(0.5, dtype=torch.float64)])))(
+            torch.tensor([t], dtype=torch.float64))
+        exact = 0.3**2 / float((J**2).sum())
+        c, h = p.bounds["crlb"], p.bounds["hcr"]
+        assert 10**c.log10 == pytest.approx(exact, rel=1e-5) and not c.lower_note, (t, c.reason)
+        assert np.isfinite(h.log10) and h.log10 >= c.lower - 1e-9, (t, h.reason)  # float32 data

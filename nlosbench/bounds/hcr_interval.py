@@ -211,15 +211,25 @@ def lower_level(lam: UStat, valid: np.ndarray, norm2: np.ndarray, sf: StepFisher
         return float(ndtr(lo if excess(lo) <= 0 else brentq(excess, lo, float(ndtri(1 - a2 / (ks.size + 1))) + 1.0)))
     T = np.concatenate([np.moveaxis(lam.terms[:, ks], 1, 0)] + [u.terms.reshape(1, u.terms.shape[0], -1)
                                                                  for u in cands])  # (J, R, M)
-    C = covariance(T)
-    sd = np.sqrt(np.diag(C))
-    w, V = np.linalg.eigh(C / np.outer(sd, sd))
+    w, V = np.linalg.eigh(_correlation(covariance(T)))
     Z = np.einsum("ij,jd->id", V * np.sqrt(np.clip(w, 0.0, None)), _draws(len(T)))  # (J, DRAWS), no BLAS threads
     m = (Z[:ks.size] - gaps[:, None]).max(axis=0) if ks.size else np.full(DRAWS, -np.inf)
     top = int(math.ceil((1.0 - a2) * DRAWS)) - 1  # the (1 − α₂) quantile of each max: its order statistic
     q = max(float(np.partition(np.maximum(m, z), top)[top]) for z in Z[ks.size:]) if cands \
         else float(np.partition(m, top)[top])
     return float(ndtr(q))
+
+
+def _correlation(C: np.ndarray) -> np.ndarray:
+    """The correlation matrix of covariance C (J, J); a statistic whose jackknife variance is 0 (the same in every
+    leave-one-out: an exact model's renders, whose unbiased SE may still be a float32 rounding residue > 0) is taken
+    as uncorrelated with the others, which can only raise the joint critical value (a max of independent errors
+    has the largest quantile)."""
+    sd = np.sqrt(np.diag(C))
+    ok = sd > 0
+    R = np.eye(len(C))
+    R[np.ix_(ok, ok)] = C[np.ix_(ok, ok)] / np.outer(sd[ok], sd[ok])
+    return R
 
 
 @functools.lru_cache(maxsize=8)
