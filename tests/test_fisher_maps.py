@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 import torch
 
+import nlosbench as nb
 from nlosbench import bounds as B
 from nlosbench.noise import AWGN, Poisson
 
@@ -42,3 +43,48 @@ def test_save_fisher_maps(tmp_path):
     np.testing.assert_allclose(back[..., 0], maps[1], rtol=1e-6)  # float32 storage
     with pytest.raises(ValueError):
         B.save_fisher_maps(maps, ["x"], tmp_path)
+
+
+def test_the_study_takes_ad_passes_and_an_exact_toy_gets_its_closed_form_crlb(tmp_path):
+    """The fisher-maps study with `gradient: {method: ad}` on blob2d (no rendering noise: torch's exact Jacobian in
+    every pass), 4 passes, AWGN σ = 0.3: each parameter's CRLB is (F⁻¹)_jj of F = JᵀJ/σ² from torch's Jacobian of the
+    clean image (an independent route) to float32 rounding; no FD step is recorded or checked, and the report says
+    the maps come from AD passes."""
+    import csv
+
+    import torch
+    import yaml
+
+    from nlosbench.cli import main
+
+    raw = {"name": "ad", "scene": {"name": "blob2d"}, "executor": {"type": "serial"},
+           "noise": [{"model": "awgn", "sigma": 0.3}],
+           "studies": [{"type": "fisher-maps", "at": [[0.4, 0.6]], "labels": ["mid"], "spp": 8, "fd_rounds": 4,
+                        "gradient": {"method": "ad"}}]}
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump(raw))
+    assert main(["run", str(cfg), "--out", str(tmp_path / "run"), "--quiet"]) == 0
+    rows = list(csv.DictReader((tmp_path / "run" / "00-fisher-maps" / "fisher.csv").open()))
+    m = nb.scenes.get("blob2d")
+    J = torch.autograd.functional.jacobian(m.clean, torch.tensor([0.4, 0.6], dtype=torch.float64))
+    exact = np.diag(np.linalg.inv(torch.einsum("hwcp,hwcq->pq", J, J).numpy() / 0.3**2))
+    assert [r["param"] for r in rows] == ["x", "y"]
+    for r, want in zip(rows, exact, strict=True):
+        assert 10 ** float(r["log10_crlb"]) == pytest.approx(want, rel=1e-5) and not r["crlb_lower_note"], r
+        assert r["fd_step"] == "nan" and "without an FD step" in r["flag"]
+    assert "4 independent AD passes" in (tmp_path / "run" / "report.md").read_text()
+
+
+def test_ad_and_fd_information_agree_for_a_colour():
+    """cornell_ball's ball_red at 0.8 (a colour: `prb` differentiates it without visibility terms), AWGN σ = 0.05,
+    64 spp, 8 independent AD passes against 8 FD rounds (ξ = 0.05, the step check converged): two routes to F from
+    disjoint renders. Their log10 CRLBs agree by a two-sided test at 3 standard errors (each SE from its 95 % ends;
+    measured: −4.038 and −4.033, each ±0.012)."""
+    m = nb.scenes.get("cornell_ball").restrict(["ball_red"])
+    svc = nb.bounds.BoundService(nb.RenderBank(m, seed=0), [nb.noise.AWGN(0.05)])
+    [ad] = svc.fisher([0.8], 64, rounds=8, gradient="ad", ad={"type": "prb"})
+    [fd] = svc.fisher([0.8], 64, fd_step=0.05, rounds=8)
+    a, f = ad.crlb[0][0], fd.crlb[0][0]
+    assert not a.lower_note and not f.lower_note, (a.reason, f.reason)
+    se = [(b.upper - b.lower) / (2 * 1.6449) for b in (a, f)]
+    assert abs(a.log10 - f.log10) < 3 * np.hypot(*se), (a.log10, f.log10, se)

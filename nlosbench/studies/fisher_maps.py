@@ -4,9 +4,12 @@ also a pooled map: pixels pooled into quadtree cells chosen on half of the round
 estimated on the other half with limits Bonferroni over the cells (`bounds.pooling`); cells not resolved on
 the selection half are masked. With a `precision` target the bound service adds fresh FD rounds at the θ whose
 CRLB interval is wider than asked (`BoundService.fisher`; the stopping rule of `bounds.precision`): the maps, the
-pooled cells and the CRLBs are then the reported look's, and the report says the precision each θ reached."""
+pooled cells and the CRLBs are then the reported look's, and the report says the precision each θ reached. With
+`gradient: {method: ad, ...}` the rounds are independent Mitsuba AD passes instead (no FD step): the same maps and
+CRLB limits of AD's derivative, to hold against an FD reference where AD may be biased."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -14,11 +17,12 @@ import numpy as np
 
 from ..bounds import save_fisher_maps
 from ..bounds.pooling import PooledFisherMap, pool_fisher_map, pooled_summary
+from .. import diagnostics
 from ..io import read_csv, write_csv, write_exr
 from ..schema import MAX_HALVINGS, STEP_TOL, ConfigError, Field, folder_name, point_spec
 from . import precise
 from .context import RunContext
-from .estimate import Estimate, pixels
+from .estimate import AD_PASS_RENDERS, Estimate, pixels
 from .plots import fisher_figure
 from .plotstyle import theta_text
 from .tables import fmt_end
@@ -41,6 +45,10 @@ SCHEMA = {
                                          "limit > 0)", nullable=True),
     "step_tol": STEP_TOL,
     "max_halvings": MAX_HALVINGS,
+    "gradient": Field(dict, {"method": "fd"}, "the Jacobians: {method: fd}, central FD rounds at `fd_step` halved by "
+                      "the step rule; {method: ad, integrator: prb_projective, guiding: none, ...}: `fd_rounds` "
+                      "independent Mitsuba forward-mode AD passes with those integrator options (no FD step: "
+                      "fd_step, step_tol and max_halvings unused; no precision target)"),
     **precise.KEYS,
 }
 
@@ -60,6 +68,7 @@ class Plan:
     pool: bool = False
     pool_precision: float | None = None
     precision: dict = field(default_factory=dict)
+    ad: dict | None = None  # AD integrator options where the Jacobians are AD passes
 
 
 def plan(ctx: RunContext, cfg: dict) -> Plan:
@@ -89,16 +98,29 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     if prec is not None and not prec > 0:
         raise ConfigError(f"{sid}.pool_precision", f"expected a precision > 0, got {prec}")
     precise.check(cfg, sid, ("crlb",), sets="fd_rounds")
+    try:
+        grad = diagnostics.backend(cfg["gradient"])
+    except ValueError as e:
+        raise ConfigError(f"{sid}.gradient", str(e)) from None
+    if grad.method == "fd" and set(cfg["gradient"]) != {"method"}:
+        raise ConfigError(f"{sid}.gradient", f"FD Jacobians take `fd_step`, `fd_rounds`, `step_tol` and "
+                                             f"`max_halvings` from the study, got {cfg['gradient']}")
+    if grad.method == "ad" and cfg.get("precision") is not None:
+        raise ConfigError(f"{sid}.precision", "a precision target plans fresh FD rounds and their step; with AD "
+                                              "Jacobians give the number of passes as `fd_rounds`")
     return Plan(np.array(thetas), labels, cfg["spp"], cfg["fd_step"], cfg["fd_rounds"], cfg["reduce"],
-                cfg["step_tol"], cfg["max_halvings"], bool(pool), prec, precise.at_kwargs(cfg))
+                cfg["step_tol"], cfg["max_halvings"], bool(pool), prec, precise.at_kwargs(cfg),
+                grad.ad if grad.method == "ad" else None)
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
     """Per θ: a render and `fd_rounds` central-FD Jacobians (2 renders per parameter and round) at ξ and ξ/2, with
     θ rendered under each round's seed (the step check's one-sided differences); at most `max_halvings` − 1 more
     halvings where the step has not converged (counted: the most it can cost); with a `precision` target, these are
-    its pilot and the fresh rounds spend at most its `precision_budget` or the default ceiling (`precise.estimate`)."""
-    per_round = 2 * ctx.model.params.dim * (1 + max(p.max_halvings, 0)) + (p.max_halvings > 0)
+    its pilot and the fresh rounds spend at most its `precision_budget` or the default ceiling (`precise.estimate`).
+    AD: one pass per parameter and round, `AD_PASS_RENDERS` renders each."""
+    per_round = (AD_PASS_RENDERS * ctx.model.params.dim if p.ad is not None else
+                 2 * ctx.model.params.dim * (1 + max(p.max_halvings, 0)) + (p.max_halvings > 0))
     renders = len(p.thetas) * (1 + p.fd_rounds * per_round)
     samples = renders * p.spp * pixels(ctx.model)
     return precise.estimate(renders, samples, cfg, p.spp, pixels(ctx.model), pilot=samples)
@@ -119,7 +141,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     names, units = list(m.params.names), list(m.params.units)
     where, pooled = {}, []
     points = ctx.bounds.fisher(p.thetas, p.spp, p.fd_step, p.fd_rounds, p.reduce, step_tol=p.step_tol,
-                               max_halvings=p.max_halvings, **p.precision)
+                               max_halvings=p.max_halvings, **p.precision,
+                               **({"gradient": "ad", "ad": p.ad} if p.ad is not None else {}))
     T = len(points)
     precision = precise.records([fp.precise[k] for k in range(len(ctx.noises)) for fp in points if fp.precise], T,
                                 names)
@@ -158,6 +181,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     return {"points": p.labels, "params": names, "units": units, "where": where,
             "noises": [str(n) for n in ctx.noises], "renders": ctx.bank.renders - before, "spp": p.spp,
             "pooled": pooled, "fd_rounds": p.fd_rounds, "level": ctx.bounds.level,
+            "gradient": "fd" if p.ad is None else diagnostics.label(diagnostics.backend(cfg["gradient"])),
             **({"precision": precision, "seconds_per_sample": ctx.rate} if precision else {})}
 
 
@@ -175,7 +199,11 @@ def report(study_dir: Path, results: dict) -> str:
     pooled = results.get("pooled") or {}
     fisher_figure(study_dir, results["points"], results["params"], results.get("where"), results["noises"][0],
                   results.get("units"), pooled=bool(pooled))
-    lines = [f"Per-pixel Fisher information from central FD (common random numbers) at {results['spp']} spp; "
+    grad = results.get("gradient", "fd")
+    how = ("central FD (common random numbers)" if grad == "fd" else
+           f"{results['fd_rounds']} independent AD passes (`{grad}`, forward mode; no FD step: the information of "
+           "AD's derivative, which an FD reference at a converged step says whether to trust)")
+    lines = [f"Per-pixel Fisher information from {how} at {results['spp']} spp; "
              f"{results['renders']} renders.", "", f"![Fisher maps]({study_dir.name}/fisher_maps.png)", "",
              "| point | θ | noise | parameter | total FI | log10 CRLB [95 % ends] | how |",
              "|---|---|---|---|---|---|---|"]
@@ -200,12 +228,13 @@ def report(study_dir: Path, results: dict) -> str:
         lines += ["", f"† not a confidence limit: {why[frozenset(unchecked)]}."]
     if pooled:
         lines += ["", f"Pooled maps (right-hand panels, first noise model): pixels pooled into quadtree cells chosen "
-                      f"on half of the {results['fd_rounds']} FD rounds (a cell is split while its parts stay "
+                      f"on half of the {results['fd_rounds']} {'FD rounds' if grad == 'fd' else 'AD passes'} (a cell is split while its parts stay "
                       f"resolved there), each cell's information estimated on the other half with one-sided limits "
                       f"at {results['level']:.0%} jointly over all cells (Bonferroni over 2 limits per cell). Drawn: "
                       f"the cells resolved on the selection half, valued by the estimation half (unbiased whatever "
                       f"the cells); hatched: drawn cells whose limits on the estimation half include 0; blank: "
                       f"masked. Per cell in pooled_cells.csv.", ""]
-        lines += [f"- {v['label']}, {v['noise']}, {v['param']} (FD step ξ = {v['step']:.3g}): {v['summary']}"
+        lines += [f"- {v['label']}, {v['noise']}, {v['param']}"
+                  + (f" (FD step ξ = {v['step']:.3g})" if math.isfinite(v['step']) else "") + f": {v['summary']}"
                   for v in pooled]
     return "\n".join(lines)

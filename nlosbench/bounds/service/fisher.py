@@ -3,6 +3,7 @@ from independent cameras (`cameras_crlb`)."""
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -29,7 +30,8 @@ class FisherInformation(RenderSets):
 
     def fisher(self, thetas, spp: int, fd_step: float = 0.01, rounds: int = 3, reduce: str = "sum",
                noises=None, step_tol: float = 0.1, max_halvings: int = 3, precision: float | None = None,
-               budget: int | None = None, looks: int = 2, smoothed: bool = False) -> list[FisherPoint]:
+               budget: int | None = None, looks: int = 2, smoothed: bool = False, gradient: str = "fd",
+               ad: dict | None = None) -> list[FisherPoint]:
         """Unbiased per-pixel Fisher information maps and the CRLB per parameter at each θ (T, P).
 
         Per θ: a render (purpose "fisher", the Poisson weight image) and `rounds` independent FD rounds at step ξ:
@@ -44,6 +46,11 @@ class FisherInformation(RenderSets):
         `budget` pixel-samples, in at most `looks` looks on disjoint rounds with α spent along the path; the maps,
         the per-parameter CRLBs and the rounds are then the reported look's (the pilot's where it met the
         target), and `precise` carries the CRLB of θ with its `precision` record.
+        With `gradient` "ad" the rounds are `rounds` independent Mitsuba forward-mode AD passes (integrator options
+        `ad`; purpose "fisher-ad", replicate r): no FD step, so nothing to halve or check (`fd_step`, `step_tol`
+        and `max_halvings` are not used) and the ends are confidence limits of the information of AD's derivative,
+        whatever bias the AD integrator has (the `gradients` study and a converged FD reference say whether it has
+        one).
 
         Parameters
         ----------
@@ -78,6 +85,11 @@ class FisherInformation(RenderSets):
             (L(θ + ξ) − L(θ − ξ)) / 2ξ, what maps compared at one ξ show), whose ends are confidence limits of that
             quantity (flag "fd-smoothed", no label), so a precision target can be met; False: the lower ends
             are labelled "not a confidence limit" (no step check).
+        gradient : {"fd", "ad"}, optional
+            Central FD rounds (the step rule above) or independent AD passes.
+        ad : dict, optional
+            The AD integrator's options with gradient "ad" (`type`: prb, direct_projective, prb_projective;
+            `guiding`, `sppc`, `sppp`, `sppi`, `max_depth` …); None: the model's choice for the parameter's kind.
 
         Returns
         -------
@@ -88,12 +100,19 @@ class FisherInformation(RenderSets):
             raise ValueError(f"an unbiased Fisher information needs >= 2 independent FD rounds, got {rounds}")
         if reduce not in ("sum", "mean"):
             raise ValueError(f"reduce must be 'sum' or 'mean', got {reduce!r}")
+        if gradient not in ("fd", "ad"):
+            raise ValueError(f"gradient must be 'fd' or 'ad', got {gradient!r}")
+        if gradient == "ad" and precision is not None:
+            raise ValueError("a precision target plans fresh FD rounds and their step; with gradient 'ad' give the "
+                             "number of AD passes as `rounds`")
+        if gradient == "fd" and ad:
+            raise ValueError(f"AD integrator options {ad} need gradient 'ad'")
         _check_step(fd_step, step_tol, max_halvings)
         check_precision(precision, budget, looks, ("crlb",), rounds)
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, self.params.dim)
         args = (spp, reduce, noises, step_tol, smoothed)
         if precision is None:
-            return self._fisher(thetas, rounds, 0, *args, fd_step, max_halvings)[0]
+            return self._fisher(thetas, rounds, 0, *args, fd_step, max_halvings, ad=(ad or {}) if gradient == "ad" else None)[0]
         found: dict[int, FisherPoint] = {}
 
         def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict, window, tested) -> list[BoundPoint]:
@@ -113,11 +132,12 @@ class FisherInformation(RenderSets):
         return [found[i] for i in range(len(thetas))]
 
     def _fisher(self, thetas: np.ndarray, rounds: int, first: int, spp: int, reduce: str, noises, step_tol: float,
-                smoothed: bool, fd_step: float, max_halvings: int, keep: dict | None = None
+                smoothed: bool, fd_step: float, max_halvings: int, keep: dict | None = None, ad: dict | None = None
                 ) -> tuple[list[FisherPoint], list]:
-        """`fisher` from FD rounds first … first + rounds − 1 at the service's level: the FisherPoints and the
-        CRLB of θ (tr F̂⁻¹) as BoundPoints (noise-major); `keep`, when given, is filled with {(noise index, θ
-        index): the raw data a precision plan needs (`precision.Raw`)}."""
+        """`fisher` from FD rounds first … first + rounds − 1 at the service's level (or, with `ad` given, from
+        that many AD passes: one stage, step NaN): the FisherPoints and the CRLB of θ (tr F̂⁻¹) as BoundPoints
+        (noise-major); `keep`, when given, is filled with {(noise index, θ index): the raw data a precision plan
+        needs (`precision.Raw`)}."""
         P = self.params.dim
         Ls = self.bank.at(thetas, spp, "fisher", desc="Fisher-map renders")
         sel = self._select(noises)
@@ -129,7 +149,14 @@ class FisherInformation(RenderSets):
             return self._stages(thetas[idx], None, spp, "independent", rounds, xi, first, purpose="fisher",
                                 sided=max_halvings > 0)
 
-        stages = self._refine(thetas, stage_fn, wflat, fd_step, step_tol, max_halvings)
+        if ad is None:
+            stages = self._refine(thetas, stage_fn, wflat, fd_step, step_tol, max_halvings)
+        else:  # independent AD passes: one stage without a step
+            J = torch.stack([self.bank.jacobians_at(thetas, spp, fd_step, "fisher-ad", False, first + r,
+                                                    desc="Fisher-map AD passes", method="ad", ad=ad)
+                             for r in range(rounds)]).double()  # (R, T, P, H, W, C)
+            stages = [[Stage(math.nan, {"central": J[:, i].reshape(rounds, P, -1).numpy()}, self.group)]
+                      for i in range(len(thetas))]
         out, rows = [], {}
         for i, (t, L) in enumerate(zip(thetas, Ls, strict=True)):
             Jf = torch.from_numpy(stages[i][-1].rounds["central"]).reshape(rounds, P, *L.shape)

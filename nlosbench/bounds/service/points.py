@@ -303,7 +303,10 @@ def crlb_bound(sf: StepFisher | UStat, level: float, extra_flags: tuple = (), in
     if R < 3:
         flags.append("estimate-only")
     reason = ("no resolved information: F̂ is not positive" if not math.isfinite(term.point) else
-              f"CRLB from an unbiased FI (U-statistic over {R} FD rounds; the FI of the FD-smoothed derivative)")
+              f"CRLB from an unbiased FI (U-statistic over {R} FD rounds; the FI of the FD-smoothed derivative)"
+              if not math.isnan(sf.steps[-1]) else
+              f"CRLB from an unbiased FI (U-statistic over {R} independent Jacobians without an FD step, e.g. AD "
+              "passes: the FI of the derivative they estimate, biased or not)")
     if sf.checked:
         reason += "; " + (term.zero_note or sf.note()) + (f" ({sf.settle()})" if sf.settle() else "")
     elif term.smoothed:
