@@ -454,6 +454,12 @@ def pooled_summary(m: PooledFisherMap) -> str:
         E.g. "12 cells, 4 drawn (chosen on rounds [0, 1, 2]), 3 of them resolved at 95 % …".
     """
     drawn = m.chosen
-    return (f"{m.cells} cells, {int(drawn.sum())} drawn (resolved on rounds {list(m.select_rounds)}), "
-            f"{int((drawn & m.resolved).sum())} of them resolved on rounds {list(m.estimate_rounds)} at "
+    return (f"{m.cells} cells, {int(drawn.sum())} drawn (resolved on rounds {_span(m.select_rounds)}), "
+            f"{int((drawn & m.resolved).sum())} of them resolved on rounds {_span(m.estimate_rounds)} at "
             f"{m.level:.0%} (Bonferroni over {m.tests} one-sided limits)")
+
+
+def _span(rounds) -> str:
+    """Round indices as written: "0–23" for a run of more than three, else "[0, 1, 2]"."""
+    r = [int(x) for x in rounds]
+    return f"{r[0]}–{r[-1]}" if len(r) > 3 and r == list(range(r[0], r[-1] + 1)) else str(r)
