@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import diagnostics
 from ..bounds import save_fisher_maps
 from ..bounds.pooling import PooledFisherMap, pool_fisher_map, pooled_summary
-from .. import diagnostics
 from ..io import read_csv, write_csv, write_exr
 from ..schema import MAX_HALVINGS, STEP_TOL, ConfigError, Field, folder_name, point_spec
 from . import precise
@@ -228,7 +228,8 @@ def report(study_dir: Path, results: dict) -> str:
         lines += ["", f"† not a confidence limit: {why[frozenset(unchecked)]}."]
     if pooled:
         lines += ["", f"Pooled maps (right-hand panels, first noise model): pixels pooled into quadtree cells chosen "
-                      f"on half of the {results['fd_rounds']} {'FD rounds' if grad == 'fd' else 'AD passes'} (a cell is split while its parts stay "
+                      f"on half of the {results['fd_rounds']} {'FD rounds' if grad == 'fd' else 'AD passes'} "
+                      f"(a cell is split while its parts stay "
                       f"resolved there), each cell's information estimated on the other half with one-sided limits "
                       f"at {results['level']:.0%} jointly over all cells (Bonferroni over 2 limits per cell). Drawn: "
                       f"the cells resolved on the selection half, valued by the estimation half (unbiased whatever "

@@ -112,7 +112,8 @@ class FisherInformation(RenderSets):
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, self.params.dim)
         args = (spp, reduce, noises, step_tol, smoothed)
         if precision is None:
-            return self._fisher(thetas, rounds, 0, *args, fd_step, max_halvings, ad=(ad or {}) if gradient == "ad" else None)[0]
+            return self._fisher(thetas, rounds, 0, *args, fd_step, max_halvings,
+                                ad=(ad or {}) if gradient == "ad" else None)[0]
         found: dict[int, FisherPoint] = {}
 
         def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict, window, tested) -> list[BoundPoint]:
