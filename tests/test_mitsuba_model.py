@@ -152,6 +152,22 @@ def test_restricted_colour_gradient_uses_prb(cornell):
     assert [dict(k)["type"] for k in cornell._ad_cache] == ["prb"]
 
 
+def test_an_ad_pass_leaves_its_scene_untracked_so_another_models_forward_ad_runs():
+    """After a reverse-mode pass on one model, forward-mode AD on a second model of the same scene in the same
+    process used to stop in Dr.Jit ("tried to forward-propagate derivatives across edge … outside of the current
+    dr.isolate_grad() scope"): the first scene still held grad-enabled values. Now no scene value stays tracked
+    after `vjp` or `jvp`, and the second model's derivative image is the one it renders alone (bit for bit)."""
+    import drjit as dr
+
+    first = nb.scenes.get("cornell_ball")
+    first.restrict(["ball_red"]).vjp([0.8], torch.ones(32, 32, 3), 16, 1)
+    assert not any(dr.grad_enabled(v) for _, v in first._params.items() if dr.is_array_v(v))
+    second = nb.scenes.get("cornell_ball").restrict(["ball_red"])
+    J = second.jvp([0.8], 0, 16, 0, type="prb")
+    assert torch.isfinite(J).all() and torch.equal(J, second.jvp([0.8], 0, 16, 0, type="prb"))
+    assert not any(dr.grad_enabled(v) for _, v in second.base._params.items() if dr.is_array_v(v))
+
+
 def test_non_box_pixel_filter_warns_that_renders_are_not_bit_reproducible(tmp_path):
     src = (nb.scenes.SCENE_DIR / "cornell_ball.xml").read_text()
     assert '<rfilter type="box"/>' in src

@@ -15,6 +15,7 @@ turns it off. What is frozen, what re-records and why the scene update is not fr
 """
 from __future__ import annotations
 
+import contextlib
 import re
 import warnings
 from pathlib import Path
@@ -246,6 +247,16 @@ class MitsubaModel(ForwardModel):
             self._ad_cache[key] = integ
         return self._ad_cache[key]
 
+    @contextlib.contextmanager
+    def _untracked_after(self, theta: np.ndarray):
+        """Leave the scene holding θ untracked after AD passes, however they end: a scene left with grad-enabled
+        values breaks another scene's forward-mode AD in the same process (Dr.Jit: "tried to forward-propagate
+        derivatives across edge … outside of the current dr.isolate_grad() scope", measured after a `vjp`)."""
+        try:
+            yield
+        finally:
+            self._apply(theta)
+
     def _ad_pass(self, theta: np.ndarray, spp: int, seed: int, pass_seed_index: int, integrator, grad_index=None):
         """Render one AD pass with θ tracked; returns (image, θ variables)."""
         import drjit as dr
@@ -256,7 +267,7 @@ class MitsubaModel(ForwardModel):
             if grad_index is None or j == grad_index:
                 dr.enable_grad(t)
         self.binder.apply(self._params, th)
-        self._applied = None  # the scene now holds tracked values; the next primal render re-applies θ
+        self._applied = None  # the scene now holds tracked values: `_untracked_after` re-applies θ
         img = mi.render(self.scene, self._params, integrator=integrator, spp=spp,
                         seed=derive(seed, "pass", pass_seed_index),
                         seed_grad=derive(seed, "seed_grad", pass_seed_index))
@@ -273,11 +284,12 @@ class MitsubaModel(ForwardModel):
         integ = self.ad_integrator(indices, **ad)
         go = np.ascontiguousarray(grad_out.detach().cpu().numpy(), dtype=np.float32)
         total = np.zeros(len(t))
-        for i, (s, _) in enumerate(self._passes(spp, seed)):
-            img, th = self._ad_pass(t, s, seed, i, integ)
-            dr.backward(img * mi.TensorXf(go * (s / spp)))
-            total += np.array([float(dr.grad(x)[0]) for x in th])
-            self.stats.grad_passes += 1
+        with self._untracked_after(t):
+            for i, (s, _) in enumerate(self._passes(spp, seed)):
+                img, th = self._ad_pass(t, s, seed, i, integ)
+                dr.backward(img * mi.TensorXf(go * (s / spp)))
+                total += np.array([float(dr.grad(x)[0]) for x in th])
+                self.stats.grad_passes += 1
         self.check_finite(torch.from_numpy(total), t, spp, seed, what="AD gradient")
         return total
 
@@ -288,12 +300,13 @@ class MitsubaModel(ForwardModel):
         spp, seed = check_spp_seed(spp, seed)
         integ = self.ad_integrator([index], **ad)
         acc = None
-        for i, (s, _) in enumerate(self._passes(spp, seed)):
-            img, th = self._ad_pass(t, s, seed, i, integ, grad_index=index)
-            dr.forward(th[index])
-            d = np.asarray(dr.grad(img), dtype=np.float64) * (s / spp)
-            acc = d if acc is None else acc + d
-            self.stats.grad_passes += 1
+        with self._untracked_after(t):
+            for i, (s, _) in enumerate(self._passes(spp, seed)):
+                img, th = self._ad_pass(t, s, seed, i, integ, grad_index=index)
+                dr.forward(th[index])
+                d = np.asarray(dr.grad(img), dtype=np.float64) * (s / spp)
+                acc = d if acc is None else acc + d
+                self.stats.grad_passes += 1
         out = torch.from_numpy(acc.astype(np.float32))
         self.check_finite(out, t, spp, seed, what=f"AD derivative image d/d{self.params.names[index]}")
         return out
