@@ -98,8 +98,10 @@ class JacobianRequest:
     @classmethod
     def of(cls, theta, spp: int, seed: int, step: float, rounds: int = 1, method: str = "fd",
            ad: dict | None = None) -> JacobianRequest:
-        return cls(_rounded(theta), int(spp), int(seed), float(step), int(rounds), method,
-                   tuple(sorted((ad or {}).items())))
+        """The request; an AD Jacobian has no step, so its step is GradientSettings' default whatever is given
+        (one AD Jacobian is one request, not one per FD step a caller happens to pass)."""
+        step = float(step) if method == "fd" else GradientSettings.step
+        return cls(_rounded(theta), int(spp), int(seed), step, int(rounds), method, tuple(sorted((ad or {}).items())))
 
     def settings(self) -> GradientSettings:
         """The forward layer's GradientSettings for this request."""

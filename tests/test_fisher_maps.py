@@ -88,3 +88,15 @@ def test_ad_and_fd_information_agree_for_a_colour():
     assert not a.lower_note and not f.lower_note, (a.reason, f.reason)
     se = [(b.upper - b.lower) / (2 * 1.6449) for b in (a, f)]
     assert abs(a.log10 - f.log10) < 3 * np.hypot(*se), (a.log10, f.log10, se)
+
+
+def test_an_ad_jacobian_is_one_request_whatever_fd_step_a_caller_passes():
+    """The bank keys an AD Jacobian without the FD step it ignores: `fisher(gradient="ad")` at two `fd_step` values
+    (blob2d with rendering noise, 3 passes) renders its passes once and gives the same CRLB bit for bit."""
+    m = nb.scenes.get("blob2d", render_noise=2.0)
+    bank = nb.RenderBank(m, seed=0)
+    svc = nb.bounds.BoundService(bank, [nb.noise.AWGN(0.3)])
+    [a] = svc.fisher([[0.4, 0.6]], 8, fd_step=0.01, rounds=3, gradient="ad")
+    made = bank.renders
+    [b] = svc.fisher([[0.4, 0.6]], 8, fd_step=0.03, rounds=3, gradient="ad")
+    assert bank.renders == made and [c.log10 for c in a.crlb[0]] == [c.log10 for c in b.crlb[0]]
