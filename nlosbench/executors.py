@@ -344,6 +344,7 @@ class LocalPoolExecutor(_Workers):
     def abort(self) -> None:
         if self._pool is not None:
             workers = list((getattr(self._pool, "_processes", None) or {}).values())
+            manager = getattr(self._pool, "_executor_manager_thread", None)  # shutdown drops the reference
             # shut down first: the pool's thread then drops the cancelled futures before it sees its workers
             # killed (killing first made it mark a cancelled future failed: InvalidStateError: CANCELLED there)
             self._pool.shutdown(wait=False, cancel_futures=True)
@@ -354,6 +355,10 @@ class LocalPoolExecutor(_Workers):
                 time.sleep(0.005)
             for proc in workers:
                 proc.kill()  # SIGKILL: a worker has the stop signals blocked (`_spawning`)
+            # let that thread end (it closes its wakeup pipe as it does): interpreter exit writes to every live
+            # pool's pipe, and CPython's check-then-write there raced the thread's close (EBADF traceback at exit)
+            if manager is not None:
+                manager.join(5.0)
             self._pool = None
 
 
