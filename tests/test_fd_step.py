@@ -351,6 +351,26 @@ def test_a_smooth_slope_does_not_widen_the_ends_by_a_coarse_one_sided_difference
     assert np.median(np.maximum(point / lo, up / point)) < 1.16, ends
 
 
+def test_a_target_that_the_one_sided_bias_keeps_out_of_reach_names_a_finer_step():
+    """_Brightening at θ* = 0.5, AWGN σ = 0.05, 8 sets, a ±10 % target. From ξ = 2 cm halved once, the finest
+    stage (1 cm) has one-sided differences biased by ≈ ±(ξ/2)·F′/F = ±10 % (F ∝ e^{2kθ}, k = 10 /m), which the ends
+    take: no number of sets is predicted to meet the target, and the note says that the step's bias, not noise,
+    sets the width, with its size (8–14 %), and that a finer step narrows it. From ξ = 4 mm (bias ±2 % at the
+    finest stage) the same target is met by the pilot, and no such note is made."""
+    import re
+
+    def quote(step: float):
+        (pt,) = BoundService(RenderBank(_Brightening(), seed=0), [nb.noise.AWGN(SIGMA)]).at(
+            [[0.5]], 16, ("crlb",), replicates=8, fd_step=step, max_halvings=1, precision=0.1, budget=2_000_000)
+        return pt.precision
+
+    coarse, fine = quote(0.02), quote(0.004)
+    assert not coarse.met and coarse.extra_sets == float("inf"), coarse
+    gap = re.search(r"one-sided F lie up to ±([\d.]+) % from the central one, beyond their noise", coarse.note)
+    assert gap and 8 <= float(gap.group(1)) <= 14 and "a finer step narrows them" in coarse.note, coarse.note
+    assert fine.met and "finer step" not in fine.note, fine
+
+
 def test_a_check_that_passes_while_its_estimate_says_f_falls_halves_on():
     """_Exit with rendering noise 1.5 at θ* = 0.505, ξ = 2 cm, AWGN σ = 0.05, 3 sets: F falls ×0.84 from 2 to 1 cm
     (exact), which these 3 sets do not show (seeds 0 and 2: ×0.81 ± 0.06, ×0.80 ± 0.08; upper limits above 1/1.1).

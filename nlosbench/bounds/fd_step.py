@@ -316,6 +316,27 @@ def one_sided_t(level: float, df: float, se: float) -> float:
     return float(q) if math.isfinite(q) else math.inf
 
 
+def one_sided_gap(sf: StepFisher, level: float) -> float:
+    """The largest relative gap |F_v − F_c| / F_c between a one-sided F (v: forward, backward) of the finest stage and
+    its central F that shows at one-sided `level` (above t × their SEs combined in quadrature); 0 where none shows,
+    F_c ≤ 0 or θ is not scalar. The ends take the finest stage's one-sided variants (`lower_candidates`,
+    `upper_candidates`), and where L(θ) bends their gap to the central F is the step's bias (≈ (ξ/2)·|F′/F|), not
+    noise: more replicate sets leave it as it is, a finer step shrinks it."""
+    last = sf.stats[-1]
+    c = last.get("central")
+    if c is None or c.est.shape != (1, 1) or not float(c.est[0, 0]) > 0:
+        return 0.0
+    fc, sc = float(c.est[0, 0]), float(c.se[0, 0])
+    gap = 0.0
+    for name, u in last.items():
+        if name == "central":
+            continue
+        d, se = abs(float(u.est[0, 0]) - fc), math.hypot(float(u.se[0, 0]), sc)
+        if d > one_sided_t(level, float(min(np.min(u.dof), np.min(c.dof))), se) * se:
+            gap = max(gap, d / fc)
+    return gap
+
+
 @dataclass
 class CRLBTerm:
     """log10 of the CRLB term (trace F⁻¹; 1/F for a scalar θ) in units²: point, lower end (−inf: 0), upper
