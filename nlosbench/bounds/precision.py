@@ -765,9 +765,10 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         if worst(i) > goal[i]:  # (a fresh look's tested Δ may be a subset already: the plan's mask is over them)
             pl = plans[i] if st.looks[i] == 1 and i in plans else planned(i)  # the pilot's plan, made once
             extra[i] = math.inf if pl.sets is None else float(pl.sets)
-            gap = max((one_sided_gap(st.raws[j, i].sf, st.level[i]) for j in noises
-                       if st.raws[j, i].sf is not None), default=0.0)
-            if pl.sets is None and gap > 0:  # what sets the width: the step's bias, not noise
+            gap = 0.0 if pl.sets is not None else max(  # where no sets suffice: does the step's bias set the width?
+                (one_sided_gap(st.raws[j, i].sf, st.level[i]) for j in noises if st.raws[j, i].sf is not None),
+                default=0.0)
+            if gap > 0:
                 st.notes[i] += (f"; at its finest FD step the one-sided F lie up to ±{100 * gap:.2g} % from the "
                                 "central one, beyond their noise (the step's bias, which the ends take): a finer step "
                                 "narrows them, more sets do not")
