@@ -25,7 +25,10 @@ fresh look would cost (`extra_pixel_samples`), a survey at a fixed cost.
       (`tested_deltas`) that make it cheapest; where none is (the pilot's estimates, held fixed, say more sets
       never suffice: FD stages or λ̂ that disagree by noise alone look like that at a small pilot), an
       exploratory R* = EXPLORE·R0 within the budget;
-  looks k = 1 … K − 1: R*·2^(k−1) sets of its own, after every set rendered before it at any θ* (look 1 of the
+  looks k = 1 … K − 1: look 1 R* sets of its own, look k ≥ 2 planned the same way from look k − 1's data alone
+      (its sets, FD window and Δ, at level 1 − α_k: a pilot of 4 sets cannot see what a look of 64 shows, such as
+      the one-sided FD bias past the corner; `Fit.windows`), or where none is predicted to suffice twice look
+      k − 1's sets, exploratory; each after every set rendered before it at any θ* (look 1 of the
       first wave the sets R0 … R0 + R* − 1), at level 1 − α_k; stop at the first look that meets p. Looks are made
       in waves: those whose worst-case cost fits what is left of the budget (cheapest first), then, against what
       they actually spent, the others; exploratory looks only once every planned one has been admitted or left out;
@@ -417,8 +420,53 @@ class Fit:
         variance of F; measured on the Π hallway beyond the corner: 3 of 34 points met ±25 % against 18)."""
         n, first = len(self.raw.stages), settled_from(self.raw.sf)
         if first == 0 or most is None:  # no halving shown to raise F: any window the pilot's stages allow
-            return [Window(s, h) for s in range(first, n - 1) for h in range(1, n - s)]
+            return [Window(s, h) for s in range(first, n - 1) for h in range(1, n - s)] + self._finer(most)
         return [Window(s, max(n - 1, most) - s) for s in range(first, n - 1)]
+
+    def _finer(self, most: int | None) -> list[Window]:
+        """One-halving windows past the pilot's finest stage, their finest stage down to `most`, where the pilot's
+        step settled (`StepFisher.steady`, scalar θ) but its finest stage's one-sided F lie beyond their noise from
+        the central one (`fd_step.one_sided_gap`): the ends take those one-sided F, so that gap (the step's bias
+        where L(θ) bends: the Π hallway just past the corner, ±24 % at 1.5 cm) sets the width, and more sets at the
+        pilot's steps never narrow it; a finer step does (`_continued` predicts it)."""
+        sf = self.raw.sf
+        if most is None or sf is None or not sf.checked or not sf.steady or one_sided_gap(sf, sf.level) == 0:
+            return []
+        return [Window(s, 1) for s in range(len(sf.stats) - 1, most)]
+
+    def _continued(self, last: int) -> tuple[list, list, list, list]:
+        """The pilot's (stats, variance terms, halvings, steps) continued to stage `last` past its finest one n − 1
+        (unchanged where last ≤ n − 1), scalar θ. Stage n − 1 + m is predicted from the finest: its central F the same
+        (the pilot's step settled), each one-sided F's gap to it halved per halving (its bias ∝ ξ), and the variance
+        of the FD rounds' noise ×γ per halving, so the signal × noise term a ×γ^m and the noise × noise term b ×γ^2m.
+        γ is the pilot's own last halving's √(b(ξ/2)/b(ξ)) of the central F, within [1, 4]: 4 where ΔL's noise does
+        not cancel between θ ± ξ (J = ΔL/ξ: `Halving.hopeless`), 1 where it cancels as a smooth noise does; measured
+        on the Π hallway past the corner at 4 × 384 spp, 2.6–3.2 (b ×7–10 per halving). Each new halving at ratio 1,
+        its contrast's SE the pilot's last one scaled like the finer stage's SE, its extrapolation the central F with
+        that SE."""
+        sf, terms = self.raw.sf, self.stages
+        n, R0 = len(sf.stats), sf.final.replicates
+        stats, terms, halvings, steps = list(sf.stats), list(terms), list(sf.halvings), list(sf.steps)
+        finest, h0 = sf.stats[-1], sf.halvings[-1] if sf.halvings else None
+        c = finest["central"]
+        se0 = float(c.se[0, 0])
+        b_fine, b_coarse = float(self.stages[n - 1]["central"][1][0]), float(self.stages[n - 2]["central"][1][0])
+        gamma = min(max(math.sqrt(b_fine / b_coarse), 1.0), 4.0) if b_fine > 0 and b_coarse > 0 else 4.0
+        for m in range(1, last - n + 2):
+            ab = {name: (a * gamma**m, b * gamma ** (2 * m)) for name, (a, b) in self.stages[n - 1].items()}
+            stage = {}
+            for name, u in finest.items():
+                est = c.est + (u.est - c.est) / 2.0**m
+                stage[name] = _predict_ustat(replace(u, est=est), ab[name], R0)
+            grow = float(stage["central"].se[0, 0]) / se0 if se0 > 0 else 2.0**m
+            contrasts = {key: (-sf.step_tol * fa, se * grow, df, fa) for key, (_, se, df, fa) in h0.contrasts.items()}
+            extra = {name: replace(u, est=c.est, se=u.se * grow, loo=u.loo[:0], terms=None)
+                     for name, u in h0.extrapolated.items()}
+            halvings.append(Halving(steps[-1], 1.0, h0.se * grow, True, False, contrasts, extra))
+            stats.append(stage)
+            terms.append(ab)
+            steps.append(steps[-1] / 2.0)
+        return stats, terms, halvings, steps
 
     def step_fisher(self, R: int, level: float, window: Window) -> StepFisher:
         """The StepFisher a look at R fresh sets is predicted to give over `window`: each stage's F with its SE
@@ -434,28 +482,32 @@ class Fit:
         sets to show it below 1 + tol. Plans only choose R and the window; the
         looks' limits do not depend on them."""
         sf, R0 = self.raw.sf, self.raw.sf.final.replicates
+        n = len(sf.stats)
         t0 = one_sided_t(level, R0 - 1.0, 1.0)
         edge = settled_from(sf) > 0  # the pilot saw F rise at some halving
-        ref = sf.stats[window.start].get("central")
+        # a window past the pilot's finest stage (`_finer`) continues its stages by prediction
+        pilot_stats, terms, pilot_halvings, pilot_steps = self._continued(window.start + window.halvings) if (
+            not edge and window.start + window.halvings >= n) else (sf.stats, self.stages, sf.halvings, sf.steps)
+        ref = pilot_stats[window.start].get("central")
         scalar = ref is not None and ref.est.shape == (1, 1)
 
         def stage(k: int) -> dict[str, UStat]:
             out = {}
-            for name, u in sf.stats[k].items():
-                if scalar and abs(float(u.est[0, 0] - ref.est[0, 0])) <= t0 * math.hypot(float(u.se[0, 0]),
-                                                                                      float(ref.se[0, 0])):
+            for name, u in pilot_stats[k].items():  # (a predicted stage's one-sided gap is its bias, not noise)
+                if scalar and k < n and abs(float(u.est[0, 0] - ref.est[0, 0])) <= t0 * math.hypot(
+                        float(u.se[0, 0]), float(ref.se[0, 0])):
                     u = replace(u, est=ref.est)
-                out[name] = _predict_ustat(u, self.stages[k][name], R)
+                out[name] = _predict_ustat(u, terms[k][name], R)
             return out
 
         stats, halvings = [], []
-        stop = min(window.start + window.halvings, len(sf.stats) - 1)  # no prediction beyond the pilot's stages
+        stop = min(window.start + window.halvings, len(pilot_stats) - 1)  # no prediction beyond those stages
         for k in range(window.start, stop + 1):
             stats.append(stage(k))
             if k == stop:
                 break
-            h = sf.halvings[k]  # the pilot's comparison of stages k and k + 1
-            ratio = {name: _se_ratio(ab, R0, R) for name, ab in self.stages[k + 1].items()}
+            h = pilot_halvings[k]  # the pilot's (or the predicted) comparison of stages k and k + 1
+            ratio = {name: _se_ratio(ab, R0, R) for name, ab in terms[k + 1].items()}
             converged, rising, falling, dropping = True, False, False, False
             tol = sf.step_tol
             for (name, j), (est, se, df, fa) in h.contrasts.items():
@@ -479,7 +531,7 @@ class Fit:
             if halvings[-1].stops:  # where the look's own halving stops
                 stats.append(stage(k + 1))
                 break
-        steps = sf.steps[window.start:window.start + len(stats)]
+        steps = pilot_steps[window.start:window.start + len(stats)]
         return StepFisher(stats, steps, halvings, step_tol=sf.step_tol, spp=sf.spp, level=level)
 
     def bounds(self, kinds: Sequence[str], R: int, level: float,
@@ -630,6 +682,7 @@ class _State:
     fresh: dict = field(default_factory=dict)  # θ index → (first set, fresh sets) of the reported look ((0, 0): pilot)
     level: dict = field(default_factory=dict)  # θ index → the one-sided level of the reported look's ends
     stages: dict = field(default_factory=dict)  # θ index → FD stages of its last look
+    start: dict = field(default_factory=dict)  # θ index → its last look's first FD stage (0: the first step's)
     notes: dict = field(default_factory=dict)
 
 
@@ -666,6 +719,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         for i in idx:
             st.looks[int(i)], st.fresh[int(i)], st.level[int(i)] = k + 1, ((first, R) if first else (0, 0)), levels[k]
             st.stages[int(i)] = max(len(st.raws[j, int(i)].stages) for j in noises)
+            st.start[int(i)] = window.start if window else 0
 
     def kinds(i: int) -> list[str]:
         return [k for k in KINDS if k in st.points[noises[0], i].bounds]
@@ -673,12 +727,14 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
     def worst(i: int) -> float:
         return max(reached(st.points[j, i].bounds[k]) for j in noises for k in kinds(i))
 
-    def planned(i: int, above: int = 0) -> Plan:
+    def planned(i: int, at: float = level) -> Plan:
         # fewer tested Δ only where no Barankin or HCR-hat is asked for (they keep the whole grid); the paper's
         # hcr_neff, which comes with "hcr", is a sup like the HCR's and lives where it does
         subset = set(st.points[noises[0], i].bounds) <= {*KINDS, "hcr_neff"}
-        return plan([st.raws[j, i] for j in noises], kinds(i), goal[i], level, MAX_PREDICT, above,
-                    lambda stages, tested: cost.one(i, stages, tested), subset, cost.stages - 1)
+        s = st.start[i]  # the plan's windows count from its latest look's first stage, the looks' from the first step
+        pl = plan([st.raws[j, i] for j in noises], kinds(i), goal[i], at, MAX_PREDICT, 0,
+                  lambda stages, tested: cost.one(i, stages, tested), subset, cost.stages - 1 - s)
+        return replace(pl, window=Window(pl.window.start + s, pl.window.halvings)) if s and pl.window else pl
 
     def n_tested(pl: Plan) -> int | None:
         return None if pl.tested is None else int(pl.tested.sum())
@@ -720,6 +776,14 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
     first = {i: R0 for i in star}  # the next fresh set of each θ*
     for k in range(1, K):
         waiting = [i for i in star if worst(i) > goal[i]]
+        for i in waiting if k > 1 else []:  # re-planned from its latest look, at this look's level
+            pl, (sets_before, before) = planned(i, levels[k]), star[i]
+            if before.tested is not None and pl.tested is not None:  # a mask over the latest look's (tested) Δ
+                full = before.tested.copy()
+                full[np.flatnonzero(full)] = pl.tested
+                pl = replace(pl, tested=full)
+            star[i] = (min(pl.sets, MAX_SETS), pl) if pl.sets is not None else (2 * sets_before, pl)
+            st.notes[i] = "" if pl.sets is not None else "(exploratory)"
         # waves: the θ* whose look fits what is left, cheapest first; the others wait for the next wave, against what
         # the looks before actually spent (a look stops halving where its check passes, so most spend far less than
         # their worst case); left out for good when none fits. Exploratory looks come only after every planned one
@@ -727,7 +791,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         while waiting:
             for i in waiting:  # past every set rendered so far (at any θ), so independent of what admits the look
                 first[i] = max(first[i], R0 + grid_done)
-            sets = {i: star[i][0] * 2 ** (k - 1) for i in waiting}  # look k's own sets, disjoint from earlier ones
+            sets = {i: star[i][0] for i in waiting}  # look k's own sets, disjoint from earlier ones
             now = {i: first[i] - R0 + sets[i] for i in waiting}  # the test-grid sets after the pilot's it needs
             stages = {i: star[i][1].window.halvings + 1 if star[i][1].window else cost.stages for i in waiting}
             new = {i: (0, sets[i], 0, stages[i], n_tested(star[i][1])) for i in waiting}
