@@ -325,6 +325,11 @@ class _Brightening(AnalyticModel):
         t = theta[0]
         return (0.2 + torch.exp(10 * (t - 0.5)) * torch.exp(-(self._x - t) ** 2 / (2 * 0.06**2)))[None, :, None]
 
+    def exact_crlb(self) -> float:
+        """σ²/Σ(∂L/∂θ)² at θ = 0.5 for AWGN σ = SIGMA (autograd of the clean image), m²."""
+        J = torch.autograd.functional.jacobian(self.clean, torch.tensor([0.5], dtype=torch.float64)).reshape(-1)
+        return SIGMA**2 / float((J**2).sum())
+
 
 def test_a_smooth_slope_does_not_widen_the_ends_by_a_coarse_one_sided_difference():
     """_Brightening at θ* = 0.5, AWGN σ = 0.05, 8 sets with common seeds, ξ = 2 cm halved once. The exact CRLB is
@@ -336,9 +341,7 @@ def test_a_smooth_slope_does_not_widen_the_ends_by_a_coarse_one_sided_difference
     stage's bias (median < 16 %; measured 12.9 %, where the 2 cm one-sided differences among the candidates made it
     24.4 %, ≥ 23.6 % in every seed)."""
     m = _Brightening()
-    t = torch.tensor([0.5], dtype=torch.float64)
-    J = torch.autograd.functional.jacobian(m.clean, t).reshape(-1)
-    exact = SIGMA**2 / float((J**2).sum())
+    exact = m.exact_crlb()
     ends = []
     for seed in range(20):
         (pt,) = BoundService(RenderBank(m, seed=seed), [nb.noise.AWGN(SIGMA)]).at(
@@ -381,9 +384,7 @@ def test_a_look_halves_past_the_pilots_finest_step_where_the_one_sided_bias_sets
     grow as the step shrinks, which the plan reads from the pilot's own halving), and each end is a one-sided 95 %
     limit of the exact CRLB σ²/Σ(∂L/∂θ)² (at most 3 misses of 20 per side; measured: none)."""
     m = _Brightening()
-    t = torch.tensor([0.5], dtype=torch.float64)
-    J = torch.autograd.functional.jacobian(m.clean, t).reshape(-1)
-    exact = SIGMA**2 / float((J**2).sum())
+    exact = m.exact_crlb()
     met, ends = 0, []
     for seed in range(20):
         (pt,) = BoundService(RenderBank(m, seed=seed), [nb.noise.AWGN(SIGMA)]).at(
@@ -408,9 +409,7 @@ def test_a_second_look_is_planned_from_the_first_and_takes_the_finer_step_it_sho
     none)."""
     m = _Brightening()
     m.render_noise = 2.0
-    t = torch.tensor([0.5], dtype=torch.float64)
-    J = torch.autograd.functional.jacobian(m.clean, t).reshape(-1)
-    exact = SIGMA**2 / float((J**2).sum())
+    exact = m.exact_crlb()
     finer, ends = 0, []
     for seed in range(12):
         (pt,) = BoundService(RenderBank(m, seed=seed), [nb.noise.AWGN(SIGMA)]).at(
