@@ -441,7 +441,8 @@ class Fit:
         of the FD rounds' noise ×γ per halving, so the signal × noise term a ×γ^m and the noise × noise term b ×γ^2m.
         γ is the pilot's own last halving's √(b(ξ/2)/b(ξ)) of the central F, within [1, 4]: 4 where ΔL's noise does
         not cancel between θ ± ξ (J = ΔL/ξ: `Halving.hopeless`), 1 where it cancels as a smooth noise does; measured
-        on the Π hallway past the corner at 4 × 384 spp, 2.6–3.2 (b ×7–10 per halving). Each new halving at ratio 1,
+        on the Π hallway past the corner at 384 spp, b ×5–12 per halving from 4 sets (γ 2.3–3.5), ×6.6–6.8 from 32
+        and 96 (γ ≈ 2.6). Each new halving at ratio 1,
         its contrast's SE the pilot's last one scaled like the finer stage's SE, its extrapolation the central F with
         that SE."""
         sf, terms = self.raw.sf, self.stages
