@@ -264,6 +264,25 @@ def test_a_look_halves_its_step_beyond_the_pilots_where_the_pilot_saw_an_edge():
     assert pt.precision.fresh_sets > 0 and step < 0.008 and not crlb.lower_note, crlb.reason
 
 
+def test_a_look_past_an_edge_keeps_halving_on_when_planned_from_a_look_that_did_not_see_the_rise():
+    """edge1d 1 mm from a pixel boundary (rendering noise 1, seed 1, AWGN σ = 0.05), a look of 3 sets from 8 mm with
+    one halving: F ×1.04 ± 0.016 from 8 to 4 mm, not converged, and no rise shown (the rise is at 32 → 16 mm, before
+    its first step). A later look planned from it alone, as if L(θ) were smooth there, may only render its two steps,
+    where the check cannot pass; with the edge an earlier look showed (`Fit.of(edge=True)`, what `refine` carries
+    from look to look), its window halves on to the service's last step. (The Π hallway in line of sight at 0.76 m:
+    a second look planned without it stayed at 7.5 → 3.75 mm, F ×1.07 ± 0.021, unmet.)"""
+    from nlosbench.bounds.precision import Fit, Window
+
+    svc = BoundService(RenderBank(nb.scenes.get("edge1d", render_noise=1.0), seed=1), [nb.noise.AWGN(0.05)])
+    keep: dict = {}
+    svc._at(np.array([[0.501]]), np.array([0.008]), 3, 0, 16, ("crlb",), "common", 5, 0, (1024, 2048), None, 0.1, 1,
+            keep=keep)
+    raw = keep[0, 0]
+    assert raw.sf.steps == [0.008, 0.004] and not raw.sf.converged and not any(h.rising for h in raw.sf.halvings)
+    assert Fit.of(raw).windows(4) == [Window(0, 1)]
+    assert Fit.of(raw, edge=True).windows(4) == [Window(0, 4)]
+
+
 @pytest.mark.parametrize("precision, match", [([0.1, 0.2, 0.3], "one target or one per θ"),
                                               ([0.1, -0.2], "precision must be a finite number > 0")])
 def test_targets_per_theta_are_checked_before_any_render(precision, match):

@@ -383,6 +383,11 @@ def _se_ratio(ab: tuple[np.ndarray, np.ndarray], R0: int, R: int) -> np.ndarray:
     return np.sqrt(np.divide(_var(a, b, R), v0, out=np.ones_like(a), where=v0 > 0))
 
 
+def rose(raw: Raw) -> bool:
+    """Whether the look of `raw` showed F rising at some FD halving (`settled_from` > 0: an edge)."""
+    return raw.sf is not None and settled_from(raw.sf) > 0
+
+
 @dataclass(frozen=True)
 class Window:
     """The FD stages a fresh look renders: the pilot's stages `start` … `start + halvings` (steps ξ0/2^start …),
@@ -395,31 +400,34 @@ class Window:
 @dataclass(frozen=True)
 class Fit:
     """The planning model of one look at one θ* for one noise model: its Raw and the variance terms (a, b) of
-    λ (per Δ) and of F (per stage and variant, per parameter)."""
+    λ (per Δ) and of F (per stage and variant, per parameter); edge: this look or an earlier one at θ* showed F
+    rising at some halving (`settled_from`)."""
 
     raw: Raw
     lam: tuple | None
     stages: list[dict[str, tuple]]
+    edge: bool = False
 
     @classmethod
-    def of(cls, raw: Raw) -> Fit:
-        """The variance terms of `raw` (`variance_terms`)."""
+    def of(cls, raw: Raw, edge: bool = False) -> Fit:
+        """The variance terms of `raw` (`variance_terms`); `edge`: an earlier look at θ* showed F rising (a look that
+        starts past the rise does not see it, and F may still creep up past its finest step)."""
         lam = variance_terms(raw.D, raw.w, raw.group) if raw.D is not None else None
         return cls(raw, lam, [{name: variance_terms(J, raw.w, raw.group) for name, J in stage.rounds.items()}
-                              for stage in raw.stages])
+                              for stage in raw.stages], edge or rose(raw))
 
     def windows(self, most: int | None = None) -> list[Window]:
         """The windows a look may use: starting at any stage from the first the pilot did not show biased low
-        (`settled_from`), with at least one halving (one stage alone has no step check, so its lower end would not
-        be a confidence limit). Where the pilot showed F rising at some halving (an edge: the step smooths its
-        derivative) and `most` is given, a window halves on up to the service's `most` halvings of the first step:
-        F may still creep up (F(ξ/2)/F(ξ) ≈ 1.05 per halving in line of sight) where the pilot could not tell, and a
-        window cut short there fails for good; a look stops halving where its own check passes, so the finer stages
-        cost only where needed. Where no halving rose (L(θ) smooth at the first step), any window of the pilot's
-        stages: there a look that halves past an unresolved check only adds FD noise (4× per halving in the
-        variance of F; measured on the Π hallway beyond the corner: 3 of 34 points met ±25 % against 18)."""
+        (`settled_from`), with at least one halving (one stage alone has no step check, so its lower end would not be a
+        confidence limit). Where the pilot or an earlier look showed F rising at some halving (`edge`: the step smooths
+        the derivative of an edge) and `most` is given, a window halves on up to the service's `most` halvings of the
+        first step: F may still creep up (F(ξ/2)/F(ξ) ≈ 1.05 per halving in line of sight) where the pilot could not
+        tell, and a window cut short there fails for good; a look stops halving where its own check passes, so the finer
+        stages cost only where needed. Where no halving rose (L(θ) smooth at the first step), any window of the pilot's
+        stages: there a look that halves past an unresolved check only adds FD noise (4× per halving in the variance of
+        F; measured on the Π hallway beyond the corner: 3 of 34 points met ±25 % against 18)."""
         n, first = len(self.raw.stages), settled_from(self.raw.sf)
-        if first == 0 or most is None:  # no halving shown to raise F: any window the pilot's stages allow
+        if not self.edge or most is None:  # no halving shown to raise F: any window the pilot's stages allow
             return [Window(s, h) for s in range(first, n - 1) for h in range(1, n - s)] + self._finer(most)
         return [Window(s, max(n - 1, most) - s) for s in range(first, n - 1)]
 
@@ -485,7 +493,7 @@ class Fit:
         sf, R0 = self.raw.sf, self.raw.sf.final.replicates
         n = len(sf.stats)
         t0 = one_sided_t(level, R0 - 1.0, 1.0)
-        edge = settled_from(sf) > 0  # the pilot saw F rise at some halving
+        edge = self.edge  # the pilot (or an earlier look) saw F rise at some halving
         # a window past the pilot's finest stage (`_finer`) continues its stages by prediction
         pilot_stats, terms, pilot_halvings, pilot_steps = self._continued(window.start + window.halvings) if (
             not edge and window.start + window.halvings >= n) else (sf.stats, self.stages, sf.halvings, sf.steps)
@@ -639,15 +647,15 @@ def tested_deltas(raws: Sequence[Raw], target: float, level: float) -> np.ndarra
 
 def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float, cap: int, above: int = 0,
          set_cost: Callable[[int, int | None], int] | None = None, subset: bool = False,
-         most: int | None = None) -> Plan:
+         most: int | None = None, edge: bool = False) -> Plan:
     """The cheapest (ladder count in (above, cap], FD window) predicted to meet `target` with a margin (to reach
     AIM × target): per window the smallest count that reaches it, then the least renders, count × set_cost(stages
     in the window, Δ tested) (None: the count alone). Coarser windows have less FD noise but may not be shown
     converged; with `subset`, the look tests only the Δ `tested_deltas` keeps; a window may halve up to `most` times
-    (`Fit.windows`). Window and Δ are functions of the looks before (the coverage proof in the module docstring needs
-    nothing more)."""
+    (`Fit.windows`; `edge`: an earlier look showed F rising, `Fit.of`). Window and Δ are functions of the looks
+    before (the coverage proof in the module docstring needs nothing more)."""
     tested = tested_deltas(raws, target, level) if subset and "hcr" in kinds else None
-    fits = [Fit.of(r if tested is None else r.subset(tested)) for r in raws]
+    fits = [Fit.of(r if tested is None else r.subset(tested), edge) for r in raws]
     n_tested = None if tested is None else int(tested.sum())
     steps = ladder(cap, above)
     windows = fits[0].windows(most) or [None]
@@ -684,6 +692,7 @@ class _State:
     level: dict = field(default_factory=dict)  # θ index → the one-sided level of the reported look's ends
     stages: dict = field(default_factory=dict)  # θ index → FD stages of its last look
     start: dict = field(default_factory=dict)  # θ index → its last look's first FD stage (0: the first step's)
+    edge: dict = field(default_factory=dict)  # θ index → some look showed F rising at a halving (`rose`)
     notes: dict = field(default_factory=dict)
 
 
@@ -721,6 +730,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
             st.looks[int(i)], st.fresh[int(i)], st.level[int(i)] = k + 1, ((first, R) if first else (0, 0)), levels[k]
             st.stages[int(i)] = max(len(st.raws[j, int(i)].stages) for j in noises)
             st.start[int(i)] = window.start if window else 0
+            st.edge[int(i)] = st.edge.get(int(i), False) or any(rose(st.raws[j, int(i)]) for j in noises)
 
     def kinds(i: int) -> list[str]:
         return [k for k in KINDS if k in st.points[noises[0], i].bounds]
@@ -734,7 +744,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         subset = set(st.points[noises[0], i].bounds) <= {*KINDS, "hcr_neff"}
         s = st.start[i]  # the plan's windows count from its latest look's first stage, the looks' from the first step
         pl = plan([st.raws[j, i] for j in noises], kinds(i), goal[i], at, MAX_PREDICT, 0,
-                  lambda stages, tested: cost.one(i, stages, tested), subset, cost.stages - 1 - s)
+                  lambda stages, tested: cost.one(i, stages, tested), subset, cost.stages - 1 - s, st.edge[i])
         return replace(pl, window=Window(pl.window.start + s, pl.window.halvings)) if s and pl.window else pl
 
     def n_tested(pl: Plan) -> int | None:
