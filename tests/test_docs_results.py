@@ -122,7 +122,7 @@ _NUM = re.compile(r"(?<![\w.^/-])(\d+\.\d+(?:e-?\d+)?|\d\.?\d*e-?\d+)(?![\w.]|\d
 #: number of the paper's table, and 23.5, the measuring machines' GiB (performance.md, reproducibility.md), which
 #: decisive_curve's report prints as other quantities (precisions reached, in %)
 ALLOWED = {"1.09", "1.12", "1.14", "1.15", "1.18", "1.21", "1.22", "1.85", "10.8", "11.4", "11.64", "14.4", "1.53",
-           "2.17", "2.54", "23.5", "27.8"}
+           "2.17", "2.54", "23.5", "27.8", "10.1"}
 
 
 def _significant(text: str) -> int:
