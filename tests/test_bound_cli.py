@@ -42,12 +42,13 @@ def test_a_precision_target_reports_what_it_reached():
 
 
 def test_a_target_without_a_budget_is_capped_at_the_default_ceiling_and_says_what_more_would_cost(capsys):
-    """`nlosbench bound --precision` without `--budget`, a target not met at 4 spp (±0.1 %): the line says it was not
-    met, having spent more than the pilot and at most the pixel-samples allowed, CEILING × the pilot's (the pilot
-    measured alone with --budget 1), and what finishing would take."""
+    """`nlosbench bound --precision` without `--budget`, a target not met at 4 spp (±0.001 %; ±0.1 % is met, measured
+    ±0.053 %, at a step finer than the pilot's): the line says it was not met, having spent more than the pilot and
+    at most the pixel-samples allowed, CEILING × the pilot's (the pilot measured alone with --budget 1), and what
+    finishing would take."""
     from nlosbench.bounds.precision import CEILING
 
-    argv = ["bound", "blob2d", "--param", "x", "--at", "0.5", "--sigma", "0.05", "--spp", "4", "--precision", "0.001"]
+    argv = ["bound", "blob2d", "--param", "x", "--at", "0.5", "--sigma", "0.05", "--spp", "4", "--precision", "0.00001"]
     assert main([*argv, "--budget", "1"]) == 0
     pilot = float(re.search(r"after (\S+) of the 1 pixel-samples", capsys.readouterr().out).group(1))
     assert main(argv) == 0
