@@ -456,7 +456,7 @@ class Fit:
         sf, terms = self.raw.sf, self.stages
         n, R0 = len(sf.stats), sf.final.replicates
         stats, terms, halvings, steps = list(sf.stats), list(terms), list(sf.halvings), list(sf.steps)
-        finest, h0 = sf.stats[-1], sf.halvings[-1] if sf.halvings else None
+        finest, h0 = sf.stats[-1], sf.halvings[-1]  # (`_finer`: the step was checked)
         c = finest["central"]
         se0 = float(c.se[0, 0])
         b_fine, b_coarse = float(self.stages[n - 1]["central"][1][0]), float(self.stages[n - 2]["central"][1][0])
@@ -645,10 +645,10 @@ def tested_deltas(raws: Sequence[Raw], target: float, level: float) -> np.ndarra
     return keep
 
 
-def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float, cap: int, above: int = 0,
+def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float, cap: int,
          set_cost: Callable[[int, int | None], int] | None = None, subset: bool = False,
          most: int | None = None, edge: bool = False) -> Plan:
-    """The cheapest (ladder count in (above, cap], FD window) predicted to meet `target` with a margin (to reach
+    """The cheapest (ladder count up to cap, FD window) predicted to meet `target` with a margin (to reach
     AIM × target): per window the smallest count that reaches it, then the least renders, count × set_cost(stages
     in the window, Δ tested) (None: the count alone). Coarser windows have less FD noise but may not be shown
     converged; with `subset`, the look tests only the Δ `tested_deltas` keeps; a window may halve up to `most` times
@@ -657,7 +657,7 @@ def plan(raws: Sequence[Raw], kinds: Sequence[str], target: float, level: float,
     tested = tested_deltas(raws, target, level) if subset and "hcr" in kinds else None
     fits = [Fit.of(r if tested is None else r.subset(tested), edge) for r in raws]
     n_tested = None if tested is None else int(tested.sum())
-    steps = ladder(cap, above)
+    steps = ladder(cap)
     windows = fits[0].windows(most) or [None]
     best, fallback = None, Plan(None, windows[-1], math.inf, tested)
     for win in windows:
@@ -743,7 +743,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         # hcr_neff, which comes with "hcr", is a sup like the HCR's and lives where it does
         subset = set(st.points[noises[0], i].bounds) <= {*KINDS, "hcr_neff"}
         s = st.start[i]  # the plan's windows count from its latest look's first stage, the looks' from the first step
-        pl = plan([st.raws[j, i] for j in noises], kinds(i), goal[i], at, MAX_PREDICT, 0,
+        pl = plan([st.raws[j, i] for j in noises], kinds(i), goal[i], at, MAX_PREDICT,
                   lambda stages, tested: cost.one(i, stages, tested), subset, cost.stages - 1 - s, st.edge[i])
         return replace(pl, window=Window(pl.window.start + s, pl.window.halvings)) if s and pl.window else pl
 
