@@ -4,6 +4,7 @@ columns; bad keys stop the run at config time (one line naming the key, exit 2, 
 import json
 import math
 
+import numpy as np
 import pytest
 import yaml
 
@@ -120,15 +121,31 @@ def test_a_looser_target_beyond_a_theta_reaches_the_quoted_bounds_beyond_it(tmp_
     assert all(r["extra_pixel_samples"] == r["extra_sets"] * 3 * 5 * 16 * 24 * 24 for r in finite), finite
 
 
-def test_a_small_first_step_up_to_a_theta_starts_the_quoted_bounds_there(tmp_path):
-    """`precision_fd_step_until: [0.6, 0.005]` with `precision_fd_step: 0.02`, one halving: the quoted CRLB at 0.2
-    and 0.5 checks its step from 5 mm (its reason names ξ = 0.005 and no step above it), the one at 0.8 from 2 cm."""
+def test_first_steps_per_range_start_the_quoted_bounds_there(tmp_path):
+    """`precision_fd_step_until: [[0.3, 0.005], [0.6, 0.01]]` with `precision_fd_step: 0.02`, one halving: the quoted
+    CRLB at 0.2 checks its step from 5 mm (its reason names ξ = 0.005 and no step above it), the one at 0.5 from 1 cm
+    and the one at 0.8 from 2 cm."""
     rc, out = _run(tmp_path, [{**BOUNDS, "precision": 0.15, "precision_fd_step": 0.02, "hcr_offsets": 0,
-                               "precision_fd_step_until": [0.6, 0.005]}])
+                               "precision_fd_step_until": [[0.3, 0.005], [0.6, 0.01]]}])
     assert rc == 0
     rows = {round(float(r["theta_x"]), 6): r["crlb_reason"] for r in read_csv(out / "b" / "precise.csv")}
-    assert "at ξ = 0.005" in rows[0.2] and "at ξ = 0.005" in rows[0.5] and "0.02" not in rows[0.2] + rows[0.5]
+    assert "at ξ = 0.005" in rows[0.2] and "0.01 " not in rows[0.2] and "0.02" not in rows[0.2], rows[0.2]
+    assert "at ξ = 0.01" in rows[0.5] and "0.02" not in rows[0.5], rows[0.5]
     assert "at ξ = 0.02" in rows[0.8], rows[0.8]
+
+
+@pytest.mark.parametrize("ranges, beyond, want", [
+    ([0.6, 0.005], 0.02, [0.005, 0.005, 0.02]),  # one pair, flat
+    ([[0.6, 0.005]], 0.02, [0.005, 0.005, 0.02]),
+    ([[0.3, 0.005], [0.6, 0.01]], 0.02, [0.005, 0.01, 0.02]),
+    ([[0.2, 0.005], [0.5, 0.01], [0.8, 0.03]], 0.02, [0.005, 0.01, 0.03]),  # each range's upper θ included
+])
+def test_first_steps_take_each_thetas_range(ranges, beyond, want):
+    """θ = 0.2, 0.5, 0.8: ξ_k of the first range [θ_k, ξ_k] with θ ≤ θ_k, else `precision_fd_step`."""
+    from nlosbench.studies.bounds import first_steps, step_ranges
+
+    got = first_steps(np.array([0.2, 0.5, 0.8]), step_ranges(ranges, "x"), beyond)
+    assert got.tolist() == want
 
 
 def test_a_trials_study_starts_each_theta_stars_fd_step_where_asked(tmp_path):
@@ -173,7 +190,11 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     ({**BOUNDS, "precision": 0.2, "precision_fd_step": -0.01}, "b.precision_fd_step: expected a step > 0"),
     ({**BOUNDS, "precision_fd_step_until": [0.5, 0.005]}, "b.precision_fd_step_until: needs a `precision` target"),
     ({**BOUNDS, "precision": 0.2, "precision_fd_step_until": [0.5, 0]},
-     "b.precision_fd_step_until: expected [θ₀, ξ₀] with ξ₀ > 0"),
+     "b.precision_fd_step_until: expected [θ₀, ξ₀] pairs with ξ₀ > 0"),
+    ({**BOUNDS, "precision": 0.2, "precision_fd_step_until": [[0.5, 0.01], [0.6]]},
+     "b.precision_fd_step_until: expected [θ₀, ξ₀] pairs with ξ₀ > 0"),
+    ({**BOUNDS, "precision": 0.2, "precision_fd_step_until": [[0.5, 0.01], [0.4, 0.02]]},
+     "b.precision_fd_step_until: expected the pairs' θ increasing"),
     ({**BOUNDS, "precision": 0.2, "hcr_offsets": -1}, "b.hcr_offsets: expected an integer >= 0"),
 ])
 def test_bad_precision_keys_stop_the_run_at_config_time(tmp_path, capsys, study, message):

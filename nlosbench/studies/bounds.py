@@ -62,9 +62,11 @@ SCHEMA = {
     "precision_fd_step": Field(float, None, "the quoted bounds' first FD step ξ, halved per θ until F settles (at most "
                                "`max_halvings` times): large where L(θ) is smooth, the halvings reach an edge's step; "
                                "null: `fd_step`, else the grid spacing", nullable=True),
-    "precision_fd_step_until": Field(list, [], "[θ₀, ξ₀]: up to θ₀ the quoted bounds' first FD step is ξ₀ instead "
-                                     "(in line of sight an edge at pixel scale wants a small start, beyond the "
-                                     "corner a smooth L(θ) a large one; needs `precision`)", items=float),
+    "precision_fd_step_until": Field(list, [], "[[θ₁, ξ₁], [θ₂, ξ₂], …] (θ increasing): up to θ₁ the quoted bounds' "
+                                     "first FD step is ξ₁, from there up to θ₂ ξ₂ …, beyond the last "
+                                     "`precision_fd_step` (in line of sight an edge at pixel scale wants a small "
+                                     "start, beyond the corner a smooth L(θ) a large one; one pair may be given "
+                                     "flat, [θ₀, ξ₀]; needs `precision`)"),
     "hcr_offsets": Field(int, 4, "the quoted bounds' extra HCR test points ±ξ·2^k (k < hcr_offsets) around each θ, "
                          "besides the grid's Δ and Δ → 0; 0: none"),
     "barankin": Field(bool, False, "also compute the multi-point Barankin bound at each grid point (plug-in)"),
@@ -131,9 +133,7 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.precision_beyond", f"expected [θ₀, p₀] with p₀ > 0, got {cfg['precision_beyond']}")
     if cfg["precision_fd_step"] is not None and not cfg["precision_fd_step"] > 0:
         raise ConfigError(f"{sid}.precision_fd_step", f"expected a step > 0 or null, got {cfg['precision_fd_step']}")
-    until = cfg["precision_fd_step_until"]
-    if until and (len(until) != 2 or not until[1] > 0):
-        raise ConfigError(f"{sid}.precision_fd_step_until", f"expected [θ₀, ξ₀] with ξ₀ > 0, got {until}")
+    step_ranges(cfg["precision_fd_step_until"], f"{sid}.precision_fd_step_until")
     if cfg["hcr_offsets"] < 0:
         raise ConfigError(f"{sid}.hcr_offsets", f"expected an integer >= 0, got {cfg['hcr_offsets']}")
     precise.check(cfg, sid, ("hcr", "crlb") if cfg["crlb"] else ("hcr",))
@@ -149,6 +149,30 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     return Plan(grid, cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
                 cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"],
                 np.asarray(quoted, dtype=np.float64), quote_test_grid(params, grid))
+
+
+def step_ranges(value: list, path: str) -> list[list[float]]:
+    """`precision_fd_step_until` as pairs [[θ₁, ξ₁], …] (a flat [θ₀, ξ₀] is one pair): θ finite and increasing,
+    ξ > 0 (parameter units); ConfigError otherwise."""
+    pairs = [value] if value and not any(isinstance(v, list) for v in value) else value
+    out = []
+    for i, pair in enumerate(pairs):
+        ok = (isinstance(pair, list) and len(pair) == 2 and
+              all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pair))
+        if not ok or not pair[1] > 0:
+            raise ConfigError(path, f"expected [θ₀, ξ₀] pairs with ξ₀ > 0, got {value}")
+        if out and not pair[0] > out[-1][0]:
+            raise ConfigError(path, f"expected the pairs' θ increasing, got {value}")
+        out.append([float(pair[0]), float(pair[1])])
+    return out
+
+
+def first_steps(thetas: np.ndarray, ranges: list[list[float]], beyond: float) -> np.ndarray:
+    """The first FD step of each quoted θ (T,): ξ_k of the first range [θ_k, ξ_k] with θ ≤ θ_k, else `beyond`."""
+    out = np.full(len(thetas), float(beyond))
+    for edge, xi in reversed(ranges):
+        out[np.asarray(thetas) <= edge] = xi
+    return out
 
 
 def cost(ctx: RunContext, cfg: dict, p: Plan) -> Estimate:
@@ -185,8 +209,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             predict = np.where(p.thetas > edge, looser, predict)
     step = cfg["precision_fd_step"]
     if cfg["precision_fd_step_until"]:  # a first FD step per quoted θ
-        (edge, small) = cfg["precision_fd_step_until"]
-        step = np.where(p.precision_at <= edge, small, step or p.fd_step or float(np.diff(p.thetas).min()))
+        step = first_steps(p.precision_at, step_ranges(cfg["precision_fd_step_until"], "precision_fd_step_until"),
+                           step or p.fd_step or float(np.diff(p.thetas).min()))
     curve = svc.curve(p.thetas, p.spp, p.seeds, p.replicates, crlb=p.crlb, barankin=p.barankin, zzb=p.zzb,
                       fd_step=p.fd_step, step_tol=p.step_tol, quote=cfg["precision_at"] or None,
                       max_halvings=cfg["max_halvings"], offsets=cfg["hcr_offsets"], quote_step=step,
