@@ -156,7 +156,7 @@ def step_ranges(value: list, path: str) -> list[list[float]]:
     ξ > 0 (parameter units); ConfigError otherwise."""
     pairs = [value] if value and not any(isinstance(v, list) for v in value) else value
     out = []
-    for i, pair in enumerate(pairs):
+    for pair in pairs:
         ok = (isinstance(pair, list) and len(pair) == 2 and
               all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in pair))
         if not ok or not pair[1] > 0:
