@@ -36,10 +36,11 @@ def _agree(a: tuple[float, float], b: tuple[float, float]) -> float:
 @pytest.mark.parametrize("theta, noise, reference", [
     (1.3, "AWGN", "curve_references/nlos/fisher.csv"), (1.3, "Poisson", "curve_references/nlos/fisher.csv"),
     (1.3, "AWGN", "fisher_maps_nlos/00-fisher-maps/fisher.csv"),
+    (0.79, "AWGN", "curve_references/los/fisher.csv"), (0.79, "Poisson", "curve_references/los/fisher.csv"),
     (0.85, "AWGN", "curve_references/los/fisher.csv"), (0.85, "Poisson", "curve_references/los/fisher.csv")])
 def test_the_decisive_curve_agrees_with_the_reference_crlb(theta, noise, reference):
-    """Beyond the corner at 1.3 m and in line of sight at 0.85 m (the reference's FD step converged at 8 mm from
-    16 rounds of 4096 spp; the curve's 0.79 m is not a confidence limit yet, so it is not held to the one there)."""
+    """Beyond the corner at 1.3 m and in line of sight at 0.79 and 0.85 m (the references' FD steps converged at
+    2 mm and 8 mm from 32 and 16 rounds of 4096 spp)."""
     curve = _crlb(RESULTS / "decisive_curve/00-bounds/precise.csv", theta, noise, "theta_object_position",
                   "crlb_level")
     ref = _crlb(RESULTS / reference, theta, noise, "theta", None)
