@@ -310,6 +310,33 @@ def test_a_curve_without_offsets_tests_its_own_grid_and_starts_its_quoted_step_w
     assert counts[2] - counts[0] == 3 * 2
 
 
+@pytest.mark.parametrize("seeds", ["common", "independent"])
+def test_the_thetas_own_pixel_samples_add_up_to_what_the_call_was_charged(seeds):
+    """blob2d's x (rendering noise 2), the CRLB alone (no test grid), AWGN (no weight render), θ* = 0.35 and 0.75
+    (their FD stencils never meet), ±8 %, three looks: each θ*'s own pixel-samples (its sets × `SetCost.own` of the
+    stages each of its looks rendered, the plan's count) add up to what the bank's ledger charged the whole call
+    (each distinct request once, as asked): two independent accountings. With independent seeds θ* is rendered
+    under each FD stencil's seed too (the one-sided differences' centre), which a look's worst case left out before:
+    the sums differed by one render per set."""
+    m = _blob(2.0)
+    pts = BoundService(RenderBank(m, seed=5), [nb.noise.AWGN(0.3)]).at(
+        [[0.35], [0.75]], 16, ("crlb",), seeds, replicates=3, fd_step=0.01, max_halvings=2, precision=0.08, looks=3)
+    assert all(p.precision.looks > 1 for p in pts), [p.precision.note for p in pts]
+    own = [p.precision.own_pixel_samples for p in pts]
+    assert min(own) > 0 and sum(own) == pts[0].precision.pixel_samples, (own, pts[0].precision.pixel_samples)
+
+
+def test_the_fisher_maps_own_pixel_samples_add_up_to_what_the_call_was_charged():
+    """The same θ* and target through `fisher` (independent FD rounds, θ* under each round's stencil seed): the θ*'s
+    own pixel-samples and the one map render per θ* (not a replicate set's) add up to the ledger's charge."""
+    m = _blob(2.0)
+    fps = BoundService(RenderBank(m, seed=5), [nb.noise.AWGN(0.3)]).fisher(
+        [[0.35], [0.75]], 16, fd_step=0.01, rounds=3, max_halvings=2, precision=0.08, looks=3)
+    recs = [fp.precise[0].precision for fp in fps]
+    assert all(r.looks > 1 for r in recs), [r.note for r in recs]
+    assert sum(r.own_pixel_samples for r in recs) + 2 * 16 * 24 * 24 == recs[0].pixel_samples
+
+
 def test_the_budget_caps_the_pixel_samples_and_the_report_says_what_more_would_cost():
     """blob2d's x (24 × 24 px, 16 spp), precision 0.1, seed 1: unlimited, it adds fresh sets; with a budget just
     above the pilot's cost no fresh look fits, the pixel-samples spent stay within the budget, the target is

@@ -199,13 +199,16 @@ class Raw:
 @dataclass(frozen=True)
 class SetCost:
     """Worst-case renders per replicate set: `grid` test-grid renders (shared by every θ*), per θ* its own
-    `per_theta` (T,) (θ* and offsets), and `fd` FD renders per θ* and stage, at most `stages` stages. A θ* whose
-    look tests only some Δ (`tested`: how many) renders θ* and those Δ instead of the grid and its offsets."""
+    `per_theta` (T,) (θ* and offsets), `fd` FD renders per θ* and stage, at most `stages` stages, and `center`
+    renders of θ* under the FD stencils' own seed (independent seeds: the one-sided differences' centre, the same
+    at every stage). A θ* whose look tests only some Δ (`tested`: how many) renders θ* and those Δ instead of the
+    grid and its offsets."""
 
     grid: int
     per_theta: np.ndarray
     fd: int
     stages: int
+    center: int = 0
 
     def look(self, new: dict[int, tuple], grid_new: int) -> int:
         """Worst-case renders of a look: new {θ index: (sets before, sets now, stages cached per set, stages of
@@ -214,13 +217,18 @@ class SetCost:
         n = self.grid * grid_new if any(v[4] is None for v in new.values()) else 0
         for i, (before, now, cached, stages, tested) in new.items():
             n += (int(self.per_theta[i]) if tested is None else 1 + tested) * (now - before)
-            n += self.fd * ((now - before) * stages + before * (stages - cached))
+            n += self.center * (now - before) + self.fd * ((now - before) * stages + before * (stages - cached))
         return n
 
     def one(self, i: int, stages: int, tested: int | None = None) -> int:
         """Renders of one more set for θ* i alone, with `stages` FD stages and `tested` Δ (None: the grid and the
         offsets)."""
-        return (self.grid + int(self.per_theta[i]) if tested is None else 1 + tested) + self.fd * stages
+        return (self.grid if tested is None else 0) + self.own(i, stages, tested)
+
+    def own(self, i: int, stages: int, tested: int | None = None) -> int:
+        """Renders of one set that are θ* i's own: θ* and its offsets (or θ* and its `tested` Δ) and the FD stencils
+        of `stages` stages, not the test grid every θ* shares."""
+        return (int(self.per_theta[i]) if tested is None else 1 + tested) + self.center + self.fd * stages
 
 
 @dataclass(frozen=True)
@@ -233,7 +241,11 @@ class Precision:
     from replicate index first_set on (0: the pilot's; a look made in a later wave starts past every set rendered before
     it); level: the one-sided level of the reported look's ends (the pilot 1 − α/20, fresh look k 1 − α_k: `spending`);
     pixel_samples: charged to the whole call (every θ*; spp × H × W per render requested, however served: what the
-    budget decides on); rendered: the pixel-samples of those renders this process made (0 when all were cached);
+    budget decides on); own_pixel_samples: this θ*'s own share, its replicate sets' renders over the pilot and every
+    look made (`SetCost.own`: θ* and its offsets or tested Δ, the FD stencils of each stage rendered; not the test
+    grid every θ* shares, nor a weight render; a render another θ* asked for too, as common seeds make of
+    neighbouring stencils, counted in each); rendered: the pixel-samples of those renders this process made (0 when
+    all were cached);
     extra_sets / extra_pixel_samples: the fresh sets and pixel-samples of one more look of its own predicted to meet it,
     from the reported look's data (0 when met, +inf when no number of sets is predicted to); note: why it stopped;
     budget: the pixel-samples the call was capped at (the budget given, else the default ceiling `ceiling`);
@@ -255,6 +267,7 @@ class Precision:
     budget: int = 0
     first_set: int = 0
     finer_step: bool = False
+    own_pixel_samples: int = 0
     #: what this process happened to render: not part of the result (records that decide alike compare equal)
     rendered: int = field(default=0, compare=False)
 
@@ -265,9 +278,9 @@ class Precision:
 
     def columns(self) -> dict:
         """CSV cells precision_target, precision_reached (the worst kind), precision_pixel_samples,
-        precision_extra_pixel_samples."""
+        precision_own_pixel_samples, precision_extra_pixel_samples."""
         return {"precision_target": self.target, "precision_reached": self.worst,
-                "precision_pixel_samples": self.pixel_samples,
+                "precision_pixel_samples": self.pixel_samples, "precision_own_pixel_samples": self.own_pixel_samples,
                 "precision_extra_pixel_samples": self.extra_pixel_samples}
 
 
@@ -693,6 +706,7 @@ class _State:
     stages: dict = field(default_factory=dict)  # θ index → FD stages of its last look
     start: dict = field(default_factory=dict)  # θ index → its last look's first FD stage (0: the first step's)
     edge: dict = field(default_factory=dict)  # θ index → some look showed F rising at a halving (`rose`)
+    own: dict = field(default_factory=dict)  # θ index → its own renders over every look (`SetCost.own`)
     notes: dict = field(default_factory=dict)
 
 
@@ -729,6 +743,9 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         for i in idx:
             st.looks[int(i)], st.fresh[int(i)], st.level[int(i)] = k + 1, ((first, R) if first else (0, 0)), levels[k]
             st.stages[int(i)] = max(len(st.raws[j, int(i)].stages) for j in noises)
+            st.own[int(i)] = st.own.get(int(i), 0) + R * cost.own(
+                int(i), st.stages[int(i)], None if tested is None or tested.get(int(i)) is None
+                else int(tested[int(i)].sum()))
             st.start[int(i)] = window.start if window else 0
             st.edge[int(i)] = st.edge.get(int(i), False) or any(rose(st.raws[j, int(i)]) for j in noises)
 
@@ -856,6 +873,7 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
             pt.precision = Precision(
                 float(goal[i]), {k: reached(pt.bounds[k]) for k in kinds(i)}, bool(worst(i) <= goal[i]),
                 st.looks[i], R0, st.fresh[i][1], st.level[i], int(total), extra[i], extra_px[i], st.notes[i],
-                budget=int(cap), first_set=st.fresh[i][0], rendered=int(spend.rendered))
+                budget=int(cap), first_set=st.fresh[i][0], own_pixel_samples=int(st.own[i] * per_sample),
+                rendered=int(spend.rendered))
             out.append(pt)
     return out

@@ -76,7 +76,8 @@ def smoke(block: dict) -> dict:
 def records(points: Sequence, T: int, names: Sequence[str]) -> list[dict]:
     """What a run keeps (results.json) of each BoundPoint's `Precision`: noise, θ index, θ, per interval bound
     its log10 point and ends and the precision reached, and the record's target, met, looks, level, pixel-samples
-    charged to the whole call (by request) and rendered by this process, predicted extra sets and pixel-samples,
+    charged to the whole call (by request), this θ's own share (`Precision.own_pixel_samples`) and those rendered
+    by this process, predicted extra sets and pixel-samples,
     note, and whether only a finer FD step would meet it (`finer_step`). [] without a precision target."""
     out = []
     for n, pt in enumerate(points):
@@ -88,10 +89,15 @@ def records(points: Sequence, T: int, names: Sequence[str]) -> list[dict]:
                     "bounds": {k: {"point": pt.bounds[k].point, "lower": pt.bounds[k].lower,
                                    "upper": pt.bounds[k].upper, "reached": r} for k, r in pr.reached.items()},
                     "target": pr.target, "met": pr.met, "looks": pr.looks, "fresh_sets": pr.fresh_sets,
-                    "level": pr.level, "pixel_samples": pr.pixel_samples,
+                    "level": pr.level, "pixel_samples": pr.pixel_samples, "own_pixel_samples": pr.own_pixel_samples,
                     "rendered_pixel_samples": pr.rendered, "extra_sets": pr.extra_sets,
                     "extra_pixel_samples": pr.extra_pixel_samples, "note": pr.note, "finer_step": pr.finer_step})
     return out
+
+
+def _own(r: dict) -> str:
+    """A record's own pixel-samples, "–" in a record kept before they were."""
+    return f"{r['own_pixel_samples']:.3g}" if "own_pixel_samples" in r else "–"
 
 
 def _extra(r: dict, seconds_per_sample: float | None) -> str:
@@ -106,17 +112,20 @@ def _extra(r: dict, seconds_per_sample: float | None) -> str:
 
 def table(recs: list[dict], units: str, seconds_per_sample: float | None = None) -> list[str]:
     """Markdown: a row per (noise, θ, interval bound): the point and its ends (units²), the precision reached
-    against the target, met, looks, the pixel-samples the call spent, and where unmet the predicted extra fresh
+    against the target, met, looks, the θ's own pixel-samples and the call's, and where unmet the predicted extra fresh
     sets and pixel-samples (and time at `seconds_per_sample`, the run's measured rate, when given), the note."""
     if not recs:
         return []
     lvl = f"{recs[0]['level']:.2%}"
     lines = [f"Target: every interval bound within ±{fmt(100 * recs[0]['target'], 3)} % (relative half-width, linear "
              f"units); each end a one-sided {lvl} limit (the level divided over the looks, so the reported interval "
-             "keeps its coverage whatever look it stops at). Pixel-samples are those the whole call asked for (every "
-             "θ listed), charged whether rendered or served from a cache or store, so the budget decides the same way "
-             "cold or warm (in brackets: what this run rendered); the predicted extra is what more fresh replicate "
-             "sets the service's plan says the target needs" +
+             "keeps its coverage whatever look it stops at). Pixel-samples: first this θ's own, its replicate sets' "
+             "renders over the pilot and every look (θ and its offsets or tested Δ, the FD stencils of each step "
+             "rendered; not the test grid every θ shares; a render a neighbour's stencil shares, as common seeds "
+             "make them, counted in each), then those the whole call asked for (every θ listed), charged whether "
+             "rendered or served from a cache or store, so the budget decides the same way cold or warm (in "
+             "brackets: what this run rendered); the predicted extra is what more fresh replicate sets the "
+             "service's plan says the target needs" +
              ("" if seconds_per_sample else " (no time: this run has no measured render rate)") + ".", "",
              f"| noise | θ | bound | point [{lvl} ends] ({units}) | reached (target) | met | looks | pixel-samples | "
              "predicted extra | note |", "|---|---|---|---|---|---|---|---|---|---|"]
@@ -126,6 +135,6 @@ def table(recs: list[dict], units: str, seconds_per_sample: float | None = None)
             ends = f"{fmt_end(b['point'])} [{fmt_end(b['lower'])}, {fmt_end(b['upper'])}]"
             lines.append(f"| {r['noise']} | {theta} | {kind} | {ends} | ±{fmt(100 * b['reached'], 3)} % "
                          f"(±{fmt(100 * r['target'], 3)} %) | {'yes' if r['met'] else 'no'} | {r['looks']} | "
-                         f"{r['pixel_samples']:.3g} ({r.get('rendered_pixel_samples', 0):.3g}) | "
+                         f"{_own(r)}; {r['pixel_samples']:.3g} ({r.get('rendered_pixel_samples', 0):.3g}) | "
                          f"{_extra(r, seconds_per_sample)} | {r['note']} |")
     return lines

@@ -132,7 +132,7 @@ class AtTheta(RenderSets):
         cost = SetCost(p.grid(test_grid).shape[0] if need_alt else 0,
                        np.array([1 + (len(axis_offsets(p, t, offsets, xi)) if need_alt else 0)
                                  for t, xi in zip(thetas, steps, strict=True)]),
-                       2 * p.dim if need_fi else 0, max_halvings + 1)
+                       2 * p.dim if need_fi else 0, max_halvings + 1, int(need_fi and seeds == "independent"))
 
         def look(idx: np.ndarray, reps: int, first: int, level: float, keep: dict, window, tested) -> list[BoundPoint]:
             sub = copy.copy(self)

@@ -125,7 +125,8 @@ class FisherInformation(RenderSets):
             found.update({int(i): fp for i, fp in zip(idx, fps, strict=True)})
             return pts
 
-        cost = SetCost(0, np.zeros(len(thetas), dtype=np.int64), 2 * self.params.dim, max_halvings + 1)
+        cost = SetCost(0, np.zeros(len(thetas), dtype=np.int64), 2 * self.params.dim, max_halvings + 1,
+                       int(max_halvings > 0))
         pts = refine(look, len(thetas), list(self._select(noises)), rounds, precision, budget, looks,
                      1 - self.level, cost, spp, self.bank)
         for n, pt in enumerate(pts):
