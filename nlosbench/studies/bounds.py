@@ -80,7 +80,8 @@ SCHEMA = {
 @dataclass(frozen=True)
 class Plan:
     """What the study computes: the θ grid (G,), spp, seeds, replicates, level and which bounds; the quoted θ
-    (precision_at, (Q,)) and the test grid the service gives their bounds (`quote_test_grid`), for the cost."""
+    (precision_at, (Q,)), the test grid the service gives their bounds (`quote_test_grid`), for the cost, and their
+    first FD step (`quote_step`: one for all, one per quoted θ (Q,), or None: the service's default)."""
 
     thetas: np.ndarray
     spp: int
@@ -94,6 +95,7 @@ class Plan:
     step_tol: float
     precision_at: np.ndarray
     test_grid: int
+    quote_step: float | np.ndarray | None = None
 
 
 def plan(ctx: RunContext, cfg: dict) -> Plan:
@@ -133,7 +135,7 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
         raise ConfigError(f"{sid}.precision_beyond", f"expected [θ₀, p₀] with p₀ > 0, got {cfg['precision_beyond']}")
     if cfg["precision_fd_step"] is not None and not cfg["precision_fd_step"] > 0:
         raise ConfigError(f"{sid}.precision_fd_step", f"expected a step > 0 or null, got {cfg['precision_fd_step']}")
-    step_ranges(cfg["precision_fd_step_until"], f"{sid}.precision_fd_step_until")
+    ranges = step_ranges(cfg["precision_fd_step_until"], f"{sid}.precision_fd_step_until")
     if cfg["hcr_offsets"] < 0:
         raise ConfigError(f"{sid}.hcr_offsets", f"expected an integer >= 0, got {cfg['hcr_offsets']}")
     precise.check(cfg, sid, ("hcr", "crlb") if cfg["crlb"] else ("hcr",))
@@ -145,10 +147,14 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     grid = np.unique(thetas)
     # a target without `precision_at` quotes every grid θ: the curve's sets are the pilot, fresh sets go only where
     # an interval is wider than asked
-    quoted = cfg["precision_at"] or (grid.tolist() if cfg["precision"] is not None else [])
+    quoted = np.asarray(cfg["precision_at"] or (grid.tolist() if cfg["precision"] is not None else []),
+                        dtype=np.float64)
+    step = cfg["precision_fd_step"]
+    if ranges:  # a first FD step per quoted θ
+        step = first_steps(quoted, ranges, step or cfg["fd_step"] or float(np.diff(grid).min()))
     return Plan(grid, cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
-                cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"],
-                np.asarray(quoted, dtype=np.float64), quote_test_grid(params, grid))
+                cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"], quoted,
+                quote_test_grid(params, grid), step)
 
 
 def step_ranges(value: list, path: str) -> list[list[float]]:
@@ -207,13 +213,9 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             kw["precision"] = np.where(p.precision_at > edge, looser, kw["precision"])
         if predict is not None:
             predict = np.where(p.thetas > edge, looser, predict)
-    step = cfg["precision_fd_step"]
-    if cfg["precision_fd_step_until"]:  # a first FD step per quoted θ
-        step = first_steps(p.precision_at, step_ranges(cfg["precision_fd_step_until"], "precision_fd_step_until"),
-                           step or p.fd_step or float(np.diff(p.thetas).min()))
     curve = svc.curve(p.thetas, p.spp, p.seeds, p.replicates, crlb=p.crlb, barankin=p.barankin, zzb=p.zzb,
                       fd_step=p.fd_step, step_tol=p.step_tol, quote=cfg["precision_at"] or None,
-                      max_halvings=cfg["max_halvings"], offsets=cfg["hcr_offsets"], quote_step=step,
+                      max_halvings=cfg["max_halvings"], offsets=cfg["hcr_offsets"], quote_step=p.quote_step,
                       predict=predict, **kw)
     names = ctx.model.params.names
     write_csv(out / "bounds.csv", [pt.row(names) for pt in curve.points])
