@@ -244,6 +244,37 @@ def test_a_first_step_per_theta_gives_what_each_theta_gets_alone():
         assert bank.renders == 0
 
 
+def test_a_step_tolerance_per_theta_gives_what_each_theta_gets_alone():
+    """`at` with one step tolerance per θ* (edge1d, rendering noise 0.3, common seeds, seed 3, first steps 8 and 32
+    mm): tolerances [0.1, 0.5] for θ* = 0.507 and 0.3 in one call give bit for bit the bounds of two calls with one
+    θ* and its tolerance each, and each check stops where its own tolerance says: 0.507 (F ×1.13 from 8 to 4 mm)
+    halves once more at 0.1, to 2 mm; 0.3 (F ×1.87, then ×1.41 ± 0.027) is shown ≤ 1.5 at its second halving, where
+    at 0.1 it rises at every halving (lower end 0). Tolerances of the wrong length or not positive are refused before
+    any render."""
+    kw = dict(test_grid=7, offsets=2, max_halvings=4)
+
+    def service(seed=3):
+        bank = RenderBank(nb.scenes.get("edge1d", render_noise=0.3), seed=seed)
+        return BoundService(bank, [nb.noise.AWGN(SIGMA)]), bank
+
+    both = service()[0].at([[0.507], [0.3]], 16, fd_step=[0.008, 0.032], step_tol=[0.1, 0.5], **kw)
+    for pt, (theta, xi, tol) in zip(both, [(0.507, 0.008, 0.1), (0.3, 0.032, 0.5)], strict=True):
+        (alone,) = service()[0].at([[theta]], 16, fd_step=xi, step_tol=tol, **kw)
+        for kind in ("hcr", "crlb"):
+            a, b = alone.bounds[kind], pt.bounds[kind]
+            assert (a.lower, a.point, a.upper, a.reason) == (b.lower, b.point, b.upper, b.reason), kind
+    assert "= 1.13 ± 0.0017 at ξ = 0.008; F(ξ/2)/F(ξ) = 0.999" in both[0].bounds["crlb"].reason
+    assert both[1].bounds["crlb"].reason.endswith("FD step converged: F(ξ/2)/F(ξ) = 1.87 ± 0.075 at ξ = 0.032; "
+                                                  "F(ξ/2)/F(ξ) = 1.41 ± 0.027 at ξ = 0.016")
+    (strict,) = service()[0].at([[0.3]], 16, fd_step=0.032, step_tol=0.1, **kw)
+    assert strict.bounds["crlb"].lower == -math.inf and "may diverge" in strict.bounds["crlb"].reason
+    for bad, match in (([0.1, 0.2, 0.3], "one tolerance or one per θ"), ([0.1, 0.0], "step_tol must be a positive")):
+        svc, bank = service()
+        with pytest.raises(ValueError, match=match):
+            svc.at([[0.507], [0.3]], 16, fd_step=[0.008, 0.032], step_tol=bad, **kw)
+        assert bank.renders == 0
+
+
 class _Exit(AnalyticModel):
     """Two pixels: 0.2 + 40·max(0.5 − θ, 0)² (an object that leaves the view at θ₀ = 0.5: no derivative beyond)
     and 0.3 + 0.5·θ (light that stays). Beyond θ₀ the exact F is 0.5²/σ²; a central FD stencil reaching back
@@ -359,18 +390,22 @@ def test_a_target_that_the_one_sided_bias_keeps_out_of_reach_names_a_finer_step(
     stage (1 cm) has one-sided differences biased by ≈ ±(ξ/2)·F′/F = ±10 % (F ∝ e^{2kθ}, k = 10 /m), which the ends
     take: no number of sets is predicted to meet the target, and the note says that the step's bias, not noise,
     sets the width, with its size (8–14 %), and that a finer step narrows it. From ξ = 4 mm (bias ±2 % at the
-    finest stage) the same target is met by the pilot, and no such note is made."""
+    finest stage) the same target is met by the pilot, and no such note is made. Where up to 3 halvings are allowed
+    but the budget leaves no fresh look, the plan (4 sets at a finer step) is finite and the note names the bias all
+    the same."""
     import re
 
-    def quote(step: float):
+    def quote(step: float, halvings: int = 1, budget: int = 2_000_000):
         (pt,) = BoundService(RenderBank(_Brightening(), seed=0), [nb.noise.AWGN(SIGMA)]).at(
-            [[0.5]], 16, ("crlb",), replicates=8, fd_step=step, max_halvings=1, precision=0.1, budget=2_000_000)
+            [[0.5]], 16, ("crlb",), replicates=8, fd_step=step, max_halvings=halvings, precision=0.1, budget=budget)
         return pt.precision
 
-    coarse, fine = quote(0.02), quote(0.004)
+    coarse, fine, poor = quote(0.02), quote(0.004), quote(0.02, 3, 1)
     assert not coarse.met and coarse.extra_sets == float("inf"), coarse
-    gap = re.search(r"one-sided F lie up to ±([\d.]+) % from the central one, beyond their noise", coarse.note)
-    assert gap and 8 <= float(gap.group(1)) <= 14 and "a finer step narrows them" in coarse.note, coarse.note
+    assert not poor.met and math.isfinite(poor.extra_sets), poor
+    for p in (coarse, poor):
+        gap = re.search(r"one-sided F lie up to ±([\d.]+) % from the central one, beyond their noise", p.note)
+        assert gap and 8 <= float(gap.group(1)) <= 14 and "a finer step narrows them" in p.note, p.note
     assert fine.met and "finer step" not in fine.note, fine
 
 

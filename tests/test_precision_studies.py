@@ -134,6 +134,24 @@ def test_first_steps_per_range_start_the_quoted_bounds_there(tmp_path):
     assert "at ξ = 0.02" in rows[0.8], rows[0.8]
 
 
+def test_a_looser_step_tolerance_beyond_theta0_checks_only_the_quoted_bounds_there(tmp_path):
+    """`precision_step_tol_beyond: 10` with `precision_beyond: [0.6, 0.3]` and `step_tol: 1e-4` (the pilot only:
+    a budget of 1 pixel-sample): the quoted CRLB at 0.8 is shown converged at its first halving (F(ξ/2)/F(ξ) ≤ 11),
+    those at 0.2 and 0.5 are not (0.2: F shown to fall by 0.6 %, below 1/1.0001; 0.5: ×1 ± 2.7e-5, not shown ≤
+    1.0001), and the report states both tolerances."""
+    rc, out = _run(tmp_path, [{**BOUNDS, "precision": 0.15, "precision_budget": 1, "hcr_offsets": 0,
+                               "step_tol": 1e-4, "precision_beyond": [0.6, 0.3], "precision_step_tol_beyond": 10}])
+    assert rc == 0
+    rows = {round(float(r["theta_x"]), 6): r for r in read_csv(out / "b" / "precise.csv")}
+    assert "FD step converged" in rows[0.8]["crlb_reason"] and not rows[0.8]["crlb_flags"], rows[0.8]
+    for theta in (0.2, 0.5):  # (0.2: F shown to fall by 0.6 %; 0.5: F ×1 ± 2.7e-5)
+        assert "FD step not converged" in rows[theta]["crlb_reason"], rows[theta]["crlb_reason"]
+        assert rows[theta]["crlb_flags"] == "fd-step-not-converged", rows[theta]
+    res = json.loads((out / "results.json").read_text())["studies"]["b"]["results"]
+    assert res["step_tol_beyond"] == [0.6, 10]
+    assert "shown ≤ 1 + 0.0001 (1 + 10 beyond 0.6, where the target is looser)" in (out / "report.md").read_text()
+
+
 @pytest.mark.parametrize("ranges, beyond, want", [
     ([0.6, 0.005], 0.02, [0.005, 0.005, 0.02]),  # one pair, flat
     ([[0.6, 0.005]], 0.02, [0.005, 0.005, 0.02]),
@@ -196,6 +214,12 @@ def test_without_a_target_the_outputs_are_unchanged(tmp_path):
     ({**BOUNDS, "precision": 0.2, "precision_fd_step_until": [[0.5, 0.01], [0.4, 0.02]]},
      "b.precision_fd_step_until: expected the pairs' θ increasing"),
     ({**BOUNDS, "precision": 0.2, "hcr_offsets": -1}, "b.hcr_offsets: expected an integer >= 0"),
+    ({**BOUNDS, "precision": 0.2, "precision_step_tol_beyond": 0.2},
+     "b.precision_step_tol_beyond: needs a `precision` target and `precision_beyond`"),
+    ({**BOUNDS, "precision_predict": 0.2, "precision_beyond": [0.6, 0.5], "precision_step_tol_beyond": 0.2},
+     "b.precision_step_tol_beyond: needs a `precision` target and `precision_beyond`"),
+    ({**BOUNDS, "precision": 0.2, "precision_beyond": [0.6, 0.5], "precision_step_tol_beyond": 0},
+     "studies[0].precision_step_tol_beyond: expected a finite number > 0, got 0"),
 ])
 def test_bad_precision_keys_stop_the_run_at_config_time(tmp_path, capsys, study, message):
     """Schema errors name studies[0].<key> (the config is resolved), the rest <id>.<key> (the study's plan, with the

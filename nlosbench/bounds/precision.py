@@ -857,13 +857,13 @@ def _refine(look: Callable, T: int, noises: Sequence[int], R0: int, target, budg
         if worst(i) > goal[i]:  # (a fresh look's tested Δ may be a subset already: the plan's mask is over them)
             pl = plans[i] if st.looks[i] == 1 and i in plans else planned(i)  # the pilot's plan, made once
             extra[i] = math.inf if pl.sets is None else float(pl.sets)
-            gap = 0.0 if pl.sets is not None else max(  # where no sets suffice: does the step's bias set the width?
+            gap = max(  # does the step's bias set the width (the one-sided F the ends take, guarding a kink)?
                 (one_sided_gap(st.raws[j, i].sf, st.level[i]) for j in noises if st.raws[j, i].sf is not None),
                 default=0.0)
             if gap > 0:
                 st.notes[i] += (f"; at its finest FD step the one-sided F lie up to ±{100 * gap:.2g} % from the "
-                                "central one, beyond their noise (the step's bias, which the ends take): a finer step "
-                                "narrows them, more sets do not")
+                                "central one, beyond their noise (the step's bias, which the ends take to guard a "
+                                "kink): a finer step narrows them, more sets at that step do not")
             stages = pl.window.halvings + 1 if pl.window else st.stages[i]
             extra_px[i] = extra[i] * cost.one(i, stages, n_tested(pl)) * per_sample
     out = []

@@ -59,6 +59,10 @@ SCHEMA = {
     "precision_beyond": Field(list, [], "[θ₀, p₀]: beyond θ₀ the target of the quoted bounds and of the curve's "
                               "prediction is p₀ instead of `precision` / `precision_predict` (where the information "
                               "is small a looser target decides as much; needs one of them)", items=float),
+    "precision_step_tol_beyond": Field(positive_number, None, "beyond `precision_beyond`'s θ₀, the quoted bounds' "
+                                       "step tolerance instead of `step_tol` (F(ξ/2)/F(ξ) shown ≤ 1 + it): a looser "
+                                       "target may take a check as much looser, which costs fewer sets where F has "
+                                       "settled; needs `precision` and `precision_beyond`", nullable=True),
     "precision_fd_step": Field(float, None, "the quoted bounds' first FD step ξ, halved per θ until F settles (at most "
                                "`max_halvings` times): large where L(θ) is smooth, the halvings reach an edge's step; "
                                "null: `fd_step`, else the grid spacing", nullable=True),
@@ -80,8 +84,9 @@ SCHEMA = {
 @dataclass(frozen=True)
 class Plan:
     """What the study computes: the θ grid (G,), spp, seeds, replicates, level and which bounds; the quoted θ
-    (precision_at, (Q,)), the test grid the service gives their bounds (`quote_test_grid`), for the cost, and their
-    first FD step (`quote_step`: one for all, one per quoted θ (Q,), or None: the service's default)."""
+    (precision_at, (Q,)), the test grid the service gives their bounds (`quote_test_grid`), for the cost, their
+    first FD step (`quote_step`: one for all, one per quoted θ (Q,), or None: the service's default) and step
+    tolerance (`quote_step_tol`: one per quoted θ (Q,), or None: `step_tol`)."""
 
     thetas: np.ndarray
     spp: int
@@ -96,6 +101,7 @@ class Plan:
     precision_at: np.ndarray
     test_grid: int
     quote_step: float | np.ndarray | None = None
+    quote_step_tol: float | np.ndarray | None = None
 
 
 def plan(ctx: RunContext, cfg: dict) -> Plan:
@@ -133,6 +139,8 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
             raise ConfigError(f"{sid}.{key}", "needs a `precision` target")
     if cfg["precision_beyond"] and (len(cfg["precision_beyond"]) != 2 or not cfg["precision_beyond"][1] > 0):
         raise ConfigError(f"{sid}.precision_beyond", f"expected [θ₀, p₀] with p₀ > 0, got {cfg['precision_beyond']}")
+    if cfg["precision_step_tol_beyond"] is not None and (cfg["precision"] is None or not cfg["precision_beyond"]):
+        raise ConfigError(f"{sid}.precision_step_tol_beyond", "needs a `precision` target and `precision_beyond`")
     if cfg["precision_fd_step"] is not None and not cfg["precision_fd_step"] > 0:
         raise ConfigError(f"{sid}.precision_fd_step", f"expected a step > 0 or null, got {cfg['precision_fd_step']}")
     ranges = step_ranges(cfg["precision_fd_step_until"], f"{sid}.precision_fd_step_until")
@@ -152,9 +160,11 @@ def plan(ctx: RunContext, cfg: dict) -> Plan:
     step = cfg["precision_fd_step"]
     if ranges:  # a first FD step per quoted θ
         step = first_steps(quoted, ranges, step or cfg["fd_step"] or float(np.diff(grid).min()))
+    tol = None if cfg["precision_step_tol_beyond"] is None else np.where(
+        quoted > cfg["precision_beyond"][0], cfg["precision_step_tol_beyond"], cfg["step_tol"])
     return Plan(grid, cfg["spp"], cfg["seeds"], cfg["replicates"], cfg["level"], cfg["crlb"],
                 cfg["barankin"], cfg["zzb"], cfg["fd_step"], cfg["step_tol"], quoted,
-                quote_test_grid(params, grid), step)
+                quote_test_grid(params, grid), step, tol)
 
 
 def step_ranges(value: list, path: str) -> list[list[float]]:
@@ -216,7 +226,7 @@ def run(ctx: RunContext, cfg: dict) -> dict:
     curve = svc.curve(p.thetas, p.spp, p.seeds, p.replicates, crlb=p.crlb, barankin=p.barankin, zzb=p.zzb,
                       fd_step=p.fd_step, step_tol=p.step_tol, quote=cfg["precision_at"] or None,
                       max_halvings=cfg["max_halvings"], offsets=cfg["hcr_offsets"], quote_step=p.quote_step,
-                      predict=predict, **kw)
+                      quote_step_tol=p.quote_step_tol, predict=predict, **kw)
     names = ctx.model.params.names
     write_csv(out / "bounds.csv", [pt.row(names) for pt in curve.points])
     precision = []
@@ -237,6 +247,8 @@ def run(ctx: RunContext, cfg: dict) -> dict:
             "units": ctx.model.params.units[0], "zzb_reason": curve.zzb_reason,
             "noise": summarize(read_csv(out / "bounds.csv"), zrows, precision),
             **({"precision": precision} if precision else {}),
+            **({"step_tol_beyond": [cfg["precision_beyond"][0], cfg["precision_step_tol_beyond"]]}
+               if p.quote_step_tol is not None else {}),
             **({"predicted": precise.records(curve.points, len(p.thetas), names)} if predict is not None else {}),
             **({"seconds_per_sample": ctx.rate} if precision or predict is not None else {})}
 
@@ -412,8 +424,13 @@ def report(study_dir: Path, results: dict) -> str:
     if results.get("zzb_reason"):
         lines += ["", f"No ZZB: {results['zzb_reason']}."]
     if results.get("precision"):
+        tol = f"1 + {results.get('step_tol', 0.1):g}"
+        if results.get("step_tol_beyond"):
+            edge, looser = results["step_tol_beyond"]
+            tol += f" (1 + {looser:g} beyond {edge:g}, where the target is looser)"
         lines += ["", f"### Precision at the quoted θ ({units}²)", "",
                   "The bounds at `precision_at` from the bound service's `at` (the Δ → 0 term and the CRLB with their "
-                  "FD step halved until F settles; ◆ HCR, ■ CRLB with their ends on the plot).", ""]
+                  f"FD step halved until F(ξ/2)/F(ξ) is shown ≤ {tol}; ◆ HCR, ■ CRLB with their ends on the plot).",
+                  ""]
         lines += precise.table(results["precision"], f"{units}²", results.get("seconds_per_sample"))
     return "\n".join(lines)

@@ -48,7 +48,7 @@ class AtTheta(RenderSets):
 
     def at(self, thetas, spp: int, want: Sequence[str] = ("hcr", "crlb"), seeds: str = "common",
            replicates: int = 3, test_grid: int = 21, offsets: int = 4, fd_step=0.01,
-           levels: Sequence[int] = (1024, 2048), noises=None, step_tol: float = 0.1,
+           levels: Sequence[int] = (1024, 2048), noises=None, step_tol=0.1,
            max_halvings: int = 3, precision=None, budget: int | None = None,
            looks: int = 2) -> list[BoundPoint]:
         """Every bound in `want` (hcr, crlb, hcr_neff, barankin, hcr_hat) at each θ* (T, P).
@@ -90,8 +90,9 @@ class AtTheta(RenderSets):
             spp levels of the HCR-hat fit (at least 2 distinct).
         noises : iterable of int, optional
             The noise indices (keys of the service's `noises`) to compute bounds for; None: every model.
-        step_tol : float, optional
-            Relative tolerance of the step check (0.1: F within 10 %).
+        step_tol : float or array_like of shape (T,), optional
+            Relative tolerance of the step check (0.1: F within 10 %): one for every θ*, or one each (a looser
+            target may take a looser check).
         max_halvings : int, optional
             The most halvings of ξ, in [0, 12].
         precision : float or array_like of shape (T,), optional
@@ -121,12 +122,12 @@ class AtTheta(RenderSets):
         _check_step(fd_step, step_tol, max_halvings)
         check_precision(precision, budget, looks, want, R)
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, p.dim)
-        steps = per_theta(fd_step, len(thetas))
+        steps, tols = per_theta(fd_step, len(thetas)), per_theta(step_tol, len(thetas), "step_tol", "tolerance")
         if precision is not None and np.size(precision) not in (1, len(thetas)):
             raise ValueError(f"precision: one target or one per θ* ({len(thetas)}), got {np.size(precision)}")
-        args = (spp, want, seeds, test_grid, offsets, levels, noises, step_tol, max_halvings)
+        args = (spp, want, seeds, test_grid, offsets, levels, noises)
         if precision is None:
-            return self._at(thetas, steps, R, 0, *args)
+            return self._at(thetas, steps, R, 0, *args, tols, max_halvings)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
         need_fi = bool({"hcr", "crlb", "crlb_each"} & set(want))
         cost = SetCost(p.grid(test_grid).shape[0] if need_alt else 0,
@@ -139,21 +140,22 @@ class AtTheta(RenderSets):
             sub.level = level
             stages = {} if window is None else {"fd_start": steps[idx] / 2**window.start,
                                                 "halvings": window.halvings}
-            return sub._at(thetas[idx], steps[idx], reps, first, *args, keep=keep, tested=tested, **stages)
+            return sub._at(thetas[idx], steps[idx], reps, first, *args, tols[idx], max_halvings, keep=keep,
+                           tested=tested, **stages)
 
         return refine(look, len(thetas), list(self._select(noises)), R, precision, budget, looks, 1 - self.level,
                       cost, spp, self.bank)
 
     def _at(self, thetas: np.ndarray, fd_step: np.ndarray, R: int, first: int, spp: int, want: Sequence[str],
-            seeds: str, test_grid: int, offsets: int, levels: Sequence[int], noises, step_tol: float,
+            seeds: str, test_grid: int, offsets: int, levels: Sequence[int], noises, step_tol: np.ndarray,
             max_halvings: int, keep: dict | None = None, fd_start: np.ndarray | None = None,
             halvings: int | None = None, tested: dict | None = None) -> list[BoundPoint]:
         """`at` on the replicate sets first … first + R − 1 at the service's level, θ*'s first FD step `fd_step`
-        (T,); `keep`, when given, is filled with {(noise index, θ index): the raw data a precision plan needs
-        (`precision.Raw`)}; a precision look's FD stages start at `fd_start` (T,) and halve at most `halvings`
-        times (None: `fd_step`, `max_halvings`; the axis offsets keep `fd_step` as their base), and where `tested`
-        {θ index: mask or None} gives a mask over θ*'s test points (the grid's other points, then the offsets)
-        only those are rendered and tested."""
+        (T,) and step tolerance `step_tol` (T,); `keep`, when given, is filled with {(noise index, θ index): the raw
+        data a precision plan needs (`precision.Raw`)}; a precision look's FD stages start at `fd_start` (T,) and
+        halve at most `halvings` times (None: `fd_step`, `max_halvings`; the axis offsets keep `fd_step` as their
+        base), and where `tested` {θ index: mask or None} gives a mask over θ*'s test points (the grid's other
+        points, then the offsets) only those are rendered and tested."""
         p = self.params
         grid = p.grid(test_grid)
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
@@ -202,7 +204,7 @@ class AtTheta(RenderSets):
                 wflat, zero_flags = weights[j][i]
                 w = torch.from_numpy(wflat).reshape(L0.shape)
                 b: dict[str, Bound] = {}
-                sf = converge(stages[i], wflat, self.level, step_tol, spp) if need_fi else None
+                sf = converge(stages[i], wflat, self.level, float(step_tol[i]), spp) if need_fi else None
                 if "crlb" in want:
                     b["crlb"] = crlb_bound(sf, self.level, zero_flags)
                 if "crlb_each" in want:  # each θ_j's own CRLB from the full F̂, the other parameters unknown

@@ -65,7 +65,8 @@ class Curves(RenderSets):
               barankin: bool = False, zzb: bool = True, prior=None, noises=None, fd_step: float | None = None,
               gradient: str = "fd", ad: dict | None = None, check_step: bool = True, step_tol: float = 0.1,
               precision=None, budget: int | None = None, looks: int = 2, quote=None,
-              max_halvings: int = 3, offsets: int = 4, quote_step=None, predict=None) -> Curve:
+              max_halvings: int = 3, offsets: int = 4, quote_step=None, quote_step_tol=None,
+              predict=None) -> Curve:
         """Every bound at each θ of a 1-D grid (G,) over Θ from R·G renders; with a precision target, the
         interval bounds at the θ it quotes to that target.
 
@@ -146,6 +147,8 @@ class Curves(RenderSets):
             The quoted bounds' first FD step ξ (halved per θ until F settles), one for all or one per quoted θ;
             None: `fd_step`, else the grid's smallest spacing. Where L(θ) is smooth over centimetres a large start
             costs the fewest renders; where an edge crosses pixels a small one saves the halvings down to it.
+        quote_step_tol : float or array_like of shape (Q,), optional
+            The quoted bounds' step tolerance, one for all or one per quoted θ; None: `step_tol`.
         predict : float or array_like of shape (G,), optional
             A target p > 0 (relative half-width, linear units; one, or one per grid θ) for the curve's own points:
             their `precision` records with the fresh sets of the whole grid predicted to meet it (FD gradients only).
@@ -163,7 +166,8 @@ class Curves(RenderSets):
             raise ValueError("a bound curve needs at least 3 increasing grid points")
         R = _need_replicates(replicates)
         _check_step(fd_step or 1.0, step_tol, max_halvings)
-        _check_step(1.0 if quote_step is None else quote_step, step_tol, max_halvings)
+        quote_tol = step_tol if quote_step_tol is None else quote_step_tol
+        _check_step(1.0 if quote_step is None else quote_step, quote_tol, max_halvings)
         if isinstance(offsets, bool) or not isinstance(offsets, (int, np.integer)) or offsets < 0:
             raise ValueError(f"offsets must be an integer >= 0, got {offsets!r}")
         kinds = ("hcr", "crlb") if crlb else ("hcr",)
@@ -233,7 +237,7 @@ class Curves(RenderSets):
         precise = [] if precision is None else self.at(
             quoted[:, None], spp, kinds, seeds, R, quote_test_grid(self.params, T), offsets,
             fd_step=quote_step if quote_step is not None else fd_step or float(np.diff(T).min()), noises=noises,
-            step_tol=step_tol, max_halvings=max_halvings, precision=precision, budget=budget, looks=looks)
+            step_tol=quote_tol, max_halvings=max_halvings, precision=precision, budget=budget, looks=looks)
         return Curve([points[j, g] for j in selected for g in range(G)], zzbs, zzb_reason, precise)
 
     def _curve_stages(self, T: np.ndarray, Xd: torch.Tensor, spp: int, seeds: str, R: int, fd_step, gradient: str,

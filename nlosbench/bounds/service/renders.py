@@ -156,14 +156,15 @@ class RenderSets:
             out.append(Stage(float(xi[t]), rounds, self.group))
         return out
 
-    def _refine(self, thetas: np.ndarray, stage_fn, weights: dict, step, step_tol: float,
+    def _refine(self, thetas: np.ndarray, stage_fn, weights: dict, step, step_tol,
                 max_halvings: int) -> list[list[Stage]]:
         """FD stages (coarse to fine) per θ of thetas (T, P): ξ, then ξ/2, ξ/4 … (ξ one step, or one per θ) for
         the θ whose last check is, for some weight in `weights` ({noise index: [w per θ]}), neither steady nor
-        hopeless (`fd_step.halving`: converged and not falling; an SE no halving can shrink), at most `max_halvings`
-        times. stage_fn(index array, ξ (one per index)) gives the stages of those θ."""
+        hopeless (`fd_step.halving` at that θ's `step_tol`, one for all or one per θ: converged and not falling; an
+        SE no halving can shrink), at most `max_halvings` times. stage_fn(index array, ξ (one per index)) gives the
+        stages of those θ."""
         _check_step(step, step_tol, max_halvings)
-        xi = per_theta(step, len(thetas))
+        xi, tol = per_theta(step, len(thetas)), per_theta(step_tol, len(thetas), "step_tol", "tolerance")
         stages: list[list[Stage]] = [[] for _ in thetas]
         active = np.arange(len(thetas))
         for k in range(max_halvings + 1):
@@ -173,7 +174,7 @@ class RenderSets:
                 break
             if k:
                 active = np.array([i for i in active if not all(
-                    halving(stages[i][-2], stages[i][-1], w[i], self.level, step_tol).stops
+                    halving(stages[i][-2], stages[i][-1], w[i], self.level, float(tol[i])).stops
                     for w in weights.values())], dtype=np.int64)
                 if active.size == 0:
                     break
@@ -242,24 +243,31 @@ def _flat(J: torch.Tensor) -> np.ndarray:
 
 
 def _check_step(step, step_tol, max_halvings) -> None:
-    """ValueError unless `step` is a positive number (or a sequence of them: one per θ), step_tol > 0 and
+    """ValueError unless `step` and `step_tol` are positive numbers (or sequences of them: one per θ) and
     max_halvings an integer in [0, 12]."""
-    steps = step if isinstance(step, (list, tuple, np.ndarray)) else [step]
-    if len(steps) == 0 or not all(isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
-                                  and math.isfinite(v) and v > 0 for v in steps):
+    if not _positive(step):
         raise ValueError(f"fd_step must be a positive number of parameter units (or one per θ), got {step!r}")
-    if not (isinstance(step_tol, (int, float)) and math.isfinite(step_tol) and step_tol > 0):
-        raise ValueError(f"step_tol must be a positive number (e.g. 0.1: F within 10 %), got {step_tol!r}")
+    if not _positive(step_tol):
+        raise ValueError(f"step_tol must be a positive number (e.g. 0.1: F within 10 %) or one per θ, got "
+                         f"{step_tol!r}")
     if isinstance(max_halvings, bool) or int(max_halvings) != max_halvings or not 0 <= max_halvings <= 12:
         raise ValueError(f"max_halvings must be an integer in [0, 12], got {max_halvings!r}")
 
 
-def per_theta(step, T: int) -> np.ndarray:
-    """An FD step for each of T points (T,): one step for all, or one per θ (checked by `_check_step`)."""
-    steps = np.asarray(step, dtype=np.float64).reshape(-1)
-    if steps.size not in (1, T):
-        raise ValueError(f"fd_step: one step or one per θ ({T}), got {steps.size}")
-    return np.broadcast_to(steps, (T,)).copy()
+def _positive(value) -> bool:
+    """Whether `value` is a finite number > 0, or a non-empty sequence of them."""
+    values = value if isinstance(value, (list, tuple, np.ndarray)) else [value]
+    return len(values) > 0 and all(isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
+                                   and math.isfinite(v) and v > 0 for v in values)
+
+
+def per_theta(value, T: int, name: str = "fd_step", what: str = "step") -> np.ndarray:
+    """A value (an FD step, a step tolerance) for each of T points (T,): one for all, or one per θ (checked by
+    `_check_step`)."""
+    values = np.asarray(value, dtype=np.float64).reshape(-1)
+    if values.size not in (1, T):
+        raise ValueError(f"{name}: one {what} or one per θ ({T}), got {values.size}")
+    return np.broadcast_to(values, (T,)).copy()
 
 
 def _need_replicates(R) -> int:
