@@ -127,10 +127,11 @@ def test_each_interval_is_its_own_bar_open_ends_are_arrows_and_non_limits_hollow
 def test_the_caption_counts_the_resolved_points_and_what_the_rest_would_cost():
     """The report's lines under the synthetic curve: 2 of 4 resolved for A, 3 of 4 for B (split at `los_until`: A 1 of
     2 on each side, B 1 of 2 and 2 of 2); without a precision target the rest get no cost but the way to have one
-    predicted; with records at the quoted θ (A's 0.2 unmet, 1e8 extra
-    pixel-samples, 0.3 met; B's 0.2 predicted never to meet it) the line sums the extra, times it at the measured
-    rate (10 ns per pixel-sample: 1e8 → 1 s) and names what no number of sets meets; with the curve's own prediction
-    instead, the median and the largest count of fresh sets of the whole grid and those that need a finer step."""
+    predicted; with records at the quoted θ (A's 0.2 unmet, 1e8 extra pixel-samples, 0.3 met, and 0.4, resolved on
+    the curve, unmet with 2e8 more; B's 0.2 predicted never to meet it, 0.4 met, 0.3 not quoted) the line counts
+    every quoted θ, sums the extra, times it at the measured rate (10 ns per pixel-sample: 3e8 → 3 s), names what no
+    number of sets meets and the unresolved θ not quoted; with the curve's own prediction instead, the median and
+    the largest count of fresh sets of the whole grid and those that need a finer step."""
     from nlosbench.studies.bounds import resolution
 
     lines = resolution(SYNTHETIC, "x", [], None, 0.95)
@@ -146,13 +147,18 @@ def test_the_caption_counts_the_resolved_points_and_what_the_rest_would_cost():
     def rec(noise, theta, met, extra):
         return {"noise": noise, "theta": {"x": theta}, "target": 0.25, "met": met, "extra_pixel_samples": extra}
 
-    recs = [rec(A, 0.1, True, 0.0), rec(A, 0.2, False, 1e8), rec(A, 0.3, True, 0.0), rec(B, 0.2, False, math.inf)]
+    recs = [rec(A, 0.1, True, 0.0), rec(A, 0.2, False, 1e8), rec(A, 0.3, True, 0.0), rec(A, 0.4, False, 2e8),
+            rec(B, 0.2, False, math.inf), rec(B, 0.4, True, 0.0)]
     lines = resolution(SYNTHETIC, "x", recs, 1e-8, 0.95)
-    assert lines[2] == ("- AWGN, σ = 0.05: 2 of 4 points resolved; of the other 2, 1 met ±25 % at the quoted θ, 1 "
-                        "would need ≈ 1e+08 more pixel-samples (each θ's prediction, summed, ≈ 1 s on this machine "
-                        "at its measured 10 ns per pixel-sample).")
-    assert lines[3].startswith("- Poisson, scale = 300: 3 of 4 points resolved; of the other 1, 1 are predicted to "
-                               "need more than any number of replicate sets")
+    assert lines[2] == ("- AWGN, σ = 0.05: 2 of 4 points resolved; at the 4 quoted θ, 2 met ±25 %, 2 would need ≈ "
+                        "3e+08 more pixel-samples (each θ's prediction, summed, ≈ 3 s on this machine at its measured "
+                        "10 ns per pixel-sample)."), lines[2]
+    assert lines[3].startswith("- Poisson, scale = 300: 3 of 4 points resolved; at the 2 quoted θ, 1 met ±25 %, 1 are "
+                               "predicted to need more than any number of replicate sets"), lines[3]
+    recs = [rec(B, 0.4, True, 0.0)]  # B's unresolved 0.2 not quoted
+    assert resolution(SYNTHETIC, "x", recs, 1e-8, 0.95)[3] == (
+        "- Poisson, scale = 300: 3 of 4 points resolved; at the 1 quoted θ, 1 met ±25 %; 1 unresolved θ not quoted "
+        "(no prediction).")
     # the curve's own prediction (no quoted θ): A's 0.2, 0.3 and 0.4 need 8, 32 and 16 fresh sets of the whole grid (1e8
     # pixel-samples each), B's 0.2 a finer FD step; the cost of half of A's is the median count's, of all the largest's
     def own(noise, theta, sets, finer_step=False):

@@ -274,7 +274,9 @@ def extrapolate(coarse: Stage, fine: Stage, w) -> dict[str, UStat]:
     first-order bias sets the width (the Π hallway 40 × 30 just past the corner, 48 independent rounds of 384 spp at
     3 and 1.5 cm, AWGN σ = 0.025, as finest-stage candidates instead of the raw ones): ±24, ±22, ±28, ±69 % at 0.94,
     0.97, 1.0, 1.03 m against ±30, ±23, ±25, ±16 %: a few bright paths dominate those rounds, and 2F(ξ/2) − F(ξ)
-    doubles their weight. The two stages share each round's seeds, so the
+    doubles their weight; on the decisive curve's own first looks there (common seeds, 32, 64, 96 sets at 3 and
+    1.5 cm, 24 at 6 and 3 cm), ±52, ±40, ±28, ±84 % against ±40, ±36, ±32, ±57 % (the central F alone: ±6–14 %).
+    The two stages share each round's seeds, so the
     contrast is a paired U-statistic: for a scalar θ its SE from the per-pixel terms of (1 + k)·F(ξ/2) − k·F(ξ)
     (`ustat.sum_terms`, Satterthwaite df); for a vector θ the leave-one-outs combine round by round (the
     jackknife of trace F⁻¹ uses them)."""

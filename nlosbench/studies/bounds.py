@@ -283,13 +283,13 @@ def summarize(rows: list[dict], zrows: list[dict], records: list[dict] = ()) -> 
 def resolution(rows: list[dict], parameter: str, records: list[dict], seconds_per_sample: float | None,
                level: float, los_until: float | None = None, predicted: list[dict] = ()) -> list[str]:
     """The caption's lines under the curve: per noise model how many θ of `rows` (bounds.csv) are resolved
-    (`plotstyle.resolved`; with `los_until`, also in line of sight, θ < los_until, and beyond), and for the others
-    what the precision `records` (`precise.records`, at the quoted θ; [] without a target) say: met there, the
-    predicted extra pixel-samples summed over θ with their time at `seconds_per_sample` (the run's measured rate;
-    None: no time), none predicted to suffice, or not quoted; else what the curve's own prediction (`predicted`, its
-    records per grid θ: `BoundService.curve(predict=...)`) says: the fresh sets of the whole grid that would meet the
-    target there (one set serves every θ: the largest count is the cost), or none at the curve's FD step; else how to
-    have the cost predicted. Each end is a pointwise one-sided limit at `level`."""
+    (`plotstyle.resolved`; with `los_until`, also in line of sight, θ < los_until, and beyond), then what the
+    precision `records` (`precise.records`, at the quoted θ; [] without a target) say of every quoted θ, resolved on
+    the curve or not (`_quoted_cost`, its time at `seconds_per_sample`, the run's measured rate; None: no time); without
+    them, for the θ not resolved, what the curve's own prediction (`predicted`, its records per grid θ:
+    `BoundService.curve(predict=...)`) says: the fresh sets of the whole grid that would meet the target there (one
+    set serves every θ: the largest count is the cost), or none at the curve's FD step; else how to have the cost
+    predicted. Each end is a pointwise one-sided limit at `level`."""
     lines = [f"Resolved: both ends of the HCR and of the CRLB are one-sided {level:.0%} confidence limits (no open "
              f"end, none labelled not a confidence limit); each end holds pointwise, so about {1 - level:.0%} of the "
              "ends may miss.", ""]
@@ -302,39 +302,43 @@ def resolution(rows: list[dict], parameter: str, records: list[dict], seconds_pe
             los = sum(t < los_until for t in thetas)
             text += (f" (line of sight {los - sum(t < los_until for t in rest)} of {los}, beyond the corner "
                      f"{len(rs) - los - sum(t >= los_until for t in rest)} of {len(rs) - los})")
-        if not rest:
-            lines.append(text + ".")
-            continue
         mine = [r for r in records if r["noise"] == noise]
         own = [r for r in predicted if r["noise"] == noise and not r["met"]]
-        if not mine and own:
+        if mine:
+            lines.append(text + "; " + _quoted_cost(mine, rest, seconds_per_sample))
+        elif not rest:
+            lines.append(text + ".")
+        elif own:
             lines.append(text + "; " + _curve_cost(own, len(rs), seconds_per_sample))
-            continue
-        if not mine:
+        else:
             lines.append(text + f"; the other {len(rest)}: no cost predicted without a precision target (set "
                          "`precision`, e.g. 0.25, and the bound service predicts at each θ what more replicate sets "
                          "would cost; `precision_budget: 1` keeps it to the pilot and the prediction).")
-            continue
-        quoted = [r for r in mine if any(math.isclose(next(iter(r["theta"].values())), t, rel_tol=1e-9, abs_tol=1e-12)
-                                         for t in rest)]
-        met = sum(r["met"] for r in quoted)
-        extra = [r["extra_pixel_samples"] for r in quoted if not r["met"]]
-        finite = [x for x in extra if math.isfinite(x)]
-        goals = " / ".join(f"±{fmt(100 * g, 3)} %" for g in sorted({r["target"] for r in quoted if r["met"]}))
-        parts = [f"{met} met {goals} at the quoted θ"] if met else []
-        if finite:
-            total = sum(finite)
-            when = (f", ≈ {describe(total * seconds_per_sample)} on this machine at its measured "
-                    f"{seconds_per_sample * 1e9:.3g} ns per pixel-sample" if seconds_per_sample else "")
-            parts.append(f"{len(finite)} would need ≈ {total:.3g} more pixel-samples (each θ's prediction, summed"
-                         f"{when})")
-        if len(extra) > len(finite):
-            parts.append(f"{len(extra) - len(finite)} are predicted to need more than any number of replicate sets "
-                         "at this spp (more spp, a settled FD step or a wider target)")
-        if len(rest) > len(quoted):
-            parts.append(f"{len(rest) - len(quoted)} were not quoted (no prediction)")
-        lines.append(text + f"; of the other {len(rest)}, " + ", ".join(parts) + ".")
     return lines
+
+
+def _quoted_cost(mine: list[dict], rest: list[float], seconds_per_sample: float | None) -> str:
+    """What the precision records at the quoted θ (`mine`, one noise model) say, whether or not the curve resolved
+    their grid point: how many met their target, the extra pixel-samples of the others summed over θ with their time
+    at `seconds_per_sample` (None: no time), how many no number of sets is predicted to meet, and how many of the
+    curve's unresolved θ (`rest`) were not quoted."""
+    met = sum(r["met"] for r in mine)
+    extra = [r["extra_pixel_samples"] for r in mine if not r["met"]]
+    finite = [x for x in extra if math.isfinite(x)]
+    goals = " / ".join(f"±{fmt(100 * g, 3)} %" for g in sorted({r["target"] for r in mine}))
+    parts = [f"{met} met {goals}"]
+    if finite:
+        total = sum(finite)
+        when = (f", ≈ {describe(total * seconds_per_sample)} on this machine at its measured "
+                f"{seconds_per_sample * 1e9:.3g} ns per pixel-sample" if seconds_per_sample else "")
+        parts.append(f"{len(finite)} would need ≈ {total:.3g} more pixel-samples (each θ's prediction, summed{when})")
+    if len(extra) > len(finite):
+        parts.append(f"{len(extra) - len(finite)} are predicted to need more than any number of replicate sets at this "
+                     "spp (more spp, a settled FD step or a wider target)")
+    quoted = [next(iter(r["theta"].values())) for r in mine]
+    unquoted = sum(not any(math.isclose(q, t, rel_tol=1e-9, abs_tol=1e-12) for q in quoted) for t in rest)
+    tail = f"; {unquoted} unresolved θ not quoted (no prediction)" if unquoted else ""
+    return f"at the {len(mine)} quoted θ, " + ", ".join(parts) + tail + "."
 
 
 def _curve_cost(own: list[dict], G: int, seconds_per_sample: float | None) -> str:
