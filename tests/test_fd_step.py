@@ -273,6 +273,12 @@ def test_a_step_tolerance_per_theta_gives_what_each_theta_gets_alone():
         with pytest.raises(ValueError, match=match):
             svc.at([[0.507], [0.3]], 16, fd_step=[0.008, 0.032], step_tol=bad, **kw)
         assert bank.renders == 0
+    svc, bank = service()  # `fisher` and a curve's own check take one tolerance (`curve`'s quoted bounds one each)
+    for call in (lambda: svc.fisher([[0.5]], 16, fd_step=0.01, step_tol=[0.1]),
+                 lambda: svc.curve([0.2, 0.5, 0.8], 16, step_tol=[0.1, 0.1, 0.1])):
+        with pytest.raises(ValueError, match=r"step_tol must be a positive number \(e.g. 0.1: F within 10 %\), got"):
+            call()
+    assert bank.renders == 0
 
 
 class _Exit(AnalyticModel):

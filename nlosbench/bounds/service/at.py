@@ -119,7 +119,7 @@ class AtTheta(RenderSets):
         if "barankin" in want and self.params.dim > 1:
             raise ValueError(f"barankin bounds a scalar θ; this model has {list(self.params.names)}")
         p, R = self.params, _need_replicates(replicates)
-        _check_step(fd_step, step_tol, max_halvings)
+        _check_step(fd_step, step_tol, max_halvings, tol_per_theta=True)
         check_precision(precision, budget, looks, want, R)
         thetas = np.asarray(thetas, dtype=np.float64).reshape(-1, p.dim)
         steps, tols = per_theta(fd_step, len(thetas)), per_theta(step_tol, len(thetas), "step_tol", "tolerance")

@@ -167,7 +167,7 @@ class Curves(RenderSets):
         R = _need_replicates(replicates)
         _check_step(fd_step or 1.0, step_tol, max_halvings)
         quote_tol = step_tol if quote_step_tol is None else quote_step_tol
-        _check_step(1.0 if quote_step is None else quote_step, quote_tol, max_halvings)
+        _check_step(1.0 if quote_step is None else quote_step, quote_tol, max_halvings, tol_per_theta=True)
         if isinstance(offsets, bool) or not isinstance(offsets, (int, np.integer)) or offsets < 0:
             raise ValueError(f"offsets must be an integer >= 0, got {offsets!r}")
         kinds = ("hcr", "crlb") if crlb else ("hcr",)

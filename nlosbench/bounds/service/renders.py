@@ -163,7 +163,7 @@ class RenderSets:
         hopeless (`fd_step.halving` at that θ's `step_tol`, one for all or one per θ: converged and not falling; an
         SE no halving can shrink), at most `max_halvings` times. stage_fn(index array, ξ (one per index)) gives the
         stages of those θ."""
-        _check_step(step, step_tol, max_halvings)
+        _check_step(step, step_tol, max_halvings, tol_per_theta=True)
         xi, tol = per_theta(step, len(thetas)), per_theta(step_tol, len(thetas), "step_tol", "tolerance")
         stages: list[list[Stage]] = [[] for _ in thetas]
         active = np.arange(len(thetas))
@@ -242,14 +242,14 @@ def _flat(J: torch.Tensor) -> np.ndarray:
     return J.reshape(J.shape[0], 1, -1).double().numpy()
 
 
-def _check_step(step, step_tol, max_halvings) -> None:
-    """ValueError unless `step` and `step_tol` are positive numbers (or sequences of them: one per θ) and
-    max_halvings an integer in [0, 12]."""
+def _check_step(step, step_tol, max_halvings, tol_per_theta: bool = False) -> None:
+    """ValueError unless `step` is a positive number (or a sequence of them: one per θ), `step_tol` one (a sequence
+    too where `tol_per_theta`) and max_halvings an integer in [0, 12]."""
     if not _positive(step):
         raise ValueError(f"fd_step must be a positive number of parameter units (or one per θ), got {step!r}")
-    if not _positive(step_tol):
-        raise ValueError(f"step_tol must be a positive number (e.g. 0.1: F within 10 %) or one per θ, got "
-                         f"{step_tol!r}")
+    if not _positive(step_tol) or (not tol_per_theta and isinstance(step_tol, (list, tuple, np.ndarray))):
+        raise ValueError(f"step_tol must be a positive number (e.g. 0.1: F within 10 %)"
+                         f"{' or one per θ' if tol_per_theta else ''}, got {step_tol!r}")
     if isinstance(max_halvings, bool) or int(max_halvings) != max_halvings or not 0 <= max_halvings <= 12:
         raise ValueError(f"max_halvings must be an integer in [0, 12], got {max_halvings!r}")
 
