@@ -147,17 +147,18 @@ class AtTheta(RenderSets):
                       cost, spp, self.bank)
 
     def _at(self, thetas: np.ndarray, fd_step: np.ndarray, R: int, first: int, spp: int, want: Sequence[str],
-            seeds: str, test_grid: int, offsets: int, levels: Sequence[int], noises, step_tol: np.ndarray,
+            seeds: str, test_grid: int, offsets: int, levels: Sequence[int], noises, step_tol,
             max_halvings: int, keep: dict | None = None, fd_start: np.ndarray | None = None,
             halvings: int | None = None, tested: dict | None = None) -> list[BoundPoint]:
         """`at` on the replicate sets first … first + R − 1 at the service's level, θ*'s first FD step `fd_step`
-        (T,) and step tolerance `step_tol` (T,); `keep`, when given, is filled with {(noise index, θ index): the raw
-        data a precision plan needs (`precision.Raw`)}; a precision look's FD stages start at `fd_start` (T,) and
-        halve at most `halvings` times (None: `fd_step`, `max_halvings`; the axis offsets keep `fd_step` as their
-        base), and where `tested` {θ index: mask or None} gives a mask over θ*'s test points (the grid's other
-        points, then the offsets) only those are rendered and tested."""
+        (T,) and step tolerance `step_tol` (one, or (T,)); `keep`, when given, is filled with {(noise index, θ
+        index): the raw data a precision plan needs (`precision.Raw`)}; a precision look's FD stages start at
+        `fd_start` (T,) and halve at most `halvings` times (None: `fd_step`, `max_halvings`; the axis offsets keep
+        `fd_step` as their base), and where `tested` {θ index: mask or None} gives a mask over θ*'s test points (the
+        grid's other points, then the offsets) only those are rendered and tested."""
         p = self.params
         grid = p.grid(test_grid)
+        step_tol = per_theta(step_tol, len(thetas), "step_tol", "tolerance")
         need_alt = bool({"hcr", "hcr_neff", "barankin", "hcr_hat"} & set(want))
         need_fi = bool({"hcr", "crlb", "crlb_each"} & set(want))
         center = self.replicates(thetas, spp, seeds, R, "bound renders at θ*", first).double()
